@@ -1,0 +1,196 @@
+"""The one home of every small-angle and near-singular series in torchlie.
+
+Every coefficient is a function of ``t2 = theta**2`` (never of ``theta``), so that it is smooth
+at 0 to every order.  Each is evaluated with the *double where* pattern: the exact formula is fed
+a safe argument wherever the series branch is taken, so the branch not taken produces no
+Inf/NaN in the forward pass **or** in any backward pass.  Thresholds come from the dtype's
+machine epsilon: the series is used where its first omitted term is below epsilon (relative), and
+the exact formula is written so that it does not cancel catastrophically above the threshold.
+
+Notation (theta = rotation angle):
+
+=================  ==============================================  =========================
+name               value                                            series at 0
+=================  ==============================================  =========================
+``sinc``           sin(t) / t                                       1 - t2/6 + ...
+``cosc``           (1 - cos t) / t2                                 1/2 - t2/24 + ...
+``sinc3``          (t - sin t) / t**3                               1/6 - t2/120 + ...
+``cosc4``          (t2/2 + cos t - 1) / t2**2                       1/24 - t2/720 + ...
+``sinc5``          (t**3/6 - t + sin t) / t**5                      1/120 - t2/5040 + ...
+``jinv``           (1 - (t/2) cot(t/2)) / t2                        1/12 + t2/720 + ...
+``atan_ratio``     atan2(n, w) / n  (for n >= 0)                    (1/w)(1 - (n/w)**2/3 + ...)
+=================  ==============================================  =========================
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import torch
+from torch import Tensor
+
+# --------------------------------------------------------------------------------------------
+# Series coefficients (exact rationals, converted to float once).
+# --------------------------------------------------------------------------------------------
+
+
+def _alt_factorial_series(offset: int, n: int) -> list[float]:
+    """Coefficients of sum_k (-1)^k t2^k / (2k + offset)!."""
+    return [(-1) ** k / math.factorial(2 * k + offset) for k in range(n)]
+
+
+_N_MAX = 12
+_SINC = _alt_factorial_series(1, _N_MAX)
+_COSC = _alt_factorial_series(2, _N_MAX)
+_SINC3 = _alt_factorial_series(3, _N_MAX)
+_COSC4 = _alt_factorial_series(4, _N_MAX)
+_SINC5 = _alt_factorial_series(5, _N_MAX)
+_ATAN = [(-1) ** k / (2 * k + 1) for k in range(_N_MAX)]
+
+# Number of series terms per function: (float32, float64).  Functions whose exact formula is
+# free of cancellation need few terms; those whose exact formula cancels (sinc3, cosc4, sinc5)
+# use more terms, so that the series reaches angles where the exact formula is accurate again.
+_TERMS = {
+    "sinc": (2, 3),
+    "cosc": (2, 3),
+    "atan": (2, 3),
+    "sinc3": (4, 8),
+    "cosc4": (5, 10),
+    "sinc5": (5, 10),
+}
+_SERIES = {
+    "sinc": _SINC,
+    "cosc": _COSC,
+    "atan": _ATAN,
+    "sinc3": _SINC3,
+    "cosc4": _COSC4,
+    "sinc5": _SINC5,
+}
+
+
+@lru_cache(maxsize=None)
+def _plan(name: str, dtype: torch.dtype) -> tuple[tuple[float, ...], float]:
+    """Series coefficients used and the t2 threshold below which the series is exact to eps."""
+    n = _TERMS[name][1 if dtype == torch.float64 else 0]
+    c = _SERIES[name]
+    eps = torch.finfo(dtype).eps
+    # first omitted term |c_n| t2^n below eps * |c_0|
+    thr2 = (eps * abs(c[0]) / abs(c[n])) ** (1.0 / n)
+    return tuple(c[:n]), thr2
+
+
+def threshold(name: str, dtype: torch.dtype) -> float:
+    """The t2 (= theta**2) threshold of a coefficient for ``dtype`` (for tests and docs)."""
+    return _plan(name, dtype)[1]
+
+
+def _horner(t2: Tensor, coeffs: tuple[float, ...]) -> Tensor:
+    acc = torch.full_like(t2, coeffs[-1])
+    for c in coeffs[-2::-1]:
+        acc = acc * t2 + c
+    return acc
+
+
+def _series_where(name: str, t2: Tensor, exact) -> Tensor:
+    coeffs, thr2 = _plan(name, t2.dtype)
+    small = t2 < thr2
+    safe = torch.where(small, torch.ones_like(t2), t2)
+    return torch.where(small, _horner(t2, coeffs), exact(safe))
+
+
+# --------------------------------------------------------------------------------------------
+# Coefficient functions of t2 = theta**2
+# --------------------------------------------------------------------------------------------
+
+
+def sinc(t2: Tensor) -> Tensor:
+    """sin(theta)/theta."""
+
+    def exact(s: Tensor) -> Tensor:
+        t = s.sqrt()
+        return torch.sin(t) / t
+
+    return _series_where("sinc", t2, exact)
+
+
+def cosc(t2: Tensor) -> Tensor:
+    """(1 - cos(theta))/theta**2, computed as 2 sin(theta/2)**2 / theta**2 (no cancellation)."""
+
+    def exact(s: Tensor) -> Tensor:
+        h = 0.5 * s.sqrt()
+        r = torch.sin(h) / h
+        return 0.5 * r * r
+
+    return _series_where("cosc", t2, exact)
+
+
+def sinc3(t2: Tensor) -> Tensor:
+    """(theta - sin(theta))/theta**3."""
+
+    def exact(s: Tensor) -> Tensor:
+        t = s.sqrt()
+        return (t - torch.sin(t)) / (s * t)
+
+    return _series_where("sinc3", t2, exact)
+
+
+def cosc4(t2: Tensor) -> Tensor:
+    """(theta**2/2 + cos(theta) - 1)/theta**4  ( = (1/2 - cosc)/theta**2 )."""
+
+    def exact(s: Tensor) -> Tensor:
+        h = 0.5 * s.sqrt()
+        r = torch.sin(h) / h
+        return (0.5 - 0.5 * r * r) / s
+
+    return _series_where("cosc4", t2, exact)
+
+
+def sinc5(t2: Tensor) -> Tensor:
+    """(theta**3/6 - theta + sin(theta))/theta**5  ( = (1/6 - sinc3)/theta**2 )."""
+
+    def exact(s: Tensor) -> Tensor:
+        t = s.sqrt()
+        return (t * s / 6.0 - t + torch.sin(t)) / (s * s * t)
+
+    return _series_where("sinc5", t2, exact)
+
+
+def jinv(t2: Tensor) -> Tensor:
+    """(1 - (theta/2) cot(theta/2))/theta**2, the hat(w)^2 coefficient of the inverse Jacobians.
+
+    Composed as (sinc3 - 2 cosc4) / (2 cosc), whose pieces are each accurate, so no extra
+    cancellation enters.  Finite on [0, 2*pi); in particular jinv(pi**2) = 1/pi**2.
+    """
+    return (sinc3(t2) - 2.0 * cosc4(t2)) / (2.0 * cosc(t2))
+
+
+def atan_ratio(n: Tensor, w: Tensor) -> Tensor:
+    """atan2(n, w)/n for n >= 0: the angle of a quaternion over the norm of its vector part.
+
+    Smooth at n = 0 when w > 0 (value 1/w).  At n = 0 with w <= 0 the value is infinite; the
+    result there is replaced by 0 (the caller decides what the singular point means).
+    """
+    coeffs, thr = _plan("atan", n.dtype)
+    r2 = (n * n) / torch.where(w > 0, w * w, torch.ones_like(w))
+    small = (r2 < thr) & (w > 0)
+    safe_w = torch.where(small, torch.ones_like(w), w)
+    ok = n > 0
+    safe_n = torch.where(small | ~ok, torch.ones_like(n), n)
+    exact = torch.where(ok, torch.atan2(safe_n, safe_w) / safe_n, torch.zeros_like(n))
+    series = _horner(r2, coeffs) / torch.where(w > 0, w, torch.ones_like(w))
+    return torch.where(small, series, exact)
+
+
+def norm(v: Tensor, dim: int = -1, keepdim: bool = False) -> Tensor:
+    """Euclidean norm whose gradient at v = 0 is 0 (a subgradient) instead of NaN."""
+    n2 = (v * v).sum(dim=dim, keepdim=keepdim)
+    pos = n2 > 0
+    safe = torch.where(pos, n2, torch.ones_like(n2))
+    return torch.where(pos, safe.sqrt(), torch.zeros_like(n2))
+
+
+def sqrt_pos(x: Tensor, floor: float = 0.0) -> Tensor:
+    """sqrt(max(x, floor)) with a finite gradient everywhere (zero below the floor)."""
+    tiny = torch.finfo(x.dtype).tiny if floor == 0.0 else floor
+    return torch.clamp_min(x, tiny).sqrt()
