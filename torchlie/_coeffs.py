@@ -25,7 +25,7 @@ name               value                                            series at 0
 from __future__ import annotations
 
 import math
-from functools import lru_cache
+from functools import cache
 
 import torch
 from torch import Tensor
@@ -69,7 +69,7 @@ _SERIES = {
 }
 
 
-@lru_cache(maxsize=None)
+@cache
 def _plan(name: str, dtype: torch.dtype) -> tuple[tuple[float, ...], float]:
     """Series coefficients used and the t2 threshold below which the series is exact to eps."""
     n = _TERMS[name][1 if dtype == torch.float64 else 0]
