@@ -85,24 +85,27 @@ def _abc_matrix(a: Tensor, b: Tensor, c: Tensor, w: Tensor) -> Tensor:
 
 def _jl_apply(w: Tensor, v: Tensor, sign: float = 1.0) -> Tensor:
     """``Jl(w) v`` (``sign=1``) or ``Jr(w) v = Jl(-w) v`` (``sign=-1``), without a matrix."""
-    t2 = (w * w).sum(-1, keepdim=True)
+    t2 = _coeffs.theta2(w, keepdim=True)
+    b, c = _coeffs.cosc(t2).to(w.dtype), _coeffs.sinc3(t2).to(w.dtype)
     wxv = torch.linalg.cross(w, v, dim=-1)
     wxwxv = torch.linalg.cross(w, wxv, dim=-1)
-    return v + sign * _coeffs.cosc(t2) * wxv + _coeffs.sinc3(t2) * wxwxv
+    return v + sign * b * wxv + c * wxwxv
 
 
 def _jl_inv_apply(w: Tensor, v: Tensor, sign: float = 1.0) -> Tensor:
     """``Jl(w)^-1 v`` (``sign=1``) or ``Jr(w)^-1 v`` (``sign=-1``), without a matrix."""
-    t2 = (w * w).sum(-1, keepdim=True)
+    t2 = _coeffs.theta2(w, keepdim=True)
+    d = _coeffs.jinv(t2).to(w.dtype)
     wxv = torch.linalg.cross(w, v, dim=-1)
     wxwxv = torch.linalg.cross(w, wxv, dim=-1)
-    return v - sign * 0.5 * wxv + _coeffs.jinv(t2) * wxwxv
+    return v - sign * 0.5 * wxv + d * wxwxv
 
 
 def _exp(w: Tensor) -> Tensor:
-    t2 = (w * w).sum(-1)
+    t2 = _coeffs.theta2(w)
     b = _coeffs.cosc(t2)
-    return _abc_matrix(1.0 - b * t2, _coeffs.sinc(t2), b, w)
+    a, c = _coeffs.sinc(t2).to(w.dtype), (1.0 - b * t2).to(w.dtype)
+    return _abc_matrix(c, a, b.to(w.dtype), w)
 
 
 def _log(R: Tensor) -> Tensor:
@@ -281,7 +284,7 @@ def adjoint(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3 3"]:
 
 def _jac(fn: str, omega: Tensor, kind: str) -> Tensor:
     w, dtype = _checks.tensor(omega, _NAME + fn, "omega", (3,))
-    t2 = (w * w).sum(-1)
+    t2 = _coeffs.theta2(w)
     if kind in ("left", "right"):
         b = _coeffs.cosc(t2) * (1.0 if kind == "left" else -1.0)
         c = _coeffs.sinc3(t2)
@@ -289,7 +292,8 @@ def _jac(fn: str, omega: Tensor, kind: str) -> Tensor:
         b = torch.full_like(t2, -0.5 if kind == "left_inv" else 0.5)
         c = _coeffs.jinv(t2)
     # I + b hat + c hat^2 = (1 - c t2) I + b hat + c w w^T
-    return _checks.out(_abc_matrix(1.0 - c * t2, b, c, w), dtype)
+    a = (1.0 - c * t2).to(w.dtype)
+    return _checks.out(_abc_matrix(a, b.to(w.dtype), c.to(w.dtype), w), dtype)
 
 
 def jac_left(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
