@@ -25,7 +25,6 @@ name               value                                            series at 0
 from __future__ import annotations
 
 import math
-from functools import cache
 
 import torch
 from torch import Tensor
@@ -69,8 +68,7 @@ _SERIES = {
 }
 
 
-@cache
-def _plan(name: str, dtype: torch.dtype) -> tuple[tuple[float, ...], float]:
+def _make_plan(name: str, dtype: torch.dtype) -> tuple[tuple[float, ...], float]:
     """Series coefficients used and the t2 threshold below which the series is exact to eps."""
     n = _TERMS[name][1 if dtype == torch.float64 else 0]
     c = _SERIES[name]
@@ -78,6 +76,18 @@ def _plan(name: str, dtype: torch.dtype) -> tuple[tuple[float, ...], float]:
     # first omitted term |c_n| t2^n below eps * |c_0|
     thr2 = (eps * abs(c[0]) / abs(c[n])) ** (1.0 / n)
     return tuple(c[:n]), thr2
+
+
+# Precomputed once: plain dict look-ups trace cleanly under torch.compile.
+_PLANS = {
+    (name, dtype): _make_plan(name, dtype)
+    for name in _TERMS
+    for dtype in (torch.float16, torch.bfloat16, torch.float32, torch.float64)
+}
+
+
+def _plan(name: str, dtype: torch.dtype) -> tuple[tuple[float, ...], float]:
+    return _PLANS[(name, dtype)]
 
 
 def threshold(name: str, dtype: torch.dtype) -> float:
