@@ -33,7 +33,7 @@ Python on tensor values, so every op works under ``torch.compile(fullgraph=True)
 ``torch.func.vmap`` / ``jacrev`` / ``jacfwd`` and on CUDA.
 """
 
-from . import quaternion, so3
+from . import conversions, quaternion, so3
 
-__all__ = ["quaternion", "so3"]
+__all__ = ["conversions", "quaternion", "so3"]
 __version__ = "0.1.0"

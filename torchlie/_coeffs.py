@@ -179,31 +179,43 @@ def atan_ratio(n: Tensor, w: Tensor) -> Tensor:
     """atan2(n, w)/n for n >= 0: the angle of a quaternion over the norm of its vector part.
 
     Smooth at n = 0 when w > 0 (value 1/w).  At n = 0 with w <= 0 the value is infinite; the
-    result there is replaced by 0 (the caller decides what the singular point means).
+    result there is replaced by 0 (the caller decides what the singular point means).  The
+    series branch is selected without dividing by w, and only its own elements see ``n/w``, so
+    no branch overflows in the backward pass (e.g. at w ~ 1e-17, n ~ 1: a rotation by pi).
     """
     coeffs, thr = _plan("atan", n.dtype)
-    r2 = (n * n) / torch.where(w > 0, w * w, torch.ones_like(w))
-    small = (r2 < thr) & (w > 0)
-    safe_w = torch.where(small, torch.ones_like(w), w)
+    small = (w > 0) & (n * n < thr * (w * w))
+    w_s = torch.where(small, w, torch.ones_like(w))
+    r2 = torch.where(small, n * n, torch.zeros_like(n)) / (w_s * w_s)
+    series = _horner(r2, coeffs) / w_s
     ok = n > 0
-    safe_n = torch.where(small | ~ok, torch.ones_like(n), n)
-    exact = torch.where(ok, torch.atan2(safe_n, safe_w) / safe_n, torch.zeros_like(n))
-    series = _horner(r2, coeffs) / torch.where(w > 0, w, torch.ones_like(w))
+    n_e = torch.where(small | ~ok, torch.ones_like(n), n)
+    w_e = torch.where(small, torch.ones_like(w), w)
+    exact = torch.where(ok, torch.atan2(n_e, w_e) / n_e, torch.zeros_like(n))
     return torch.where(small, series, exact)
 
 
+def cos_sqrt(t2: Tensor) -> Tensor:
+    """cos(sqrt(t2)) to a few ulp at every t2 >= 0, with finite derivatives of all orders at 0.
+
+    ``1 - t2 cosc(t2)`` below t2 = 1 (the subtraction loses at most one bit there, and the
+    derivative at 0 is the series'), ``cos(sqrt(t2))`` above (accurate near pi/2, where the
+    first form cancels); double where.
+    """
+    small = t2 < 1.0
+    safe = torch.where(small, torch.ones_like(t2), t2)
+    return torch.where(small, 1.0 - t2 * cosc(t2), torch.cos(safe.sqrt()))
+
+
+def sqrt0(x: Tensor) -> Tensor:
+    """sqrt(x) for x >= 0 with a zero (finite) gradient at 0; NaN stays NaN."""
+    pos = x > 0
+    return torch.where(pos, torch.where(pos, x, torch.ones_like(x)).sqrt(), x)
+
+
 def norm(v: Tensor, dim: int = -1, keepdim: bool = False) -> Tensor:
-    """Euclidean norm whose gradient at v = 0 is 0 (a subgradient) instead of NaN."""
-    n2 = (v * v).sum(dim=dim, keepdim=keepdim)
-    pos = n2 > 0
-    safe = torch.where(pos, n2, torch.ones_like(n2))
-    return torch.where(pos, safe.sqrt(), torch.zeros_like(n2))
-
-
-def sqrt_pos(x: Tensor, floor: float = 0.0) -> Tensor:
-    """sqrt(max(x, floor)) with a finite gradient everywhere (zero below the floor)."""
-    tiny = torch.finfo(x.dtype).tiny if floor == 0.0 else floor
-    return torch.clamp_min(x, tiny).sqrt()
+    """Euclidean norm whose gradient at v = 0 is 0 (a subgradient) instead of NaN; NaN stays."""
+    return sqrt0((v * v).sum(dim=dim, keepdim=keepdim))
 
 
 def theta2(w: Tensor, keepdim: bool = False) -> Tensor:

@@ -3,14 +3,17 @@
 ``q`` and ``-q`` are the same rotation.  The *canonical* representative has ``w > 0``; when
 ``w == 0`` (a rotation by exactly pi) it is the one whose largest-magnitude vector component is
 positive (the first such component on ties).  :func:`canonicalize`, :func:`from_matrix` and
-:func:`from_rotvec` at pi all follow that rule, so ``torchlie.so3.log`` at pi is deterministic.
+:func:`to_rotvec` (at pi) all follow that rule, so ``torchlie.so3.log`` at pi is deterministic.
 
 A quaternion acts on a point ``p`` as ``q * [0, p] * conj(q)``; :func:`to_matrix` gives the
 matrix ``R`` with ``R @ p`` equal to that rotation (column vectors).  Products compose like
 matrices: ``to_matrix(multiply(q1, q2)) == to_matrix(q1) @ to_matrix(q2)``.
 
-A zero quaternion has no rotation: functions that normalise return NaN for that batch element
-(never a silent identity).
+Functions that read a rotation from ``q`` (:func:`to_matrix`, :func:`apply`, :func:`to_rotvec`,
+:func:`slerp`) are invariant to its scale.  A zero quaternion has no rotation: those functions,
+:func:`normalize`, :func:`inverse` and :func:`log` return NaN for that batch element (never a
+silent identity).  Other layouts and conventions convert at the boundary: :func:`to_xyzw`,
+:func:`to_jpl` (scalar last, flipped product) and :func:`to_su2` (2x2 complex matrices).
 """
 
 from __future__ import annotations
@@ -19,17 +22,35 @@ import torch
 from torch import Tensor
 
 from . import _checks, _coeffs
-from ._typing import Float
+from ._typing import Bool, Float, Shaped
 
 __all__ = [
     "multiply",
     "conjugate",
+    "inverse",
     "normalize",
     "canonicalize",
+    "apply",
+    "exp",
+    "log",
+    "slerp",
     "from_matrix",
     "to_matrix",
     "from_rotvec",
     "to_rotvec",
+    "identity",
+    "random",
+    "is_unit",
+    "to_xyzw",
+    "from_xyzw",
+    "to_jpl",
+    "from_jpl",
+    "left_matrix",
+    "right_matrix",
+    "to_su2",
+    "from_su2",
+    "derivative",
+    "integrate",
 ]
 
 
@@ -237,12 +258,13 @@ def from_rotvec(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 4"]:
 
 
 def _from_rotvec(omega: Tensor) -> Tensor:
-    t2 = (omega * omega).sum(-1, keepdim=True)
-    h2 = 0.25 * t2  # (t/2)^2
-    # cos(t/2) = 1 - 2 sin^2(t/4) = 1 - h2 * cosc(h2)... computed as 1 - 2 (h/2)^2 sinc(h/2)^2
-    half = 0.5 * _coeffs.sinc(h2) * omega  # sin(t/2)/t * omega
-    w = 1.0 - h2 * _coeffs.cosc(h2)  # cos(t/2), accurate at small t
-    return torch.cat((w, half), dim=-1)
+    return _exp_pure(0.5 * omega)
+
+
+def _exp_pure(a: Tensor) -> Tensor:
+    """``exp([0, a]) = [cos|a|, sin|a| a/|a|]`` for ``a`` of shape ``(..., 3)``; smooth at 0."""
+    t2 = (a * a).sum(-1, keepdim=True)
+    return torch.cat((_coeffs.cos_sqrt(t2), _coeffs.sinc(t2) * a), dim=-1)
 
 
 def to_rotvec(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 3"]:
@@ -269,3 +291,497 @@ def _to_rotvec(q: Tensor) -> Tensor:
     ratio = _coeffs.atan_ratio(n, w)
     ratio = torch.where(bad, torch.full_like(ratio, float("nan")), ratio)
     return 2.0 * ratio * v
+
+
+# ----------------------------------------------------------------------------------------------
+# Shared private helpers
+# ----------------------------------------------------------------------------------------------
+
+
+def _cross(a: Tensor, b: Tensor) -> Tensor:
+    """``a x b`` from components (batch shapes broadcast)."""
+    ax, ay, az = a.unbind(-1)
+    bx, by, bz = b.unbind(-1)
+    return torch.stack((ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx), dim=-1)
+
+
+def _pure(v: Tensor) -> Tensor:
+    """The pure quaternion ``[0, v]``."""
+    return torch.cat((torch.zeros_like(v[..., :1]), v), dim=-1)
+
+
+def _param(x: Tensor | float, fn: str, arg: str, like: Tensor) -> Tensor:
+    """A float or floating tensor parameter (``t``, ``dt``) in the compute dtype of ``like``."""
+    if not isinstance(x, Tensor):
+        if isinstance(x, bool) or not isinstance(x, (int, float)):
+            raise TypeError(
+                f"{fn}: expected {arg} to be a float or a tensor, got {type(x).__name__}"
+            )
+        return torch.tensor(float(x), dtype=like.dtype, device=like.device)
+    if not x.is_floating_point():
+        raise TypeError(
+            f"{fn}: expected {arg} to be a float or floating-point tensor, got {x.dtype}"
+        )
+    return x.to(like.dtype)
+
+
+_FRAMES = ("body", "world")
+
+
+def _check_frame(fn: str, frame: str) -> None:
+    if frame not in _FRAMES:
+        raise ValueError(f"{fn}: expected frame 'body' or 'world', got {frame!r}")
+
+
+# ----------------------------------------------------------------------------------------------
+# Group operations
+# ----------------------------------------------------------------------------------------------
+
+
+def inverse(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
+    """Multiplicative inverse ``conj(q) / |q|^2`` (equal to :func:`conjugate` for unit ``q``).
+
+    ``multiply(q, inverse(q))`` is the identity for every non-zero ``q``; a zero quaternion
+    gives NaN for that element.
+
+    Example:
+        >>> inverse(torch.tensor([0.0, 0.0, 2.0, 0.0]))
+        tensor([ 0.0000, -0.0000, -0.5000, -0.0000])
+    """
+    x, dtype = _checks.tensor(q, "torchlie.quaternion.inverse", "q", (4,))
+    return _checks.out(_inverse(x), dtype)
+
+
+def _inverse(q: Tensor) -> Tensor:
+    return _conjugate(q) / (q * q).sum(-1, keepdim=True)
+
+
+def apply(q: Float[Tensor, "*b1 4"], points: Float[Tensor, "*b2 3"]) -> Float[Tensor, "*b 3"]:
+    """Rotate points by ``q``: ``to_matrix(q) @ p`` without forming the matrix (batches broadcast).
+
+    Cross-product form of ``q [0, p] q^-1``: with ``q = [w, v]`` and ``s = 2 / |q|^2``,
+    ``t = s (v x p)`` and ``p' = p + w t + v x t``.  The factor ``s`` makes the result
+    invariant to the scale of ``q`` (like :func:`to_matrix`), so ``q`` need not be exactly
+    unit; a zero quaternion gives NaN for that element.
+
+    Example:
+        >>> q = torch.tensor([0.0, 0.0, 0.0, 1.0])  # pi about z
+        >>> apply(q, torch.tensor([1.0, 2.0, 3.0]))
+        tensor([-1., -2.,  3.])
+    """
+    fn = "torchlie.quaternion.apply"
+    a, dtype = _checks.tensor(q, fn, "q", (4,))
+    p, _ = _checks.tensor(points, fn, "points", (3,))
+    _checks.same_dtype(fn, q=q, points=points)
+    _checks.batch_broadcast(fn, (a.shape[:-1], "q"), (p.shape[:-1], "points"))
+    return _checks.out(_apply(a, p), dtype)
+
+
+def _apply(q: Tensor, p: Tensor) -> Tensor:
+    w = q[..., :1]
+    v = q[..., 1:]
+    s = 2.0 / (q * q).sum(-1, keepdim=True)
+    t = s * _cross(v, p)
+    return p + w * t + _cross(v, t)
+
+
+def exp(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
+    """Exponential of a general quaternion: ``exp([s, v]) = e^s [cos|v|, sin|v| v/|v|]``.
+
+    Exact and smooth at ``v = 0`` (series in ``|v|^2``); gradients are finite everywhere.  For a
+    rotation vector ``omega``, ``exp([0, omega/2])`` is :func:`from_rotvec` ``(omega)``.
+
+    Example:
+        >>> exp(torch.tensor([1.0, 0.0, 0.0, 0.0]))
+        tensor([2.7183, 0.0000, 0.0000, 0.0000])
+        >>> exp(torch.tensor([0.0, 0.0, torch.pi / 4, 0.0]))  # pi/2 about y
+        tensor([0.7071, 0.0000, 0.7071, 0.0000])
+    """
+    x, dtype = _checks.tensor(q, "torchlie.quaternion.exp", "q", (4,))
+    return _checks.out(_exp(x), dtype)
+
+
+def _exp(q: Tensor) -> Tensor:
+    return torch.exp(q[..., :1]) * _exp_pure(q[..., 1:])
+
+
+def log(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
+    """Principal logarithm of a general quaternion: ``[ln|q|, atan2(|v|, w) v/|v|]``.
+
+    The vector part has norm in ``[0, pi]`` (for a unit ``q`` it is half the rotation vector
+    of ``q``, not of ``canonicalize(q)``, so its norm exceeds ``pi/2`` when ``w < 0``);
+    ``exp(log(q)) == q`` for every non-zero ``q``.  Smooth at ``v = 0`` for ``w > 0`` (value
+    ``[ln w, v/w]`` to first order).  On the branch cut ``v = 0, w < 0`` (the negative reals,
+    where every ``pi u``, ``u`` a unit vector, is a logarithm) the value is
+    ``[ln|w|, pi, 0, 0]``, i.e. ``u`` is the x axis, as the canonical rule's first-on-ties
+    choice would give; its gradient there is finite.  Zero quaternion: NaN.
+
+    Gradient meaning: the vector part is invariant to the scale of ``q``, so its ordinary
+    gradient is already the projected one (no custom backward is needed); it is finite
+    wherever ``log`` is differentiable (everywhere except the branch cut).
+
+    Example:
+        >>> log(torch.tensor([0.0, 0.0, 0.0, 2.0]))
+        tensor([0.6931, 0.0000, 0.0000, 1.5708])
+        >>> log(torch.tensor([-1.0, 0.0, 0.0, 0.0]))
+        tensor([0.0000, 3.1416, 0.0000, 0.0000])
+    """
+    x, dtype = _checks.tensor(q, "torchlie.quaternion.log", "q", (4,))
+    return _checks.out(_log(x), dtype)
+
+
+def _log(q: Tensor) -> Tensor:
+    w = q[..., :1]
+    v = q[..., 1:]
+    n2 = (v * v).sum(-1, keepdim=True)
+    n = _coeffs.norm(v, keepdim=True)
+    # atan_ratio is smooth at n = 0 for w > 0 and returns 0 (finite, with a finite gradient)
+    # where n = 0 and w <= 0; those points are fixed below.
+    vec = _coeffs.atan_ratio(n, w) * v
+    cut = torch.cat((torch.full_like(w, torch.pi), torch.zeros_like(v[..., 1:])), dim=-1)
+    vec = torch.where((n == 0) & (w < 0), cut, vec)
+    out = torch.cat((0.5 * torch.log(w * w + n2), vec), dim=-1)
+    zero = (n == 0) & (w == 0)
+    return torch.where(zero, torch.full_like(out, float("nan")), out)
+
+
+def slerp(
+    q0: Float[Tensor, "*b1 4"], q1: Float[Tensor, "*b2 4"], t: Float[Tensor, "*b3"] | float
+) -> Float[Tensor, "*b 4"]:
+    """Spherical linear interpolation along the shortest path (``t`` broadcasts with the batch).
+
+    Inputs are normalised first; the result is the unit quaternion
+    ``q0 exp(t log(q0^-1 q1'))``, with ``q1' = -q1`` when ``dot(q0, q1) < 0`` so that the path
+    is the shorter of the two arcs (at ``dot == 0`` the two are equally long and ``q1`` is kept).
+    ``t = 0`` gives ``q0``, ``t = 1`` gives ``q1'``; other ``t`` extrapolate.  Written with the
+    half-angle vector ``atan2(|r_v|, r_w) r_v/|r_v|`` of ``r = q0^-1 q1'`` and the series of
+    :mod:`torchlie._coeffs`, so it is exact and has finite gradients for nearly equal or equal
+    inputs (no ``0/0`` as in ``sin((1-t) a)/sin(a)``).  Zero quaternion: NaN.
+
+    Example:
+        >>> q0 = torch.tensor([1.0, 0.0, 0.0, 0.0])
+        >>> q1 = torch.tensor([0.0, 0.0, 0.0, 1.0])  # pi about z
+        >>> slerp(q0, q1, 0.5)  # pi/2 about z
+        tensor([0.7071, 0.0000, 0.0000, 0.7071])
+    """
+    fn = "torchlie.quaternion.slerp"
+    a, dtype = _checks.tensor(q0, fn, "q0", (4,))
+    b, _ = _checks.tensor(q1, fn, "q1", (4,))
+    _checks.same_dtype(fn, q0=q0, q1=q1)
+    tt = _param(t, fn, "t", a)
+    _checks.batch_broadcast(fn, (a.shape[:-1], "q0"), (b.shape[:-1], "q1"), (tt.shape, "t"))
+    return _checks.out(_slerp(a, b, tt), dtype)
+
+
+def _slerp(q0: Tensor, q1: Tensor, t: Tensor) -> Tensor:
+    q0 = _normalize(q0)
+    r = _multiply(_conjugate(q0), _normalize(q1))
+    rw = r[..., :1]
+    r = torch.where(rw < 0, -r, r)
+    rw = r[..., :1]
+    rv = r[..., 1:]
+    half = _coeffs.atan_ratio(_coeffs.norm(rv, keepdim=True), rw) * rv
+    return _multiply(q0, _exp_pure(t.unsqueeze(-1) * half))
+
+
+# ----------------------------------------------------------------------------------------------
+# Construction and validation
+# ----------------------------------------------------------------------------------------------
+
+
+def identity(
+    *batch: int, dtype: torch.dtype | None = None, device: torch.device | str | None = None
+) -> Float[Tensor, "*batch 4"]:
+    """Identity quaternions ``(1, 0, 0, 0)`` of shape ``(*batch, 4)``.
+
+    Example:
+        >>> identity(2)
+        tensor([[1., 0., 0., 0.],
+                [1., 0., 0., 0.]])
+    """
+    e = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=dtype, device=device)
+    return e.expand(*batch, 4).clone()
+
+
+def random(
+    *batch: int,
+    generator: torch.Generator | None = None,
+    dtype: torch.dtype | None = None,
+    device: torch.device | str | None = None,
+) -> Float[Tensor, "*batch 4"]:
+    """Uniform random unit quaternions on the 3-sphere (Haar measure), shape ``(*batch, 4)``.
+
+    Normalised Gaussian 4-vectors: uniform on the unit quaternions, hence Haar-uniform
+    rotations.  Not canonicalised (both signs are equally likely).  With the same generator
+    state and dtype, ``to_matrix(random(...))`` equals ``torchlie.so3.random(...)``.
+    float16/bfloat16 are drawn and normalised in float32, then cast.
+
+    Example:
+        >>> q = random(3, generator=torch.Generator().manual_seed(0))
+        >>> is_unit(q)
+        tensor([True, True, True])
+    """
+    low = dtype in (torch.float16, torch.bfloat16)
+    x = torch.randn(
+        *batch, 4, generator=generator, dtype=torch.float32 if low else dtype, device=device
+    )
+    return _checks.out(_normalize(x), dtype if low else x.dtype)
+
+
+def is_unit(q: Float[Tensor, "*b 4"], atol: float | None = None) -> Bool[Tensor, "*b"]:
+    """Per element: finite and ``| |q| - 1 | <= atol``.
+
+    ``atol`` defaults to ``100 * eps`` of float32/float64 (about 1.2e-5 for float32), and to
+    ``4 * eps`` of float16/bfloat16 for those inputs (rounding a unit quaternion to them stays
+    within that).  Reads the values, so keep it out of hot loops on a GPU.
+
+    Example:
+        >>> is_unit(torch.tensor([[1.0, 0.0, 0.0, 0.0], [1.0, 1.0, 0.0, 0.0]]))
+        tensor([ True, False])
+    """
+    x, dtype = _checks.tensor(q, "torchlie.quaternion.is_unit", "q", (4,))
+    if atol is None:
+        atol = 4 * torch.finfo(dtype).eps if dtype != x.dtype else 100 * torch.finfo(x.dtype).eps
+    n = torch.linalg.vector_norm(x, dim=-1)
+    return ((n - 1.0).abs() <= atol) & torch.isfinite(x).all(dim=-1)
+
+
+# ----------------------------------------------------------------------------------------------
+# Other layouts and conventions
+# ----------------------------------------------------------------------------------------------
+
+
+def to_xyzw(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
+    """Reorder to scalar last, ``(x, y, z, w)`` (scipy's default, ROS, Eigen's storage).
+
+    Same Hamilton quaternion, same rotation; only the storage order changes.
+
+    Example:
+        >>> to_xyzw(torch.tensor([1.0, 2.0, 3.0, 4.0]))
+        tensor([2., 3., 4., 1.])
+    """
+    x, dtype = _checks.tensor(q, "torchlie.quaternion.to_xyzw", "q", (4,))
+    return _checks.out(torch.cat((x[..., 1:], x[..., :1]), dim=-1), dtype)
+
+
+def from_xyzw(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
+    """Reorder a scalar-last ``(x, y, z, w)`` Hamilton quaternion to ``(w, x, y, z)``.
+
+    Example:
+        >>> from_xyzw(torch.tensor([2.0, 3.0, 4.0, 1.0]))
+        tensor([1., 2., 3., 4.])
+    """
+    x, dtype = _checks.tensor(q, "torchlie.quaternion.from_xyzw", "q", (4,))
+    return _checks.out(torch.cat((x[..., 3:], x[..., :3]), dim=-1), dtype)
+
+
+def to_jpl(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
+    """The JPL quaternion with the same rotation matrix: ``(-x, -y, -z, w)``.
+
+    The JPL convention (Breckenridge 1979; Trawny & Roumeliotis 2005) stores the scalar last,
+    ``q_jpl = (q1, q2, q3, q4)``, multiplies with ``ij = -k`` (the flipped product
+    ``p (x) q = [p4 q_v + q4 p_v - p_v x q_v, p4 q4 - p_v . q_v]``) and maps a unit quaternion
+    to ``C(q_jpl) = (2 q4^2 - 1) I - 2 q4 [q_v]x + 2 q_v q_v^T``.  This conversion preserves
+    that matrix: ``C(to_jpl(q)) == to_matrix(q)``, and products map to products:
+    ``to_jpl(multiply(q1, q2)) == to_jpl(q1) (x) to_jpl(q2)``.  JPL's ``C`` is read
+    passively (it maps coordinates from the global frame into the local one); if your JPL
+    quaternion ``^L_G q`` stands for the inverse of the rotation that ``q`` stands for (for
+    example ``^B_W q`` of a filter, against ``q_WB`` with ``p_W = to_matrix(q_WB) p_B``), the
+    components are simply reordered: use :func:`to_xyzw` instead.
+
+    Example:
+        >>> to_jpl(torch.tensor([1.0, 2.0, 3.0, 4.0]))
+        tensor([-2., -3., -4.,  1.])
+    """
+    x, dtype = _checks.tensor(q, "torchlie.quaternion.to_jpl", "q", (4,))
+    return _checks.out(torch.cat((-x[..., 1:], x[..., :1]), dim=-1), dtype)
+
+
+def from_jpl(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
+    """Inverse of :func:`to_jpl`: the Hamilton ``(w, x, y, z)`` with ``to_matrix == C(q_jpl)``.
+
+    ``(q1, q2, q3, q4) -> (q4, -q1, -q2, -q3)``; see :func:`to_jpl` for the JPL convention.
+
+    Example:
+        >>> from_jpl(torch.tensor([-2.0, -3.0, -4.0, 1.0]))
+        tensor([1., 2., 3., 4.])
+    """
+    x, dtype = _checks.tensor(q, "torchlie.quaternion.from_jpl", "q", (4,))
+    return _checks.out(torch.cat((x[..., 3:], -x[..., :3]), dim=-1), dtype)
+
+
+def left_matrix(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4 4"]:
+    """``[q]_L``, the 4x4 matrix with ``multiply(q, p) == left_matrix(q) @ p``.
+
+    Example:
+        >>> left_matrix(torch.tensor([1.0, 2.0, 3.0, 4.0]))
+        tensor([[ 1., -2., -3., -4.],
+                [ 2.,  1., -4.,  3.],
+                [ 3.,  4.,  1., -2.],
+                [ 4., -3.,  2.,  1.]])
+    """
+    x, dtype = _checks.tensor(q, "torchlie.quaternion.left_matrix", "q", (4,))
+    w, a, b, c = x.unbind(-1)
+    m = torch.stack(
+        (
+            w, -a, -b, -c,
+            a, w, -c, b,
+            b, c, w, -a,
+            c, -b, a, w,
+        ),
+        dim=-1,
+    ).unflatten(-1, (4, 4))  # fmt: skip
+    return _checks.out(m, dtype)
+
+
+def right_matrix(p: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4 4"]:
+    """``[p]_R``, the 4x4 matrix with ``multiply(q, p) == right_matrix(p) @ q``.
+
+    Example:
+        >>> right_matrix(torch.tensor([1.0, 2.0, 3.0, 4.0]))
+        tensor([[ 1., -2., -3., -4.],
+                [ 2.,  1.,  4., -3.],
+                [ 3., -4.,  1.,  2.],
+                [ 4.,  3., -2.,  1.]])
+    """
+    x, dtype = _checks.tensor(p, "torchlie.quaternion.right_matrix", "p", (4,))
+    w, a, b, c = x.unbind(-1)
+    m = torch.stack(
+        (
+            w, -a, -b, -c,
+            a, w, c, -b,
+            b, -c, w, a,
+            c, b, -a, w,
+        ),
+        dim=-1,
+    ).unflatten(-1, (4, 4))  # fmt: skip
+    return _checks.out(m, dtype)
+
+
+_COMPLEX = {torch.float32: torch.complex64, torch.float64: torch.complex128}
+_REAL = {torch.complex64: torch.float32, torch.complex128: torch.float64}
+
+
+def to_su2(q: Float[Tensor, "*b 4"]) -> Shaped[Tensor, "*b 2 2"]:
+    """The SU(2) matrix ``U = w I - i (x sx + y sy + z sz)`` (``s*`` the Pauli matrices).
+
+    Explicitly ``U = [[w - iz, -y - ix], [y - ix, w + iz]]``.  This is the isomorphism of unit
+    quaternions with SU(2) (``i, j, k -> -i sx, -i sy, -i sz``): it maps products to matrix
+    products, ``to_su2(multiply(q1, q2)) == to_su2(q1) @ to_su2(q2)``, conjugation to the
+    conjugate transpose and ``|q|^2`` to ``det U``.  For a rotation by ``t`` about the unit
+    axis ``n`` it is the spin-1/2 operator ``exp(-i t/2 n.s)``, and
+    ``U (p.s) U^H == (to_matrix(q) @ p).s``.  float32 gives complex64, float64 complex128
+    (float16/bfloat16 give complex64).
+
+    Example:
+        >>> to_su2(torch.tensor([0.0, 0.0, 0.0, 1.0]))
+        tensor([[0.-1.j, -0.-0.j],
+                [0.-0.j, 0.+1.j]])
+    """
+    x, _ = _checks.tensor(q, "torchlie.quaternion.to_su2", "q", (4,))
+    w, a, b, c = x.unbind(-1)
+    re = torch.stack((w, -b, b, w), dim=-1)
+    im = torch.stack((-c, -a, -a, c), dim=-1)
+    return torch.complex(re, im).unflatten(-1, (2, 2))
+
+
+def from_su2(U: Shaped[Tensor, "*b 2 2"]) -> Float[Tensor, "*b 4"]:
+    """Inverse of :func:`to_su2`: ``(w, x, y, z)`` of a 2x2 complex matrix.
+
+    Reads ``U = [[a, -conj(b)], [b, conj(a)]]`` with ``a = w - iz``, ``b = y - ix``, averaging
+    the two copies of ``a`` and of ``b``: exact when ``U = to_su2(q)``, and otherwise the ``q``
+    whose ``to_su2(q)`` is nearest to ``U`` in the Frobenius norm.  complex64 gives float32,
+    complex128 float64 (complex32 is computed in complex64 and gives float16).
+
+    Raises:
+        TypeError: ``U`` is not a complex tensor.
+        ValueError: ``U`` is not of shape ``(..., 2, 2)``.
+
+    Example:
+        >>> U = torch.tensor([[0.5 - 0.5j, 0.5 - 0.5j], [-0.5 - 0.5j, 0.5 + 0.5j]])
+        >>> from_su2(U)
+        tensor([ 0.5000,  0.5000, -0.5000,  0.5000])
+    """
+    fn = "torchlie.quaternion.from_su2"
+    if not isinstance(U, Tensor):
+        raise TypeError(f"{fn}: expected U to be a torch.Tensor, got {type(U).__name__}")
+    if not U.is_complex():
+        raise TypeError(
+            f"{fn}: expected U to be a complex tensor (complex64 or complex128), "
+            f"got dtype {U.dtype}"
+        )
+    if U.dim() < 2 or tuple(U.shape[-2:]) != (2, 2):
+        raise ValueError(f"{fn}: expected U of shape (..., 2, 2), got {tuple(U.shape)}")
+    out_dtype = torch.float16 if U.dtype == torch.complex32 else _REAL[U.dtype]
+    if U.dtype == torch.complex32:
+        U = U.to(torch.complex64)
+    a = 0.5 * (U[..., 0, 0] + U[..., 1, 1].conj())
+    b = 0.5 * (U[..., 1, 0] - U[..., 0, 1].conj())
+    q = torch.stack((a.real, -b.imag, b.real, -a.imag), dim=-1)
+    return _checks.out(q, out_dtype)
+
+
+# ----------------------------------------------------------------------------------------------
+# Kinematics
+# ----------------------------------------------------------------------------------------------
+
+
+def derivative(
+    q: Float[Tensor, "*b1 4"], omega: Float[Tensor, "*b2 3"], frame: str = "body"
+) -> Float[Tensor, "*b 4"]:
+    """Time derivative of ``q`` under the angular velocity ``omega`` (batches broadcast).
+
+    ``frame="body"``: ``omega`` is expressed in the body (rotated) frame and
+    ``q_dot = 1/2 q * [0, omega]``; ``frame="world"``: ``omega`` is in the world (fixed) frame
+    and ``q_dot = 1/2 [0, omega] * q``.  Here ``p_world = to_matrix(q) @ p_body``, so the two
+    agree when ``omega_world = to_matrix(q) @ omega_body``.
+
+    Raises:
+        ValueError: ``frame`` is neither ``"body"`` nor ``"world"``.
+
+    Example:
+        >>> derivative(torch.tensor([1.0, 0.0, 0.0, 0.0]), torch.tensor([0.0, 0.0, 2.0]))
+        tensor([0., 0., 0., 1.])
+    """
+    fn = "torchlie.quaternion.derivative"
+    _check_frame(fn, frame)
+    a, dtype = _checks.tensor(q, fn, "q", (4,))
+    w, _ = _checks.tensor(omega, fn, "omega", (3,))
+    _checks.same_dtype(fn, q=q, omega=omega)
+    _checks.batch_broadcast(fn, (a.shape[:-1], "q"), (w.shape[:-1], "omega"))
+    p = _pure(0.5 * w)
+    out = _multiply(a, p) if frame == "body" else _multiply(p, a)
+    return _checks.out(out, dtype)
+
+
+def integrate(
+    q: Float[Tensor, "*b1 4"],
+    omega: Float[Tensor, "*b2 3"],
+    dt: Float[Tensor, "*b3"] | float,
+    frame: str = "body",
+) -> Float[Tensor, "*b 4"]:
+    """Exact integration of a constant angular velocity over ``dt`` (batches broadcast).
+
+    Solves the linear ODE of :func:`derivative` in closed form:
+    ``q(dt) = q * exp([0, omega dt/2])`` in the body frame and ``exp([0, omega dt/2]) * q`` in
+    the world frame (``exp([0, omega dt/2])`` is ``from_rotvec(omega * dt)``).  Exact for any
+    ``q`` (the norm is preserved, not imposed) and for any ``|omega dt|``, small ones included.
+
+    Raises:
+        ValueError: ``frame`` is neither ``"body"`` nor ``"world"``.
+
+    Example:
+        >>> q = torch.tensor([1.0, 0.0, 0.0, 0.0])
+        >>> integrate(q, torch.tensor([0.0, 0.0, torch.pi]), 0.5)  # pi/2 about z
+        tensor([0.7071, 0.0000, 0.0000, 0.7071])
+    """
+    fn = "torchlie.quaternion.integrate"
+    _check_frame(fn, frame)
+    a, dtype = _checks.tensor(q, fn, "q", (4,))
+    w, _ = _checks.tensor(omega, fn, "omega", (3,))
+    _checks.same_dtype(fn, q=q, omega=omega)
+    h = _param(dt, fn, "dt", a)
+    _checks.batch_broadcast(fn, (a.shape[:-1], "q"), (w.shape[:-1], "omega"), (h.shape, "dt"))
+    e = _exp_pure((0.5 * h).unsqueeze(-1) * w)
+    out = _multiply(a, e) if frame == "body" else _multiply(e, a)
+    return _checks.out(out, dtype)

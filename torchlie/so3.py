@@ -190,7 +190,7 @@ def exp(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     ``dL/dw = Jl(w) vee(R^T G - G^T R)``; double backward and forward mode are supported.
 
     Example:
-        >>> exp(torch.tensor([0.0, 0.0, torch.pi / 2])).round(decimals=6)
+        >>> exp(torch.tensor([0.0, 0.0, torch.pi / 2])).round(decimals=6) + 0.0
         tensor([[ 0., -1.,  0.],
                 [ 1.,  0.,  0.],
                 [ 0.,  0.,  1.]])
@@ -395,11 +395,15 @@ def is_valid(R: Float[Tensor, "*b 3 3"], atol: float | None = None) -> Bool[Tens
 
 
 def _project_forward(M: Tensor) -> Tensor:
-    U, S, Vh = torch.linalg.svd(M)
+    # The SVD raises for the whole batch if any element is not finite: such elements are
+    # decomposed as the identity and come back as NaN, each alone.
+    finite = torch.isfinite(M).all(dim=-1).all(dim=-1)[..., None, None]
+    eye = torch.eye(3, dtype=M.dtype, device=M.device)
+    U, S, Vh = torch.linalg.svd(torch.where(finite, M, eye))
     d = torch.sign(torch.linalg.det(U @ Vh))
     d = torch.where(d == 0, torch.ones_like(d), d)
     Vh = torch.cat((Vh[..., :2, :], Vh[..., 2:, :] * d[..., None, None]), dim=-2)
-    return U @ Vh
+    return torch.where(finite, U @ Vh, torch.full_like(M, float("nan")))
 
 
 def _project_backward(saved, g: Tensor):
