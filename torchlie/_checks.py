@@ -60,3 +60,8 @@ def batch_broadcast(fn: str, *shapes: tuple[torch.Size, str]) -> torch.Size:
 def out(x: Tensor, dtype: torch.dtype) -> Tensor:
     """Cast a result computed in float32 back to a half-precision input dtype."""
     return x if x.dtype == dtype else x.to(dtype)
+
+
+def default_atol(dtype: torch.dtype) -> float:
+    """Default tolerance of the value checks (``is_valid``, ``is_unit``) for an input dtype."""
+    return (4 if dtype in _LOW_PRECISION else 100) * torch.finfo(dtype).eps

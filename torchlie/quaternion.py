@@ -541,7 +541,7 @@ def is_unit(q: Float[Tensor, "*b 4"], atol: float | None = None) -> Bool[Tensor,
     """
     x, dtype = _checks.tensor(q, "torchlie.quaternion.is_unit", "q", (4,))
     if atol is None:
-        atol = 4 * torch.finfo(dtype).eps if dtype != x.dtype else 100 * torch.finfo(x.dtype).eps
+        atol = _checks.default_atol(dtype)
     n = torch.linalg.vector_norm(x, dim=-1)
     return ((n - 1.0).abs() <= atol) & torch.isfinite(x).all(dim=-1)
 

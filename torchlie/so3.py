@@ -378,7 +378,8 @@ def random(
 def is_valid(R: Float[Tensor, "*b 3 3"], atol: float | None = None) -> Bool[Tensor, "*b"]:
     """Per element: finite, ``R^T R = I`` and ``det R = 1`` within ``atol``.
 
-    ``atol`` defaults to ``100 * eps`` of the dtype (about 1.2e-5 for float32).  This reads the
+    ``atol`` defaults to ``100 * eps`` of the input dtype (about 1.2e-5 for float32; ``4 * eps``
+    for float16/bfloat16).  This reads the
     values, so use it outside hot loops on a GPU (the result is a tensor; nothing syncs until
     you branch on it).
 
@@ -387,7 +388,7 @@ def is_valid(R: Float[Tensor, "*b 3 3"], atol: float | None = None) -> Bool[Tens
         tensor([ True, False])
     """
     x, _ = _checks.tensor(R, _NAME + "is_valid", "R", (3, 3))
-    tol = 100 * torch.finfo(x.dtype).eps if atol is None else atol
+    tol = _checks.default_atol(R.dtype) if atol is None else atol
     eye = torch.eye(3, dtype=x.dtype, device=x.device)
     orth = (x.transpose(-1, -2) @ x - eye).abs().amax(dim=(-1, -2)) <= tol
     det = (torch.linalg.det(x) - 1.0).abs() <= tol
@@ -406,30 +407,35 @@ def _project_forward(M: Tensor) -> Tensor:
     return torch.where(finite, U @ Vh, torch.full_like(M, float("nan")))
 
 
+def _polar_frame(M: Tensor, R: Tensor):
+    """Eigenbasis of the symmetric factor ``P = R^T M`` (non-finite elements as the identity)."""
+    finite = torch.isfinite(R).all(dim=-1).all(dim=-1)[..., None, None]
+    eye = torch.eye(3, dtype=M.dtype, device=M.device)
+    R = torch.where(finite, R, eye)
+    P = R.transpose(-1, -2) @ torch.where(finite, M, eye)
+    s, V = torch.linalg.eigh(0.5 * (P + P.transpose(-1, -2)))
+    return finite, R, V, s.unsqueeze(-1) + s.unsqueeze(-2)
+
+
 def _project_backward(saved, g: Tensor):
     # Polar decomposition M = R P (P symmetric): dR = R X with X skew solving
     # P X + X P = R^T dM - dM^T R.  In P's eigenbasis (P = V diag(s) V^T), the solution
     # divides by s_i + s_j, which is positive for any full-rank M (no distinct-singular-value
     # requirement, unlike the SVD's own backward).
-    M, R = saved
-    P = R.transpose(-1, -2) @ M
-    P = 0.5 * (P + P.transpose(-1, -2))
-    s, V = torch.linalg.eigh(P)
+    finite, R, V, denom = _polar_frame(*saved)
     H = V.transpose(-1, -2) @ (R.transpose(-1, -2) @ g) @ V
-    denom = s.unsqueeze(-1) + s.unsqueeze(-2)
     K = (H - H.transpose(-1, -2)) / denom
-    return (R @ (V @ K @ V.transpose(-1, -2)),)
+    grad = R @ (V @ K @ V.transpose(-1, -2))
+    # a non-finite element (NaN output) passes no gradient: the others stay clean
+    return (torch.where(finite, grad, torch.zeros_like(grad)),)
 
 
 def _project_jvp(saved, dM: Tensor) -> Tensor:
-    M, R = saved
-    P = R.transpose(-1, -2) @ M
-    P = 0.5 * (P + P.transpose(-1, -2))
-    s, V = torch.linalg.eigh(P)
+    finite, R, V, denom = _polar_frame(*saved)
     A = R.transpose(-1, -2) @ dM
-    B = V.transpose(-1, -2) @ (A - A.transpose(-1, -2)) @ V
-    X = B / (s.unsqueeze(-1) + s.unsqueeze(-2))
-    return R @ (V @ X @ V.transpose(-1, -2))
+    X = V.transpose(-1, -2) @ (A - A.transpose(-1, -2)) @ V / denom
+    out = R @ (V @ X @ V.transpose(-1, -2))
+    return torch.where(finite, out, torch.full_like(out, float("nan")))
 
 
 _ProjectFn = custom_function(
