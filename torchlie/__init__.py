@@ -33,7 +33,8 @@ Python on tensor values, so every op works under ``torch.compile(fullgraph=True)
 ``torch.func.vmap`` / ``jacrev`` / ``jacfwd`` and on CUDA.
 """
 
-from . import conversions, quaternion, so3
+from . import conversions, quaternion, se3, so3, statistics
+from .groups import SE3, SO3
 
-__all__ = ["conversions", "quaternion", "so3"]
+__all__ = ["SE3", "SO3", "conversions", "quaternion", "se3", "so3", "statistics"]
 __version__ = "0.1.0"

@@ -43,6 +43,19 @@ __all__ = [
     "project",
     "distance",
     "interpolate",
+    # Lie-group operations and their Jacobians
+    "ad",
+    "rplus",
+    "rminus",
+    "lplus",
+    "lminus",
+    "between",
+    "jac_compose",
+    "jac_inverse",
+    "jac_act",
+    "jac_rplus",
+    "jac_rminus",
+    "jac_between",
 ]
 
 _NAME = "torchlie.so3."
@@ -282,8 +295,10 @@ def adjoint(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3 3"]:
     return _checks.out(x.clone(), dtype)
 
 
-def _jac(fn: str, omega: Tensor, kind: str) -> Tensor:
-    w, dtype = _checks.tensor(omega, _NAME + fn, "omega", (3,))
+def _jac_matrix(w: Tensor, kind: str) -> Tensor:
+    """``Jl``, ``Jr``, ``Jl^-1`` or ``Jr^-1`` of ``w`` (``kind`` = ``"left"``, ``"right"``,
+    ``"left_inv"``, ``"right_inv"``) as a matrix, from components (no input checks)."""
+    # I + b hat + c hat^2 = (1 - c t2) I + b hat + c w w^T
     t2 = _coeffs.theta2(w)
     if kind in ("left", "right"):
         b = _coeffs.cosc(t2) * (1.0 if kind == "left" else -1.0)
@@ -291,9 +306,13 @@ def _jac(fn: str, omega: Tensor, kind: str) -> Tensor:
     else:
         b = torch.full_like(t2, -0.5 if kind == "left_inv" else 0.5)
         c = _coeffs.jinv(t2)
-    # I + b hat + c hat^2 = (1 - c t2) I + b hat + c w w^T
     a = (1.0 - c * t2).to(w.dtype)
-    return _checks.out(_abc_matrix(a, b.to(w.dtype), c.to(w.dtype), w), dtype)
+    return _abc_matrix(a, b.to(w.dtype), c.to(w.dtype), w)
+
+
+def _jac(fn: str, omega: Tensor, kind: str) -> Tensor:
+    w, dtype = _checks.tensor(omega, _NAME + fn, "omega", (3,))
+    return _checks.out(_jac_matrix(w, kind), dtype)
 
 
 def jac_left(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
@@ -520,3 +539,202 @@ def interpolate(
     _checks.batch_broadcast(fn, (a.shape[:-2], "R0"), (b.shape[:-2], "R1"), (t.shape, "t"))
     w = _LogFn(a.transpose(-1, -2) @ b)
     return _checks.out(a @ _ExpFn(t.unsqueeze(-1) * w), dtype)
+
+
+# ----------------------------------------------------------------------------------------------
+# Lie-group operations and their Jacobians
+# ----------------------------------------------------------------------------------------------
+#
+# Jacobians of operations follow Sola et al., "A micro Lie theory for state estimation in
+# robotics" (and manif): for Y = f(X), J_Y_X maps a right perturbation of the input to a right
+# perturbation of the output, f(X Exp(d)) ~= f(X) Exp(J_Y_X d); vector arguments and results
+# (points, rotation vectors) are perturbed by plain addition.  Functions returning two Jacobians
+# return them in the order of the arguments.  The Jacobians of exp and log are
+# jac_right(omega) and jac_right_inv(log(R)).
+
+
+def _pair(fn: str, a: object, b: object, na: str, nb: str, ta=(3, 3), tb=(3, 3)):
+    """Check two inputs; return them in the compute dtype, the output dtype and the batch."""
+    x, dtype = _checks.tensor(a, _NAME + fn, na, ta)
+    y, _ = _checks.tensor(b, _NAME + fn, nb, tb)
+    _checks.same_dtype(_NAME + fn, **{na: a, nb: b})
+    batch = _checks.batch_broadcast(
+        _NAME + fn, (x.shape[: x.dim() - len(ta)], na), (y.shape[: y.dim() - len(tb)], nb)
+    )
+    return x, y, dtype, batch
+
+
+def _eye3(batch: torch.Size, like: Tensor) -> Tensor:
+    return torch.eye(3, dtype=like.dtype, device=like.device).expand(*batch, 3, 3).clone()
+
+
+def ad(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
+    """Small adjoint of so(3): ``ad(w) = hat(w)``, so ``ad(x) y = x cross y`` (the Lie bracket).
+
+    ``adjoint(exp(w)) = matrix_exp(ad(w))``.
+
+    Example:
+        >>> ad(torch.tensor([0.0, 0.0, 1.0])) @ torch.tensor([1.0, 0.0, 0.0])
+        tensor([0., 1., 0.])
+    """
+    x, dtype = _checks.tensor(omega, _NAME + "ad", "omega", (3,))
+    return _checks.out(_hat(x), dtype)
+
+
+def rplus(R: Float[Tensor, "*b1 3 3"], tau: Float[Tensor, "*b2 3"]) -> Float[Tensor, "*b 3 3"]:
+    """Right plus ``R (+) tau = R Exp(tau)`` (``tau`` in the body frame; batches broadcast).
+
+    Example:
+        >>> R = rplus(identity(), torch.tensor([0.0, 0.0, 0.3]))
+        >>> log(R)
+        tensor([0.0000, 0.0000, 0.3000])
+    """
+    x, v, dtype, _ = _pair("rplus", R, tau, "R", "tau", tb=(3,))
+    return _checks.out(x @ _ExpFn(v), dtype)
+
+
+def rminus(R1: Float[Tensor, "*b1 3 3"], R0: Float[Tensor, "*b2 3 3"]) -> Float[Tensor, "*b 3"]:
+    """Right minus ``R1 (-) R0 = Log(R0^T R1)``, so that ``rplus(R0, rminus(R1, R0)) == R1``.
+
+    The gradient meaning of :func:`log` applies.
+
+    Example:
+        >>> R0 = exp(torch.tensor([0.1, 0.2, 0.3]))
+        >>> tau = torch.tensor([0.3, -0.2, 0.5])
+        >>> torch.allclose(rminus(rplus(R0, tau), R0), tau, atol=1e-6)
+        True
+    """
+    a, b, dtype, _ = _pair("rminus", R1, R0, "R1", "R0")
+    return _checks.out(_LogFn(b.transpose(-1, -2) @ a), dtype)
+
+
+def lplus(R: Float[Tensor, "*b1 3 3"], tau: Float[Tensor, "*b2 3"]) -> Float[Tensor, "*b 3 3"]:
+    """Left plus ``Exp(tau) R`` (``tau`` in the world frame; batches broadcast).
+
+    Example:
+        >>> R = exp(torch.tensor([0.1, 0.2, 0.3]))
+        >>> torch.allclose(lplus(R, torch.zeros(3)), R)
+        True
+    """
+    x, v, dtype, _ = _pair("lplus", R, tau, "R", "tau", tb=(3,))
+    return _checks.out(_ExpFn(v) @ x, dtype)
+
+
+def lminus(R1: Float[Tensor, "*b1 3 3"], R0: Float[Tensor, "*b2 3 3"]) -> Float[Tensor, "*b 3"]:
+    """Left minus ``Log(R1 R0^T)``, so that ``lplus(R0, lminus(R1, R0)) == R1``.
+
+    Example:
+        >>> R0 = exp(torch.tensor([0.1, 0.2, 0.3]))
+        >>> tau = torch.tensor([0.3, -0.2, 0.5])
+        >>> torch.allclose(lminus(lplus(R0, tau), R0), tau, atol=1e-6)
+        True
+    """
+    a, b, dtype, _ = _pair("lminus", R1, R0, "R1", "R0")
+    return _checks.out(_LogFn(a @ b.transpose(-1, -2)), dtype)
+
+
+def between(R0: Float[Tensor, "*b1 3 3"], R1: Float[Tensor, "*b2 3 3"]) -> Float[Tensor, "*b 3 3"]:
+    """Relative rotation ``R0^T R1`` (``R1`` expressed in the frame of ``R0``).
+
+    Example:
+        >>> R0 = exp(torch.tensor([0.0, 0.0, 0.2]))
+        >>> R1 = exp(torch.tensor([0.0, 0.0, 0.5]))
+        >>> log(between(R0, R1))
+        tensor([0.0000, 0.0000, 0.3000])
+    """
+    a, b, dtype, _ = _pair("between", R0, R1, "R0", "R1")
+    return _checks.out(a.transpose(-1, -2) @ b, dtype)
+
+
+def jac_compose(
+    R1: Float[Tensor, "*b1 3 3"], R2: Float[Tensor, "*b2 3 3"]
+) -> tuple[Float[Tensor, "*b 3 3"], Float[Tensor, "*b 3 3"]]:
+    """Jacobians of ``R1 R2``: ``(J_R1R2_R1, J_R1R2_R2) = (R2^T, I)``.
+
+    ``(R1 Exp(d1)) (R2 Exp(d2)) ~= R1 R2 Exp(R2^T d1 + d2)`` (``R2^T = Ad(R2)^-1``).
+
+    Example:
+        >>> R2 = exp(torch.tensor([0.1, 0.2, 0.3]))
+        >>> J1, J2 = jac_compose(identity(), R2)
+        >>> torch.equal(J1, R2.mT) and torch.equal(J2, torch.eye(3))
+        True
+    """
+    a, b, dtype, batch = _pair("jac_compose", R1, R2, "R1", "R2")
+    J1 = b.transpose(-1, -2).expand(*batch, 3, 3).clone()
+    return _checks.out(J1, dtype), _checks.out(_eye3(batch, a), dtype)
+
+
+def jac_inverse(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3 3"]:
+    """Jacobian ``J_Rinv_R = -Ad(R) = -R``: ``(R Exp(d))^T = R^T Exp(-R d)``.
+
+    Example:
+        >>> torch.equal(jac_inverse(identity()), -torch.eye(3))
+        True
+    """
+    x, dtype = _checks.tensor(R, _NAME + "jac_inverse", "R", (3, 3))
+    return _checks.out(-x, dtype)
+
+
+def jac_act(
+    R: Float[Tensor, "*b1 3 3"], points: Float[Tensor, "*b2 3"]
+) -> tuple[Float[Tensor, "*b 3 3"], Float[Tensor, "*b 3 3"]]:
+    """Jacobians of ``R p``: ``(J_Rp_R, J_Rp_p) = (-R hat(p), R)``.
+
+    ``R Exp(d) (p + dp) ~= R p - R hat(p) d + R dp`` (the point is perturbed additively).
+
+    Example:
+        >>> p = torch.tensor([1.0, 2.0, 3.0])
+        >>> JR, Jp = jac_act(identity(), p)
+        >>> torch.equal(JR, -hat(p)) and torch.equal(Jp, torch.eye(3))
+        True
+    """
+    x, p, dtype, batch = _pair("jac_act", R, points, "R", "points", tb=(3,))
+    x = x.expand(*batch, 3, 3)
+    return _checks.out(-(x @ _hat(p)), dtype), _checks.out(x.clone(), dtype)
+
+
+def jac_rplus(
+    R: Float[Tensor, "*b1 3 3"], tau: Float[Tensor, "*b2 3"]
+) -> tuple[Float[Tensor, "*b 3 3"], Float[Tensor, "*b 3 3"]]:
+    """Jacobians of ``R Exp(tau)``: ``(J_R, J_tau) = (Exp(tau)^T, Jr(tau))``.
+
+    Example:
+        >>> JR, Jtau = jac_rplus(identity(), torch.zeros(3))
+        >>> torch.equal(JR, torch.eye(3)) and torch.equal(Jtau, torch.eye(3))
+        True
+    """
+    x, v, dtype, batch = _pair("jac_rplus", R, tau, "R", "tau", tb=(3,))
+    v = v.expand(*batch, 3)
+    JR = _ExpFn(v).transpose(-1, -2)
+    return _checks.out(JR, dtype), _checks.out(_jac_matrix(v, "right"), dtype)
+
+
+def jac_rminus(
+    R1: Float[Tensor, "*b1 3 3"], R0: Float[Tensor, "*b2 3 3"]
+) -> tuple[Float[Tensor, "*b 3 3"], Float[Tensor, "*b 3 3"]]:
+    """Jacobians of ``tau = Log(R0^T R1)``: ``(J_tau_R1, J_tau_R0) = (Jr(tau)^-1, -Jl(tau)^-1)``.
+
+    Example:
+        >>> J1, J0 = jac_rminus(identity(), identity())
+        >>> torch.equal(J1, torch.eye(3)) and torch.equal(J0, -torch.eye(3))
+        True
+    """
+    a, b, dtype, _ = _pair("jac_rminus", R1, R0, "R1", "R0")
+    tau = _LogFn(b.transpose(-1, -2) @ a)
+    J1, J0 = _jac_matrix(tau, "right_inv"), -_jac_matrix(tau, "left_inv")
+    return _checks.out(J1, dtype), _checks.out(J0, dtype)
+
+
+def jac_between(
+    R0: Float[Tensor, "*b1 3 3"], R1: Float[Tensor, "*b2 3 3"]
+) -> tuple[Float[Tensor, "*b 3 3"], Float[Tensor, "*b 3 3"]]:
+    """Jacobians of ``R0^T R1``: ``(J_R0, J_R1) = (-Ad(R1^T R0), I) = (-R1^T R0, I)``.
+
+    Example:
+        >>> J0, J1 = jac_between(identity(), identity())
+        >>> torch.equal(J0, -torch.eye(3)) and torch.equal(J1, torch.eye(3))
+        True
+    """
+    a, b, dtype, batch = _pair("jac_between", R0, R1, "R0", "R1")
+    J0 = -(b.transpose(-1, -2) @ a)
+    return _checks.out(J0, dtype), _checks.out(_eye3(batch, a), dtype)

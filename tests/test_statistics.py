@@ -1,0 +1,767 @@
+"""torchlie.statistics: sampling, means, keyframe interpolation, alignment, kinematics."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation, Slerp
+from torch.autograd import gradcheck
+
+from torchlie import se3, so3
+from torchlie.statistics import (
+    Alignment,
+    align,
+    se3_integrate,
+    se3_interpolate_keyframes,
+    se3_mean,
+    se3_randn,
+    so3_integrate,
+    so3_interpolate_keyframes,
+    so3_mean,
+    so3_randn,
+)
+
+F64 = torch.float64
+
+
+def eps(dtype: torch.dtype) -> float:
+    return torch.finfo(dtype).eps
+
+
+def gen(seed: int) -> torch.Generator:
+    return torch.Generator().manual_seed(seed)
+
+
+def cluster(core, n: int, spread: float, *batch: int, seed: int = 0, dtype=F64) -> torch.Tensor:
+    """``n`` elements ``M Exp(spread * N(0, I))`` about a random ``M`` per batch element."""
+    g = gen(seed)
+    M = core.random(*batch, generator=g, dtype=F64)
+    dof = 3 if core is so3 else 6
+    tau = spread * torch.randn(*batch, n, dof, generator=g, dtype=F64)
+    return core.rplus(M.unsqueeze(-3), tau).to(dtype)
+
+
+def scipy_matrices(R: torch.Tensor) -> Rotation:
+    return Rotation.from_matrix(R.double().numpy())
+
+
+# ----------------------------------------------------------------------------------------------
+# randn
+# ----------------------------------------------------------------------------------------------
+
+
+def _check_cov(eps_samples: torch.Tensor, cov: torch.Tensor) -> None:
+    """Sample mean and covariance against the requested ones, within 5 standard errors.
+
+    For N Gaussian samples the sample covariance entry S_ij has standard deviation
+    sqrt((C_ii C_jj + C_ij^2) / N) and the sample mean m_i has sqrt(C_ii / N).
+    """
+    n = eps_samples.shape[0]
+    m = eps_samples.mean(0)
+    S = torch.cov(eps_samples.T)
+    d = cov.diagonal()
+    se_S = ((d[:, None] * d[None, :] + cov**2) / n).sqrt()
+    assert ((S - cov).abs() <= 5 * se_S).all(), (S, cov)
+    assert (m.abs() <= 5 * (d / n).sqrt()).all()
+    # and the test can fail: a 10 % error in a variance is far outside the band
+    assert not ((1.1 * S - cov).abs() <= 5 * se_S).all()
+
+
+def test_so3_randn_covariance():
+    A = torch.tensor([[0.2, 0.0, 0.0], [0.05, 0.1, 0.0], [-0.03, 0.02, 0.15]], dtype=F64)
+    cov = A @ A.T
+    mean = so3.random(generator=gen(0), dtype=F64)
+    R = so3_randn(mean, cov=cov, sample_shape=(20000,), generator=gen(1))
+    assert R.shape == (20000, 3, 3)
+    assert so3.is_valid(R).all()
+    _check_cov(so3.rminus(R, mean), cov)
+    # scale_tril gives the same draws as the covariance's Cholesky factor
+    R2 = so3_randn(
+        mean, scale_tril=torch.linalg.cholesky(cov), sample_shape=(20000,), generator=gen(1)
+    )
+    torch.testing.assert_close(R2, R, rtol=0, atol=1e-14)
+
+
+def test_se3_randn_covariance():
+    A = torch.randn(6, 6, generator=gen(2), dtype=F64) * 0.1
+    cov = A @ A.T + 0.01 * torch.eye(6, dtype=F64)
+    mean = se3.random(generator=gen(3), dtype=F64)
+    T = se3_randn(mean, cov=cov, sample_shape=(20000,), generator=gen(4))
+    assert se3.is_valid(T).all()
+    _check_cov(se3.rminus(T, mean), cov)
+
+
+def test_randn_isotropic_and_right_perturbation():
+    mean = so3.random(generator=gen(5), dtype=F64)
+    R = so3_randn(mean, 0.2, sample_shape=(20000,), generator=gen(6))
+    _check_cov(so3.rminus(R, mean), 0.04 * torch.eye(3, dtype=F64))
+    # the noise is on the right: the same draw with the identity as the mean, left-multiplied
+    R0 = so3_randn(torch.eye(3, dtype=F64), 0.2, sample_shape=(20000,), generator=gen(6))
+    torch.testing.assert_close(R, mean @ R0, rtol=0, atol=1e-14)
+
+
+def test_randn_singular_scale_tril():
+    # rotation-only noise on SE(3): translation part of the twist is exactly zero
+    L = torch.diag(torch.tensor([0.0, 0.0, 0.0, 0.1, 0.2, 0.3], dtype=F64))
+    mean = se3.random(generator=gen(7), dtype=F64)
+    T = se3_randn(mean, scale_tril=L, sample_shape=(500,), generator=gen(8))
+    xi = se3.rminus(T, mean)
+    assert xi[:, :3].abs().max() < 1e-12
+    assert (xi[:, 3:].std(0) > 0.05).all()
+
+
+def test_randn_shapes_and_broadcast(dtype):
+    mean = so3.random(4, 1, generator=gen(0), dtype=dtype)
+    std = torch.tensor([0.1, 0.2, 0.3], dtype=dtype)
+    R = so3_randn(mean, std, sample_shape=(2,), generator=gen(1))
+    assert R.shape == (2, 4, 3, 3, 3) and R.dtype == dtype
+    cov = torch.eye(6, dtype=dtype).expand(5, 6, 6) * 0.01
+    T = se3_randn(se3.identity(dtype=dtype), cov=cov, generator=gen(1))
+    assert T.shape == (5, 4, 4)
+    # per-element std: zero std gives the mean exactly
+    R = so3_randn(mean.expand(4, 2, 3, 3), torch.tensor([0.0, 0.5], dtype=dtype), generator=gen(2))
+    assert torch.equal(R[:, 0], mean[:, 0])
+    assert (so3.distance(R[:, 1], mean[:, 0]) > 0).all()
+
+
+def test_randn_non_pd_cov_is_nan_for_its_element_only():
+    cov = torch.stack((0.01 * torch.eye(3, dtype=F64), -torch.eye(3, dtype=F64)))
+    R = so3_randn(torch.eye(3, dtype=F64), cov=cov, generator=gen(0))
+    assert torch.isfinite(R[0]).all() and torch.isnan(R[1]).all()
+
+
+def test_randn_reparameterised_gradients():
+    # X = M Exp(std z): d rminus(X, M) / d std = z, and the mean's gradient flows
+    mean = so3.random(generator=gen(9), dtype=F64).requires_grad_()
+    std = torch.tensor(0.3, dtype=F64, requires_grad=True)
+    R = so3_randn(mean, std, sample_shape=(4,), generator=gen(10))
+    z = so3.rminus(R, mean).detach() / 0.3
+    (g,) = torch.autograd.grad(so3.rminus(R, mean.detach()).sum(), std, retain_graph=True)
+    torch.testing.assert_close(g, z.sum(), rtol=0, atol=1e-13)
+    (gm,) = torch.autograd.grad((R * torch.arange(9.0, dtype=F64).reshape(3, 3)).sum(), mean)
+    assert torch.isfinite(gm).all() and gm.abs().sum() > 0
+
+
+def test_randn_half():
+    R = so3_randn(torch.eye(3, dtype=torch.float16), 0.1, sample_shape=(3,), generator=gen(0))
+    assert R.dtype == torch.float16
+    R32 = so3_randn(torch.eye(3), 0.1, sample_shape=(3,), generator=gen(0))
+    torch.testing.assert_close(R.float(), R32, rtol=0, atol=eps(torch.float16) / 2)
+
+
+def test_randn_errors():
+    I3 = torch.eye(3)
+    with pytest.raises(ValueError, match="exactly one of std, cov and scale_tril, got none"):
+        so3_randn(I3)
+    with pytest.raises(ValueError, match="got std, cov"):
+        so3_randn(I3, 0.1, cov=I3)
+    with pytest.raises(
+        ValueError, match=r"torchlie.statistics.se3_randn: expected cov of shape \(\.\.\., 6, 6\)"
+    ):
+        se3_randn(torch.eye(4), cov=I3)
+    with pytest.raises(ValueError, match="torchlie.statistics.so3_randn: expected mean"):
+        so3_randn(torch.eye(4), 0.1)
+    with pytest.raises(TypeError, match="std"):
+        so3_randn(I3, torch.tensor(1))
+    with pytest.raises(ValueError, match="do not broadcast"):
+        so3_randn(torch.eye(3).expand(2, 3, 3), torch.ones(3))
+
+
+# ----------------------------------------------------------------------------------------------
+# mean
+# ----------------------------------------------------------------------------------------------
+
+
+def test_chordal_mean_matches_scipy(dtype):
+    # scipy's Rotation.mean is the chordal L2 mean, argmin sum_i w_i |R - R_i|_F^2, computed as
+    # the top eigenvector of sum_i w_i q_i q_i^T.  Since |R(q) - R(p)|_F^2 = 8 (1 - (q.p)^2)
+    # the two are the same minimiser, so they agree to rounding (not just approximately).
+    R = cluster(so3, 30, 0.8, 6, seed=1)
+    w = torch.rand(6, 30, generator=gen(2), dtype=F64)
+    M = so3_mean(R.to(dtype), w.to(dtype), method="chordal")
+    for b in range(6):
+        ref = scipy_matrices(R[b]).mean(weights=w[b].numpy()).as_matrix()
+        torch.testing.assert_close(
+            M[b].double(), torch.from_numpy(ref), rtol=0, atol=40 * eps(dtype)
+        )
+
+
+def test_geodesic_mean_stationarity():
+    # Karcher mean: sum_i w_i Log(M^T R_i) = 0; it differs from the chordal mean by O(spread^3)
+    R = cluster(so3, 40, 0.3, 5, seed=3)
+    w = torch.rand(5, 40, generator=gen(4), dtype=F64)
+    wn = w / w.sum(-1, keepdim=True)
+    M = so3_mean(R, w)
+    res = (wn[..., None] * so3.rminus(R, M.unsqueeze(-3))).sum(-2)
+    assert res.norm(dim=-1).max() < 1e-14
+    C = so3_mean(R, w, method="chordal")
+    res_c = (wn[..., None] * so3.rminus(R, C.unsqueeze(-3))).sum(-2)
+    assert res_c.norm(dim=-1).min() > 1e-6  # the chordal mean is a different point
+    # scipy's (chordal) mean is close to the geodesic one at this spread, as theory says
+    ref = scipy_matrices(R[0]).mean(weights=w[0].numpy()).as_matrix()
+    assert so3.distance(M[0], torch.from_numpy(ref)) < 1e-2
+
+
+def test_se3_geodesic_mean_stationarity():
+    T = cluster(se3, 40, 0.3, 4, seed=5)
+    M = se3_mean(T)
+    res = se3.rminus(T, M.unsqueeze(-3)).mean(-2)
+    assert res.norm(dim=-1).max() < 1e-14
+
+
+def test_geodesic_mean_converges_from_chordal_in_few_steps():
+    R = cluster(so3, 40, 0.5, seed=6)
+    r = []
+    for k in range(6):
+        M = so3_mean(R, iterations=k)
+        r.append(float(so3.rminus(R, M).mean(0).norm()))
+    assert all(b < 0.1 * a for a, b in zip(r, r[1:], strict=False))
+    assert torch.equal(so3_mean(R, iterations=0), so3_mean(R, method="chordal"))
+
+
+@pytest.mark.parametrize("core, mean_fn", [(so3, so3_mean), (se3, se3_mean)], ids=["so3", "se3"])
+@pytest.mark.parametrize("method", ["chordal", "geodesic"])
+def test_mean_of_single_element_is_itself(core, mean_fn, method, dtype):
+    X = core.random(7, 1, generator=gen(0), dtype=dtype)
+    M = mean_fn(X, method=method)
+    torch.testing.assert_close(M, X[:, 0], rtol=0, atol=16 * eps(dtype))
+    # and of N copies
+    M = mean_fn(
+        X.expand(7, 5, *X.shape[-2:]),
+        torch.rand(7, 5, generator=gen(1), dtype=dtype),
+        method=method,
+    )
+    torch.testing.assert_close(M, X[:, 0], rtol=0, atol=16 * eps(dtype))
+
+
+@pytest.mark.parametrize("core, mean_fn", [(so3, so3_mean), (se3, se3_mean)], ids=["so3", "se3"])
+@pytest.mark.parametrize("method", ["chordal", "geodesic"])
+def test_mean_left_invariance(core, mean_fn, method):
+    X = cluster(core, 20, 0.5, 3, seed=8)
+    A = core.random(3, generator=gen(9), dtype=F64)
+    w = torch.rand(3, 20, generator=gen(10), dtype=F64)
+    lhs = mean_fn(A.unsqueeze(-3) @ X, w, method=method)
+    rhs = A @ mean_fn(X, w, method=method)
+    torch.testing.assert_close(lhs, rhs, rtol=0, atol=1e-13)
+
+
+@pytest.mark.parametrize("core, mean_fn", [(so3, so3_mean), (se3, se3_mean)], ids=["so3", "se3"])
+def test_geodesic_mean_right_invariance(core, mean_fn):
+    X = cluster(core, 20, 0.4, 3, seed=11)
+    B = core.random(3, generator=gen(12), dtype=F64)
+    lhs = mean_fn(X @ B.unsqueeze(-3))
+    rhs = mean_fn(X) @ B
+    torch.testing.assert_close(lhs, rhs, rtol=0, atol=1e-13)
+
+
+def test_se3_chordal_mean_is_not_right_invariant():
+    X = cluster(se3, 20, 0.4, seed=13)
+    B = se3.from_rt(torch.eye(3, dtype=F64), torch.tensor([1.0, 2.0, 3.0], dtype=F64))
+    lhs = se3_mean(X @ B, method="chordal")
+    rhs = se3_mean(X, method="chordal") @ B
+    assert (lhs - rhs).abs().max() > 1e-3
+
+
+def test_mean_of_two_is_the_midpoint():
+    R = cluster(so3, 2, 1.0, 5, seed=14)
+    mid = so3.interpolate(R[:, 0], R[:, 1], 0.5)
+    for method in ("chordal", "geodesic"):
+        torch.testing.assert_close(so3_mean(R, method=method), mid, rtol=0, atol=1e-14)
+    # weighted: the geodesic mean lies at the weighted point of the geodesic
+    w = torch.tensor([3.0, 1.0], dtype=F64)
+    torch.testing.assert_close(
+        so3_mean(R, w), so3.interpolate(R[:, 0], R[:, 1], 0.25), rtol=0, atol=1e-14
+    )
+
+
+def test_se3_mean_equal_rotations_is_translation_mean():
+    R = so3.random(generator=gen(15), dtype=F64).expand(6, 3, 3)
+    t = torch.randn(6, 3, generator=gen(16), dtype=F64)
+    w = torch.rand(6, generator=gen(17), dtype=F64)
+    M = se3_mean(se3.from_rt(R, t), w)
+    torch.testing.assert_close(M[:3, 3], (w[:, None] * t).sum(0) / w.sum(), rtol=0, atol=1e-14)
+    torch.testing.assert_close(M[:3, :3], R[0], rtol=0, atol=1e-14)
+
+
+def test_mean_weights_broadcast_and_shapes(dtype):
+    R = cluster(so3, 6, 0.3, 2, 3, seed=18, dtype=dtype)
+    w = torch.rand(6, generator=gen(19), dtype=dtype)  # shared by every set
+    M = so3_mean(R, w)
+    assert M.shape == (2, 3, 3, 3) and M.dtype == dtype
+    M1 = so3_mean(R[1, 2], w)
+    torch.testing.assert_close(M[1, 2], M1, rtol=0, atol=8 * eps(dtype))
+    # zero weight removes an element
+    w0 = torch.cat((w[:5], torch.zeros(1, dtype=dtype)))
+    torch.testing.assert_close(
+        so3_mean(R, w0), so3_mean(R[..., :5, :, :], w[:5]), rtol=0, atol=8 * eps(dtype)
+    )
+
+
+def test_mean_nan_is_confined():
+    R = cluster(so3, 4, 0.3, 3, seed=20)
+    R[1, 2, 0, 0] = float("nan")
+    R.requires_grad_()
+    for method in ("chordal", "geodesic"):
+        M = so3_mean(R, method=method)
+        assert torch.isnan(M[1]).all()
+        assert torch.isfinite(M[0]).all() and torch.isfinite(M[2]).all()
+        (g,) = torch.autograd.grad(M[0].sum() + M[2].sum(), R)
+        assert torch.isfinite(g[0]).all() and torch.isfinite(g[2]).all()
+        if method == "chordal":  # the double where keeps even the bad element's gradient at 0
+            assert torch.equal(g[1], torch.zeros_like(g[1]))
+
+
+def test_mean_half():
+    R = cluster(so3, 5, 0.3, 2, seed=21)
+    M = so3_mean(R.half())
+    assert M.dtype == torch.float16
+    torch.testing.assert_close(M.double(), so3_mean(R), rtol=0, atol=2 * eps(torch.float16))
+
+
+def test_mean_gradcheck():
+    R = cluster(so3, 4, 0.5, seed=22)
+    w = torch.rand(4, generator=gen(23), dtype=F64).requires_grad_()
+    d = torch.zeros(4, 3, dtype=F64, requires_grad=True)
+    for method in ("chordal", "geodesic"):
+
+        def f(d, w, method=method):
+            return so3_mean(so3.rplus(R, d), w, method=method, iterations=3)
+
+        assert gradcheck(f, (d, w))
+    # ambient coordinates (raw matrices), as a user's gradient sees them
+    Rr = R.clone().requires_grad_()
+    assert gradcheck(lambda X: so3_mean(X, iterations=3), (Rr,))
+    T = cluster(se3, 3, 0.4, seed=24)
+    e = torch.zeros(3, 6, dtype=F64, requires_grad=True)
+    for method in ("chordal", "geodesic"):
+        assert gradcheck(
+            lambda e, method=method: se3_mean(se3.rplus(T, e), method=method, iterations=3), (e,)
+        )
+
+
+def test_mean_errors():
+    R = so3.identity(4)
+    with pytest.raises(ValueError, match="method 'chordal' or 'geodesic', got 'karcher'"):
+        so3_mean(R, method="karcher")
+    with pytest.raises(ValueError, match="iterations"):
+        so3_mean(R, iterations=-1)
+    with pytest.raises(
+        ValueError, match=r"torchlie.statistics.so3_mean: expected R of shape \(\.\.\., N, 3, 3\)"
+    ):
+        so3_mean(torch.eye(3))
+    with pytest.raises(ValueError, match="N >= 1"):
+        so3_mean(torch.zeros(0, 3, 3))
+    with pytest.raises(ValueError, match=r"expected weights of shape \(\.\.\., 4\)"):
+        so3_mean(R, torch.ones(3))
+    with pytest.raises(TypeError, match="weights"):
+        so3_mean(R, torch.ones(4, dtype=torch.int64))
+    with pytest.raises(TypeError):
+        so3_mean(R, torch.ones(4, dtype=F64))
+    with pytest.raises(ValueError, match="torchlie.statistics.se3_mean"):
+        se3_mean(R)
+
+
+# ----------------------------------------------------------------------------------------------
+# Keyframe interpolation
+# ----------------------------------------------------------------------------------------------
+
+
+def _keys(K: int, seed: int = 0):
+    times = torch.sort(torch.rand(K, generator=gen(seed), dtype=F64) * 10).values
+    R = so3.random(K, generator=gen(seed + 1), dtype=F64)
+    return times, R
+
+
+def test_keyframes_match_scipy_slerp(dtype):
+    times, R = _keys(7)
+    q = torch.linspace(float(times[0]), float(times[-1]), 101, dtype=F64)
+    out = so3_interpolate_keyframes(times.to(dtype), R.to(dtype), q.to(dtype))
+    ref = Slerp(times.numpy(), scipy_matrices(R))(q.numpy()).as_matrix()
+    tol = 1e-13 if dtype == F64 else 2e-5  # float32 times: the query's u moves by ~1e-6
+    torch.testing.assert_close(out.double(), torch.from_numpy(ref), rtol=0, atol=tol)
+
+
+def test_keyframes_hit_keyframes_and_clamp_or_extrapolate():
+    times, R = _keys(5, seed=3)
+    out = so3_interpolate_keyframes(times, R, times)
+    torch.testing.assert_close(out, R, rtol=0, atol=4 * eps(F64))
+    assert torch.equal(out[:-1], R[:-1])  # u = 0 exactly: Exp(0) = I, the keyframe itself
+    before, after = times[0] - 2.0, times[-1] + 3.0
+    clamped = so3_interpolate_keyframes(times, R, torch.stack((before, after)))
+    torch.testing.assert_close(clamped, R[[0, -1]], rtol=0, atol=4 * eps(F64))
+    ext = so3_interpolate_keyframes(times, R, torch.stack((before, after)), extrapolate=True)
+    u0 = (before - times[0]) / (times[1] - times[0])
+    u1 = (after - times[-2]) / (times[-1] - times[-2])
+    torch.testing.assert_close(ext[0], so3.interpolate(R[0], R[1], u0), rtol=0, atol=1e-14)
+    torch.testing.assert_close(ext[1], so3.interpolate(R[-2], R[-1], u1), rtol=0, atol=1e-14)
+
+
+def test_keyframes_batched_shapes():
+    times, _ = _keys(4, seed=5)
+    R = so3.random(4, 2, 3, generator=gen(6), dtype=F64)  # 6 trajectories sharing the times
+    q = torch.rand(5, 7, generator=gen(7), dtype=F64) * 10
+    out = so3_interpolate_keyframes(times, R, q)
+    assert out.shape == (5, 7, 2, 3, 3, 3)
+    i, j, a, b = 3, 4, 1, 2
+    ref = Slerp(times.numpy(), scipy_matrices(R[:, a, b]))(
+        np.clip(q[i, j].numpy(), times[0].item(), times[-1].item())
+    ).as_matrix()
+    torch.testing.assert_close(out[i, j, a, b], torch.from_numpy(ref), rtol=0, atol=1e-13)
+    # scalar query, single keyframe
+    assert so3_interpolate_keyframes(times, R, 1.5).shape == (2, 3, 3, 3)
+    one = so3_interpolate_keyframes(times[:1], R[:1], q)
+    assert one.shape == (5, 7, 2, 3, 3, 3) and torch.equal(one[2, 3], R[0])
+
+
+def test_se3_keyframes():
+    times, R = _keys(6, seed=8)
+    t = torch.randn(6, 3, generator=gen(9), dtype=F64)
+    T = se3.from_rt(R, t)
+    q = torch.linspace(float(times[0]), float(times[-1]), 41, dtype=F64)
+    out = se3_interpolate_keyframes(times, T, q)
+    # rotation part: the rotations' slerp
+    ref = Slerp(times.numpy(), scipy_matrices(R))(q.numpy()).as_matrix()
+    torch.testing.assert_close(out[:, :3, :3], torch.from_numpy(ref), rtol=0, atol=1e-13)
+    # whole pose: the SE(3) geodesic of each segment
+    k = (torch.searchsorted(times, q, right=True) - 1).clamp(0, 4)
+    u = (q - times[k]) / (times[k + 1] - times[k])
+    torch.testing.assert_close(out, se3.interpolate(T[k], T[k + 1], u), rtol=0, atol=1e-13)
+    torch.testing.assert_close(se3_interpolate_keyframes(times, T, times), T, rtol=0, atol=1e-14)
+
+
+def test_keyframes_gradcheck():
+    times, R = _keys(4, seed=10)
+    q = torch.tensor([times[0] + 0.1, (times[1] + times[2]) / 2, times[3] - 0.2], dtype=F64)
+    d = torch.zeros(4, 3, dtype=F64, requires_grad=True)
+    qq = q.clone().requires_grad_()
+    assert gradcheck(lambda d, qq: so3_interpolate_keyframes(times, so3.rplus(R, d), qq), (d, qq))
+    # at the exact keyframe time the derivative in the keyframes is the identity (u = 0)
+    T = se3.random(3, generator=gen(11), dtype=F64)
+    e = torch.zeros(3, 6, dtype=F64, requires_grad=True)
+    tt = torch.tensor([0.0, 1.0, 2.0], dtype=F64)
+    assert gradcheck(
+        lambda e: se3_interpolate_keyframes(
+            tt, se3.rplus(T, e), torch.tensor([0.4, 1.7], dtype=F64)
+        ),
+        (e,),
+    )
+
+
+def test_keyframes_vmap_over_queries():
+    times, R = _keys(5, seed=12)
+    q = torch.rand(8, generator=gen(13), dtype=F64) * 10
+    out = torch.func.vmap(lambda s: so3_interpolate_keyframes(times, R, s))(q)
+    torch.testing.assert_close(out, so3_interpolate_keyframes(times, R, q), rtol=0, atol=0)
+
+
+def test_keyframes_errors():
+    times, R = _keys(3)
+    with pytest.raises(
+        ValueError, match=r"expected keyframes of shape \(K, \.\.\., 3, 3\) with K = 3"
+    ):
+        so3_interpolate_keyframes(times, R[:2], 1.0)
+    with pytest.raises(ValueError, match=r"expected times of shape \(K,\)"):
+        so3_interpolate_keyframes(times[None], R, 1.0)
+    with pytest.raises(TypeError, match="times"):
+        so3_interpolate_keyframes(torch.arange(3), R, 1.0)
+    with pytest.raises(TypeError, match="query_times"):
+        so3_interpolate_keyframes(times, R, torch.tensor([1]))
+    with pytest.raises(ValueError, match="torchlie.statistics.se3_interpolate_keyframes"):
+        se3_interpolate_keyframes(times, R, 1.0)
+
+
+# ----------------------------------------------------------------------------------------------
+# Alignment
+# ----------------------------------------------------------------------------------------------
+
+
+def test_align_matches_scipy_align_vectors(dtype):
+    g = gen(30)
+    b = torch.randn(10, 3, generator=g, dtype=F64)
+    R_true = so3.random(generator=g, dtype=F64)
+    a = b @ R_true.T + 0.1 * torch.randn(10, 3, generator=g, dtype=F64)
+    w = torch.rand(10, generator=g, dtype=F64)
+    ref, _ = Rotation.align_vectors(a.numpy(), b.numpy(), weights=w.numpy())
+    fit = align(b.to(dtype), a.to(dtype), w.to(dtype), translation=False)
+    torch.testing.assert_close(
+        fit.rotation.double(), torch.from_numpy(ref.as_matrix()), rtol=0, atol=64 * eps(dtype)
+    )
+    assert torch.equal(fit.translation, torch.zeros(3, dtype=dtype))
+    assert torch.equal(fit.scale, torch.ones((), dtype=dtype))
+
+
+def test_align_recovers_similarity(batch, dtype):
+    g = gen(31)
+    P = torch.randn(*batch, 12, 3, generator=g, dtype=F64)
+    R = so3.random(*batch, generator=g, dtype=F64)
+    t = torch.randn(*batch, 3, generator=g, dtype=F64)
+    s = torch.rand(batch, generator=g, dtype=F64) + 0.5
+    Q = s[..., None, None] * P @ R.mT + t[..., None, :]
+    fit = align(P.to(dtype), Q.to(dtype), scale=True)
+    assert isinstance(fit, Alignment)
+    tol = 200 * eps(dtype)
+    torch.testing.assert_close(fit.rotation.double(), R, rtol=0, atol=tol)
+    torch.testing.assert_close(fit.translation.double(), t, rtol=0, atol=tol * 10)
+    torch.testing.assert_close(fit.scale.double(), s, rtol=0, atol=tol)
+    rigid = align(P.to(dtype), (P @ R.mT + t[..., None, :]).to(dtype))
+    torch.testing.assert_close(rigid.rotation.double(), R, rtol=0, atol=tol)
+    torch.testing.assert_close(rigid.translation.double(), t, rtol=0, atol=tol * 10)
+
+
+def _cost(P, Q, w, R, t, s):
+    r = s[..., None, None] * P @ R.mT + t[..., None, :] - Q
+    return (w * (r * r).sum(-1)).sum(-1)
+
+
+@pytest.mark.parametrize("scale", [False, True])
+def test_align_is_optimal_with_noise(scale):
+    # the gradient of the cost in (rotation tangent, translation, log scale) vanishes
+    g = gen(32)
+    P = torch.randn(4, 9, 3, generator=g, dtype=F64)
+    Q = 1.3 * P @ so3.random(4, generator=g, dtype=F64).mT + 0.3 * torch.randn(
+        4, 9, 3, generator=g, dtype=F64
+    )
+    w = torch.rand(4, 9, generator=g, dtype=F64)
+    fit = align(P, Q, w, scale=scale)
+    d = torch.zeros(4, 3, dtype=F64, requires_grad=True)
+    dt = torch.zeros(4, 3, dtype=F64, requires_grad=True)
+    ds = torch.zeros(4, dtype=F64, requires_grad=True)
+    cost = _cost(
+        P, Q, w, so3.rplus(fit.rotation, d), fit.translation + dt, fit.scale * torch.exp(ds)
+    )
+    grads = torch.autograd.grad(cost.sum(), (d, dt, ds))
+    assert grads[0].abs().max() < 1e-12 and grads[1].abs().max() < 1e-12
+    if scale:
+        assert grads[2].abs().max() < 1e-12
+    else:
+        assert grads[2].abs().min() > 1e-6  # s = 1 is not the optimal scale here
+
+
+def test_align_reflection_fix():
+    # Q is a mirror image of P: the best proper rotation (det +1), never the reflection
+    g = gen(33)
+    P = torch.randn(8, 3, generator=g, dtype=F64)
+    Q = P * torch.tensor([1.0, 1.0, -1.0], dtype=F64)
+    fit = align(P, Q)
+    assert so3.is_valid(fit.rotation)
+    assert torch.linalg.det(fit.rotation) > 0
+    # and it beats every rotation of a dense random sample
+    Rs = so3.random(5000, generator=g, dtype=F64)
+    Pc, Qc = P - P.mean(0), Q - Q.mean(0)
+    best = _cost(
+        Pc,
+        Qc,
+        torch.ones(8, dtype=F64),
+        fit.rotation,
+        torch.zeros(3, dtype=F64),
+        torch.ones((), dtype=F64),
+    )
+    others = _cost(
+        Pc,
+        Qc,
+        torch.ones(8, dtype=F64),
+        Rs,
+        torch.zeros(5000, 3, dtype=F64),
+        torch.ones(5000, dtype=F64),
+    )
+    assert best <= others.min()
+
+
+def test_align_gradcheck():
+    g = gen(34)
+    P = torch.randn(6, 3, generator=g, dtype=F64, requires_grad=True)
+    Q = (
+        P.detach() @ so3.exp(torch.tensor([0.3, -0.2, 1.0], dtype=F64)).T
+        + 0.2 * torch.randn(6, 3, generator=g, dtype=F64)
+    ).requires_grad_()
+    w = (torch.rand(6, generator=g, dtype=F64) + 0.5).requires_grad_()
+    assert gradcheck(lambda P, Q, w: tuple(align(P, Q, w, scale=True)), (P, Q, w))
+    assert gradcheck(lambda P, Q: align(P, Q, translation=False).rotation, (P, Q))
+
+
+def test_align_broadcast_weights_and_half():
+    g = gen(35)
+    P = torch.randn(2, 1, 7, 3, generator=g, dtype=F64)
+    Q = torch.randn(3, 7, 3, generator=g, dtype=F64)
+    w = torch.rand(7, generator=g, dtype=F64)
+    fit = align(P, Q, w, scale=True)
+    assert (
+        fit.rotation.shape == (2, 3, 3, 3)
+        and fit.translation.shape == (2, 3, 3)
+        and fit.scale.shape == (2, 3)
+    )
+    one = align(P[1, 0], Q[2], w, scale=True)
+    torch.testing.assert_close(fit.rotation[1, 2], one.rotation, rtol=0, atol=1e-14)
+    # half: a well-conditioned fit (Q a rotated copy of P) loses only the inputs' rounding
+    R = so3.random(generator=g, dtype=F64)
+    Q = P @ R.T + 0.01 * torch.randn(2, 1, 7, 3, generator=g, dtype=F64)
+    h = align(P.half(), Q.half(), w.half())
+    assert h.rotation.dtype == torch.float16
+    ref = align(P, Q, w).rotation
+    torch.testing.assert_close(h.rotation.double(), ref, rtol=0, atol=4 * eps(torch.float16))
+
+
+def test_align_errors():
+    P = torch.randn(5, 3)
+    with pytest.raises(
+        ValueError,
+        match=r"statistics.align: expected P and Q of shape \(\.\.\., N, 3\) with the same N",
+    ):
+        align(P, P[:4])
+    with pytest.raises(ValueError, match=r"expected Q of shape \(\.\.\., 3\)"):
+        align(P, torch.randn(5, 2))
+    with pytest.raises(ValueError, match=r"expected weights of shape \(\.\.\., 5\)"):
+        align(P, P, torch.ones(4))
+    with pytest.raises(TypeError):
+        align(P, P.double())
+    with pytest.raises(TypeError):
+        align(P.long(), P.long())
+
+
+# ----------------------------------------------------------------------------------------------
+# Kinematics
+# ----------------------------------------------------------------------------------------------
+
+
+def test_integrate_against_matrix_exp(dtype):
+    g = gen(40)
+    R = so3.random(4, generator=g, dtype=F64)
+    w = torch.randn(4, 3, generator=g, dtype=F64)
+    dt = torch.rand(4, generator=g, dtype=F64)
+    E = torch.linalg.matrix_exp(so3.hat(w) * dt[:, None, None])
+    tol = 16 * eps(dtype)
+    out = so3_integrate(R.to(dtype), w.to(dtype), dt.to(dtype))
+    torch.testing.assert_close(out.double(), R @ E, rtol=0, atol=tol)
+    out = so3_integrate(R.to(dtype), w.to(dtype), dt.to(dtype), frame="world")
+    torch.testing.assert_close(out.double(), E @ R, rtol=0, atol=tol)
+    T = se3.random(4, generator=g, dtype=F64)
+    xi = torch.randn(4, 6, generator=g, dtype=F64)
+    E = torch.linalg.matrix_exp(se3.hat(xi) * dt[:, None, None])
+    out = se3_integrate(T.to(dtype), xi.to(dtype), dt.to(dtype))
+    torch.testing.assert_close(out.double(), T @ E, rtol=0, atol=tol * 8)
+    out = se3_integrate(T.to(dtype), xi.to(dtype), dt.to(dtype), frame="world")
+    torch.testing.assert_close(out.double(), E @ T, rtol=0, atol=tol * 8)
+
+
+def test_integrate_body_world_agree_and_compose():
+    g = gen(41)
+    T = se3.random(3, generator=g, dtype=F64)
+    xi = torch.randn(3, 6, generator=g, dtype=F64)
+    xi_world = (se3.adjoint(T) @ xi[..., None])[..., 0]
+    torch.testing.assert_close(
+        se3_integrate(T, xi, 0.7), se3_integrate(T, xi_world, 0.7, "world"), rtol=0, atol=1e-13
+    )
+    two = se3_integrate(se3_integrate(T, xi, 0.3), xi, 0.4)
+    torch.testing.assert_close(two, se3_integrate(T, xi, 0.7), rtol=0, atol=1e-13)
+    R = so3.random(3, generator=g, dtype=F64)
+    w = torch.randn(3, 3, generator=g, dtype=F64)
+    torch.testing.assert_close(
+        so3_integrate(R, w, 0.5),
+        so3_integrate(R, (R @ w[..., None])[..., 0], 0.5, "world"),
+        rtol=0,
+        atol=1e-14,
+    )
+    # a constant body twist with forward speed v and yaw rate r traces a circle of radius v/r
+    circle = se3_integrate(
+        se3.identity(dtype=F64), torch.tensor([2.0, 0, 0, 0, 0, 0.5], dtype=F64), math.pi / 0.5
+    )
+    torch.testing.assert_close(
+        circle[:3, 3], torch.tensor([0.0, 8.0, 0.0], dtype=F64), rtol=0, atol=1e-14
+    )
+
+
+def test_integrate_broadcast_and_errors():
+    out = so3_integrate(torch.eye(3), torch.randn(4, 1, 3), torch.rand(5))
+    assert out.shape == (4, 5, 3, 3)
+    with pytest.raises(ValueError, match="frame 'body' or 'world', got 'space'"):
+        se3_integrate(torch.eye(4), torch.zeros(6), 1.0, frame="space")
+    with pytest.raises(
+        ValueError,
+        match=r"torchlie.statistics.se3_integrate: expected velocity of shape \(\.\.\., 6\)",
+    ):
+        se3_integrate(torch.eye(4), torch.zeros(3), 1.0)
+    with pytest.raises(TypeError, match="dt"):
+        so3_integrate(torch.eye(3), torch.zeros(3), "1")
+
+
+# ----------------------------------------------------------------------------------------------
+# torch.compile
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+@pytest.mark.compile
+def test_compile_fullgraph():
+    torch._dynamo.reset()
+
+    def f(R, w, times, q, P, Q):
+        M = so3_mean(R, w, iterations=1)
+        traj = so3_interpolate_keyframes(times, R, q)
+        fit = align(P, Q, w, scale=True)
+        return M, traj, fit.rotation, fit.scale
+
+    R = cluster(so3, 6, 0.5, seed=50)
+    w = torch.rand(6, generator=gen(51), dtype=F64)
+    times = torch.arange(6, dtype=F64)
+    q = torch.rand(4, generator=gen(52), dtype=F64) * 5
+    P = torch.randn(6, 3, generator=gen(53), dtype=F64)
+    Q = torch.randn(6, 3, generator=gen(54), dtype=F64)
+    got = torch.compile(f, fullgraph=True)(R, w, times, q, P, Q)
+    want = f(R, w, times, q, P, Q)
+    for a, b in zip(got, want, strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=1e-12)
+
+
+def test_align_nan_is_confined():
+    P = torch.randn(3, 6, 3, generator=gen(60), dtype=F64)
+    Q = torch.randn(3, 6, 3, generator=gen(61), dtype=F64)
+    Q[1, 4, 2] = float("nan")
+    Q.requires_grad_()
+    fit = align(P, Q, scale=True)
+    for x in fit:
+        assert torch.isnan(x[1]).all()
+        assert torch.isfinite(x[0]).all() and torch.isfinite(x[2]).all()
+    (g,) = torch.autograd.grad(fit.rotation[0].sum() + fit.scale[2], Q)
+    assert torch.isfinite(g[0]).all() and torch.isfinite(g[2]).all()
+    torch.testing.assert_close(fit.rotation[2], align(P[2], Q[2]).rotation, rtol=0, atol=0)
+
+
+def test_vmap_mean_and_align():
+    R = cluster(so3, 5, 0.4, 4, seed=70)
+    w = torch.rand(4, 5, generator=gen(71), dtype=F64)
+    out = torch.func.vmap(lambda r, v: so3_mean(r, v))(R, w)
+    torch.testing.assert_close(out, so3_mean(R, w), rtol=0, atol=1e-14)
+    T = cluster(se3, 5, 0.4, 4, seed=72)
+    out = torch.func.vmap(se3_mean)(T)
+    torch.testing.assert_close(out, se3_mean(T), rtol=0, atol=1e-14)
+    P = torch.randn(4, 7, 3, generator=gen(73), dtype=F64)
+    Q = torch.randn(4, 7, 3, generator=gen(74), dtype=F64)
+    fit = torch.func.vmap(lambda p, q: tuple(align(p, q, scale=True)))(P, Q)
+    for a, b in zip(fit, align(P, Q, scale=True), strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=1e-14)
+
+
+def test_device(device):
+    R = cluster(so3, 5, 0.4, 3, seed=80)
+    P = torch.randn(3, 7, 3, generator=gen(81), dtype=F64)
+    times = torch.arange(5, dtype=F64)
+    q = torch.tensor([0.5, 2.25, 6.0], dtype=F64)
+    cpu = (
+        so3_mean(R),
+        align(P, P.flip(-2), scale=True).rotation,
+        so3_interpolate_keyframes(times, R[0], q),
+    )
+    dev = (
+        so3_mean(R.to(device)),
+        align(P.to(device), P.flip(-2).to(device), scale=True).rotation,
+        so3_interpolate_keyframes(times.to(device), R[0].to(device), q.to(device)),
+    )
+    for a, b in zip(dev, cpu, strict=True):
+        assert a.device.type == device
+        torch.testing.assert_close(a.cpu(), b, rtol=0, atol=1e-12)
+    g = torch.Generator(device=device).manual_seed(0)
+    X = se3_randn(se3.identity(dtype=F64, device=device), 0.1, sample_shape=(4,), generator=g)
+    assert X.device.type == device and se3.is_valid(X).all()

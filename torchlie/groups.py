@@ -1,0 +1,533 @@
+"""Thin, immutable group-element classes: :class:`SO3` and :class:`SE3`.
+
+Each object wraps exactly one tensor, ``.tensor``: rotation matrices ``(..., 3, 3)`` for
+:class:`SO3`, homogeneous poses ``(..., 4, 4)`` for :class:`SE3`.  Every method is one call into
+the functional core (:mod:`torchlie.so3`, :mod:`torchlie.se3`, :mod:`torchlie.quaternion`), so
+values, gradients, batching and the conventions of :mod:`torchlie` are exactly those of the
+functions.  The classes are not tensor subclasses and not modules: they hold no state besides the
+tensor, cannot be mutated, and cost one Python object per call.
+
+* ``X @ Y`` composes two elements of the same group (batch shapes broadcast);
+  ``X @ p`` with a plain tensor ``p`` of shape ``(..., 3)`` acts on points (``X.apply(p)``).
+  Inside ``torch.compile(fullgraph=True)`` use the named methods ``X.compose(Y)`` and
+  ``X.apply(p)``: Dynamo (torch 2.13) does not trace ``@`` on user-defined classes.
+* ``X.shape`` is the *batch* shape; ``len(X)``, ``X[i]``, ``X[1:3]``, ``X[..., 0]`` index the
+  batch dimensions only and return the same class.
+* Both classes are registered as pytree nodes (one leaf, the tensor), so they can be passed into
+  and returned from ``torch.func`` transforms and ``torch.compile`` d functions.  A transform
+  that maps leaves maps the tensor: ``torch.func.grad`` with respect to an ``SO3`` returns an
+  ``SO3`` wrapping the *ambient* gradient ``dL/dR``, which is not a rotation.
+
+Shape and dtype checks in the constructors are free (metadata only).  ``check=True`` also checks
+the values (``is_valid``), which synchronises a GPU; it raises ``ValueError``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from types import ModuleType
+from typing import Any, ClassVar, TypeVar
+
+import torch
+import torch.utils._pytree as _pytree
+from torch import Tensor
+
+from . import _checks
+from . import quaternion as _quat
+from . import se3 as _se3
+from . import so3 as _so3
+from ._typing import Bool, Float
+
+__all__ = ["SO3", "SE3"]
+
+_G = TypeVar("_G", bound="_Group")
+
+
+class _Group:
+    """Behaviour shared by :class:`SO3` and :class:`SE3` (not public)."""
+
+    __slots__ = ("tensor",)
+
+    tensor: Tensor
+    _core: ClassVar[ModuleType]
+    _n: ClassVar[int]  # matrix size: 3 or 4
+    _dof: ClassVar[int]  # tangent dimension: 3 or 6
+
+    # -- construction ----------------------------------------------------------------------
+
+    def __init__(self, tensor: Tensor, *, check: bool = False, atol: float | None = None) -> None:
+        name = "torchlie." + type(self).__name__
+        _checks.tensor(tensor, name, "tensor", (self._n, self._n))
+        if check:
+            _check_valid(name, self._core.is_valid(tensor, atol=atol), "a valid group element")
+        object.__setattr__(self, "tensor", tensor)
+
+    @classmethod
+    def _wrap(cls: type[_G], tensor: Any) -> _G:
+        """Wrap without checks (results of the core, and pytree leaves of any type)."""
+        obj = object.__new__(cls)
+        object.__setattr__(obj, "tensor", tensor)
+        return obj
+
+    def __setattr__(self, name: str, value: object) -> None:
+        raise AttributeError(f"{type(self).__name__} is immutable")
+
+    def __delattr__(self, name: str) -> None:
+        raise AttributeError(f"{type(self).__name__} is immutable")
+
+    def __reduce__(self):
+        return (type(self)._wrap, (self.tensor,))
+
+    @classmethod
+    def exp(cls: type[_G], tangent: Tensor) -> _G:
+        """``Exp`` of a tangent vector (rotation vector ``(..., 3)`` or twist ``(..., 6)``).
+
+        Example:
+            >>> SO3.exp(torch.zeros(5, 3)).shape
+            torch.Size([5])
+        """
+        return cls._wrap(cls._core.exp(tangent))
+
+    @classmethod
+    def identity(
+        cls: type[_G],
+        *batch: int,
+        dtype: torch.dtype | None = None,
+        device: torch.device | str | None = None,
+    ) -> _G:
+        """Identity elements of batch shape ``batch``.
+
+        Example:
+            >>> SE3.identity(2, dtype=torch.float64).log()
+            tensor([[0., 0., 0., 0., 0., 0.],
+                    [0., 0., 0., 0., 0., 0.]], dtype=torch.float64)
+        """
+        return cls._wrap(cls._core.identity(*batch, dtype=dtype, device=device))
+
+    @classmethod
+    def random(
+        cls: type[_G],
+        *batch: int,
+        generator: torch.Generator | None = None,
+        dtype: torch.dtype | None = None,
+        device: torch.device | str | None = None,
+    ) -> _G:
+        """Random elements of batch shape ``batch`` (the core's ``random``).
+
+        Example:
+            >>> SO3.random(3, generator=torch.Generator().manual_seed(0)).is_valid()
+            tensor([True, True, True])
+        """
+        return cls._wrap(cls._core.random(*batch, generator=generator, dtype=dtype, device=device))
+
+    # -- group operations ------------------------------------------------------------------
+
+    def __matmul__(self, other: object) -> Any:
+        if type(other) is type(self):
+            return type(self)._wrap(self._core.compose(self.tensor, other.tensor))
+        if isinstance(other, Tensor):
+            return self._core.act(self.tensor, other)
+        return NotImplemented
+
+    def compose(self: _G, other: _G) -> _G:
+        """``self @ other`` (batch shapes broadcast); use it in ``torch.compile`` d code.
+
+        Dynamo (torch 2.13) cannot trace the ``@`` operator on user-defined classes: it graph
+        breaks, and ``fullgraph=True`` raises.  The named methods trace.
+
+        Example:
+            >>> X = SO3.exp(torch.tensor([0.0, 0.0, 0.25]))
+            >>> X.compose(X).log()
+            tensor([0.0000, 0.0000, 0.5000])
+        """
+        _same_group("compose", self, other)
+        return type(self)._wrap(self._core.compose(self.tensor, other.tensor))
+
+    def apply(self, points: Float[Tensor, "*b1 3"]) -> Float[Tensor, "*b 3"]:
+        """Act on points ``(..., 3)`` (``self @ points``; batch shapes broadcast).
+
+        Example:
+            >>> SE3.from_rt(torch.eye(3), torch.ones(3)).apply(torch.zeros(2, 3))
+            tensor([[1., 1., 1.],
+                    [1., 1., 1.]])
+        """
+        return self._core.act(self.tensor, points)
+
+    def inverse(self: _G) -> _G:
+        """The inverse element.
+
+        Example:
+            >>> SE3.from_rt(torch.eye(3), torch.ones(3)).inverse().translation()
+            tensor([-1., -1., -1.])
+        """
+        return type(self)._wrap(self._core.inverse(self.tensor))
+
+    def log(self) -> Tensor:
+        """``Log``: rotation vector ``(..., 3)`` (SO3) or twist ``(..., 6)`` (SE3).
+
+        Example:
+            >>> SO3.exp(torch.tensor([0.1, 0.2, 0.3])).log()
+            tensor([0.1000, 0.2000, 0.3000])
+        """
+        return self._core.log(self.tensor)
+
+    def adjoint(self) -> Tensor:
+        """Adjoint matrix ``(..., dof, dof)``: ``X Exp(tau) X^-1 = Exp(Ad_X tau)``.
+
+        Example:
+            >>> SE3.identity().adjoint().shape
+            torch.Size([6, 6])
+        """
+        return self._core.adjoint(self.tensor)
+
+    def rplus(self: _G, tau: Tensor) -> _G:
+        """``self (+) tau = self Exp(tau)`` (``tau`` in the body frame).
+
+        Example:
+            >>> SO3.identity().rplus(torch.tensor([0.0, 0.5, 0.0])).log()
+            tensor([0.0000, 0.5000, 0.0000])
+        """
+        return type(self)._wrap(self._core.rplus(self.tensor, tau))
+
+    def lplus(self: _G, tau: Tensor) -> _G:
+        """``Exp(tau) self`` (``tau`` in the world frame).
+
+        Example:
+            >>> T = SE3.from_rt(torch.eye(3), torch.tensor([1.0, 0.0, 0.0]))
+            >>> T.lplus(torch.tensor([0.0, 2.0, 0.0, 0.0, 0.0, 0.0])).translation()
+            tensor([1., 2., 0.])
+        """
+        return type(self)._wrap(self._core.lplus(self.tensor, tau))
+
+    def rminus(self: _G, other: _G) -> Tensor:
+        """``self (-) other = Log(other^-1 self)``, so ``other.rplus(self.rminus(other)) == self``.
+
+        Example:
+            >>> a, b = SO3.exp(torch.tensor([0.0, 0.0, 0.5])), SO3.identity()
+            >>> a.rminus(b)
+            tensor([0.0000, 0.0000, 0.5000])
+        """
+        _same_group("rminus", self, other)
+        return self._core.rminus(self.tensor, other.tensor)
+
+    def lminus(self: _G, other: _G) -> Tensor:
+        """``Log(self other^-1)``, the left-perturbation difference.
+
+        Example:
+            >>> a, b = SO3.exp(torch.tensor([0.0, 0.0, 0.5])), SO3.identity()
+            >>> a.lminus(b)
+            tensor([0.0000, 0.0000, 0.5000])
+        """
+        _same_group("lminus", self, other)
+        return self._core.lminus(self.tensor, other.tensor)
+
+    def between(self: _G, other: _G) -> _G:
+        """``self^-1 other``: ``other`` expressed in the frame of ``self``.
+
+        Example:
+            >>> a = SE3.from_rt(torch.eye(3), torch.tensor([1.0, 0.0, 0.0]))
+            >>> b = SE3.from_rt(torch.eye(3), torch.tensor([1.0, 2.0, 0.0]))
+            >>> a.between(b).translation()
+            tensor([0., 2., 0.])
+        """
+        _same_group("between", self, other)
+        return type(self)._wrap(self._core.between(self.tensor, other.tensor))
+
+    def interpolate(self: _G, other: _G, t: Tensor | float) -> _G:
+        """Geodesic interpolation ``self Exp(t Log(self^-1 other))`` (``t`` broadcasts).
+
+        Example:
+            >>> a, b = SO3.identity(), SO3.exp(torch.tensor([0.0, 0.0, 1.0]))
+            >>> a.interpolate(b, torch.tensor([0.25, 0.5])).log()
+            tensor([[0.0000, 0.0000, 0.2500],
+                    [0.0000, 0.0000, 0.5000]])
+        """
+        _same_group("interpolate", self, other)
+        return type(self)._wrap(self._core.interpolate(self.tensor, other.tensor, t))
+
+    def distance(self: _G, other: _G) -> Any:
+        """The core's ``distance`` (SO3: angle; SE3: ``(angle, translation norm)``).
+
+        Example:
+            >>> SO3.identity().distance(SO3.exp(torch.tensor([0.0, 0.3, 0.4])))
+            tensor(0.5000)
+        """
+        _same_group("distance", self, other)
+        return self._core.distance(self.tensor, other.tensor)
+
+    def is_valid(self, atol: float | None = None) -> Bool[Tensor, "*b"]:
+        """Per-element value check (reads the values; see the core's ``is_valid``).
+
+        Example:
+            >>> SO3(torch.stack((torch.eye(3), 2 * torch.eye(3)))).is_valid()
+            tensor([ True, False])
+        """
+        return self._core.is_valid(self.tensor, atol=atol)
+
+    # -- views and conversions -------------------------------------------------------------
+
+    def matrix(self) -> Tensor:
+        """The wrapped matrix ``(..., n, n)`` (the same tensor, not a copy).
+
+        Example:
+            >>> SO3.identity().matrix()
+            tensor([[1., 0., 0.],
+                    [0., 1., 0.],
+                    [0., 0., 1.]])
+        """
+        return self.tensor
+
+    @property
+    def shape(self) -> torch.Size:
+        """The batch shape (the matrix dimensions excluded)."""
+        return self.tensor.shape[:-2]
+
+    @property
+    def ndim(self) -> int:
+        """The number of batch dimensions."""
+        return self.tensor.dim() - 2
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return self.tensor.dtype
+
+    @property
+    def device(self) -> torch.device:
+        return self.tensor.device
+
+    @property
+    def requires_grad(self) -> bool:
+        return self.tensor.requires_grad
+
+    def __len__(self) -> int:
+        if self.tensor.dim() == 2:
+            raise TypeError(f"len() of an unbatched {type(self).__name__}")
+        return self.tensor.shape[0]
+
+    def __getitem__(self: _G, key: Any) -> _G:
+        if not isinstance(key, tuple):
+            key = (key,)
+        # The two explicit full slices pin the matrix dimensions: the key indexes batch
+        # dimensions only, and indexing past them raises IndexError.
+        return type(self)._wrap(self.tensor[key + (slice(None), slice(None))])
+
+    def __iter__(self: _G) -> Iterator[_G]:
+        for i in range(len(self)):
+            yield self[i]
+
+    def to(self: _G, *args: Any, **kwargs: Any) -> _G:
+        """``Tensor.to`` on the wrapped tensor (dtype and/or device).
+
+        Example:
+            >>> SO3.identity().to(torch.float64).dtype
+            torch.float64
+        """
+        return type(self)._wrap(self.tensor.to(*args, **kwargs))
+
+    def detach(self: _G) -> _G:
+        """The same element, cut from the autograd graph (``Tensor.detach``).
+
+        Example:
+            >>> SO3.exp(torch.ones(3, requires_grad=True)).detach().requires_grad
+            False
+        """
+        return type(self)._wrap(self.tensor.detach())
+
+    def clone(self: _G) -> _G:
+        """A copy of the wrapped tensor, in a new object (``Tensor.clone``).
+
+        Example:
+            >>> X = SO3.identity()
+            >>> X.clone().tensor is X.tensor
+            False
+        """
+        return type(self)._wrap(self.tensor.clone())
+
+    def requires_grad_(self: _G, requires_grad: bool = True) -> _G:
+        """Set ``requires_grad`` on the wrapped tensor (a leaf) and return ``self``.
+
+        Example:
+            >>> SO3.identity(dtype=torch.float64).requires_grad_().requires_grad
+            True
+        """
+        self.tensor.requires_grad_(requires_grad)
+        return self
+
+    def __repr__(self) -> str:
+        name = type(self).__name__
+        pad = " " * (len(name) + 1)
+        lines = repr(self.tensor).split("\n")
+        body = "\n".join([lines[0]] + [pad + s if s else s for s in lines[1:]])
+        return f"{name}({body})"
+
+
+def _same_group(op: str, a: _Group, b: object) -> None:
+    if type(b) is not type(a):
+        raise TypeError(
+            f"torchlie.{type(a).__name__}.{op}: expected another {type(a).__name__}, "
+            f"got {type(b).__name__}"
+        )
+
+
+def _check_valid(name: str, ok: Tensor, what: str) -> None:
+    # Reads the values (a device sync): only with check=True.
+    bad = int((~ok).sum())
+    if bad:
+        raise ValueError(f"{name}: {bad} of {ok.numel()} element(s) are not {what}")
+
+
+class SO3(_Group):
+    """Rotations, wrapping rotation matrices ``(..., 3, 3)`` (``p_world = R @ p_body``).
+
+    Args:
+        tensor: rotation matrices ``(..., 3, 3)``, floating point.
+        check: also check the values with :func:`torchlie.so3.is_valid` (``ValueError``).
+        atol: tolerance of that check (default: the core's).
+
+    Example:
+        >>> R = SO3.exp(torch.tensor([0.0, 0.0, torch.pi / 2]))
+        >>> p = torch.tensor([1.0, 0.0, 0.0])
+        >>> torch.allclose(R @ p, torch.tensor([0.0, 1.0, 0.0]), atol=1e-6)
+        True
+        >>> (R @ R).distance(SO3.identity())
+        tensor(3.1416)
+        >>> SO3.identity(2, 5)[1, 1:3].shape
+        torch.Size([2])
+    """
+
+    __slots__ = ()
+    _core = _so3
+    _n = 3
+    _dof = 3
+
+    @classmethod
+    def from_quaternion(
+        cls, q: Float[Tensor, "*b 4"], *, check: bool = False, atol: float | None = None
+    ) -> SO3:
+        """From wxyz quaternions ``(..., 4)`` (scale-invariant: ``q / |q|`` is used).
+
+        With ``check=True``, raises ``ValueError`` unless every ``|q|`` is 1 within ``atol``
+        (:func:`torchlie.quaternion.is_unit`) and finite.
+
+        Example:
+            >>> SO3.from_quaternion(torch.tensor([0.0, 0.0, 0.0, 1.0])).log()
+            tensor([0.0000, 0.0000, 3.1416])
+        """
+        if check:
+            _check_valid(
+                "torchlie.SO3.from_quaternion", _quat.is_unit(q, atol=atol), "unit quaternions"
+            )
+        return cls._wrap(_quat.to_matrix(q))
+
+    def quaternion(self) -> Float[Tensor, "*b 4"]:
+        """Canonical wxyz unit quaternions ``(..., 4)`` (``w >= 0``)."""
+        return _quat.from_matrix(self.tensor)
+
+    def rotation(self) -> SO3:
+        """``self`` (so code written for SE3 poses also accepts rotations)."""
+        return self
+
+
+class SE3(_Group):
+    """Rigid motions, wrapping homogeneous poses ``(..., 4, 4)`` ``[[R, t], [0, 1]]``.
+
+    Tangent vectors are twists ``(rho, phi)`` ``(..., 6)``, translation part first.
+
+    Args:
+        tensor: poses ``(..., 4, 4)``, floating point.
+        check: also check the values with :func:`torchlie.se3.is_valid` (``ValueError``).
+        atol: tolerance of that check (default: the core's).
+
+    Example:
+        >>> T = SE3.from_rt(torch.eye(3), torch.tensor([1.0, 2.0, 3.0]))
+        >>> T @ torch.zeros(3)
+        tensor([1., 2., 3.])
+        >>> (T @ T).translation()
+        tensor([2., 4., 6.])
+        >>> T.inverse().log()
+        tensor([-1., -2., -3.,  0.,  0.,  0.])
+    """
+
+    __slots__ = ()
+    _core = _se3
+    _n = 4
+    _dof = 6
+
+    @classmethod
+    def from_rt(
+        cls,
+        R: Float[Tensor, "*b1 3 3"] | SO3,
+        t: Float[Tensor, "*b2 3"],
+        *,
+        check: bool = False,
+        atol: float | None = None,
+    ) -> SE3:
+        """From rotations (matrices ``(..., 3, 3)`` or an :class:`SO3`) and translations.
+
+        With ``check=True``, raises ``ValueError`` unless every ``R`` is a valid rotation.
+        """
+        if isinstance(R, SO3):
+            R = R.tensor
+        if check:
+            _check_valid("torchlie.SE3.from_rt", _so3.is_valid(R, atol=atol), "rotations")
+        return cls._wrap(_se3.from_rt(R, t))
+
+    @classmethod
+    def from_pos_quat(
+        cls, pq: Float[Tensor, "*b 7"], *, check: bool = False, atol: float | None = None
+    ) -> SE3:
+        """From 7-vectors ``(tx, ty, tz, qw, qx, qy, qz)``.
+
+        With ``check=True``, raises ``ValueError`` unless every quaternion has unit norm
+        within ``atol`` (:func:`torchlie.quaternion.is_unit`).
+        """
+        if check:
+            _checks.tensor(pq, "torchlie.SE3.from_pos_quat", "pq", (7,))
+            _check_valid(
+                "torchlie.SE3.from_pos_quat",
+                _quat.is_unit(pq[..., 3:], atol=atol),
+                "unit quaternions",
+            )
+        return cls._wrap(_se3.from_pos_quat(pq))
+
+    def to_rt(self) -> tuple[Float[Tensor, "*b 3 3"], Float[Tensor, "*b 3"]]:
+        """``(R, t)``: rotation matrices ``(..., 3, 3)`` and translations ``(..., 3)``."""
+        return _se3.to_rt(self.tensor)
+
+    def pos_quat(self) -> Float[Tensor, "*b 7"]:
+        """7-vectors ``(t, q)``: translation, then the canonical wxyz quaternion."""
+        return _se3.to_pos_quat(self.tensor)
+
+    def rotation(self) -> SO3:
+        """The rotation part as an :class:`SO3`."""
+        return SO3._wrap(_se3.to_rt(self.tensor)[0])
+
+    def translation(self) -> Float[Tensor, "*b 3"]:
+        """The translation part ``(..., 3)``."""
+        return _se3.to_rt(self.tensor)[1]
+
+    def quaternion(self) -> Float[Tensor, "*b 4"]:
+        """Canonical wxyz quaternion of the rotation part ``(..., 4)``."""
+        return _se3.to_pos_quat(self.tensor)[..., 3:]
+
+
+# -- pytree registration ---------------------------------------------------------------------
+
+
+def _flatten(x: _Group) -> tuple[list[Any], None]:
+    return [x.tensor], None
+
+
+def _flatten_with_keys(x: _Group) -> tuple[list[tuple[Any, Any]], None]:
+    return [(_pytree.GetAttrKey("tensor"), x.tensor)], None
+
+
+for _cls in (SO3, SE3):
+    _pytree.register_pytree_node(
+        _cls,
+        _flatten,
+        lambda leaves, _ctx, _c=_cls: _c._wrap(next(iter(leaves))),
+        serialized_type_name=f"torchlie.groups.{_cls.__name__}",
+        flatten_with_keys_fn=_flatten_with_keys,
+    )
+del _cls

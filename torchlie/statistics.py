@@ -1,0 +1,558 @@
+"""Statistics, interpolation, alignment and kinematics on SO(3) and SE(3).
+
+Functions are named ``so3_*`` / ``se3_*`` by group and take plain tensors in the conventions of
+:mod:`torchlie`: rotations ``(..., 3, 3)``, poses ``(..., 4, 4)``, rotation vectors ``(..., 3)``,
+twists ``(rho, phi)`` ``(..., 6)``, right perturbations ``X Exp(eps)``.
+
+* :func:`so3_randn`, :func:`se3_randn`: Gaussian noise in the tangent space about a mean,
+  ``X = M Exp(eps)``, ``eps ~ N(0, Sigma)``.
+* :func:`so3_mean`, :func:`se3_mean`: weighted means of a set ``(..., N, n, n)`` (the last batch
+  dimension is the set), ``"chordal"`` (closed form) or ``"geodesic"`` (Karcher iteration with a
+  fixed iteration count, so nothing synchronises a device and the result is differentiable).
+* :func:`so3_interpolate_keyframes`, :func:`se3_interpolate_keyframes`: piecewise-geodesic
+  trajectories through timed keyframes, evaluated at any query times.
+* :func:`align`: weighted Kabsch / Umeyama alignment of point sets (rotation, translation and
+  optionally scale).
+* :func:`so3_integrate`, :func:`se3_integrate`: exact integration of a constant angular velocity
+  or twist in the body or world frame.  (The relative transform ``T1^-1 T2`` is
+  :func:`torchlie.se3.between` / :func:`torchlie.so3.between`.)
+
+Nothing here branches in Python on tensor values, so every function works under
+``torch.compile(fullgraph=True)`` and ``torch.func.vmap`` (except that :func:`so3_randn` and
+:func:`se3_randn` draw random numbers, which ``vmap`` supports only with
+``randomness="different"`` or ``"same"``).  float16/bfloat16 inputs are computed in float32
+and returned in the input dtype.
+"""
+
+from __future__ import annotations
+
+from types import ModuleType
+from typing import NamedTuple
+
+import torch
+from torch import Tensor
+
+from . import _checks, se3, so3
+from ._typing import Float
+
+__all__ = [
+    "so3_randn",
+    "se3_randn",
+    "so3_mean",
+    "se3_mean",
+    "so3_interpolate_keyframes",
+    "se3_interpolate_keyframes",
+    "Alignment",
+    "align",
+    "so3_integrate",
+    "se3_integrate",
+]
+
+_NAME = "torchlie.statistics."
+_METHODS = ("chordal", "geodesic")
+
+
+class _Group(NamedTuple):
+    name: str
+    core: ModuleType
+    n: int  # matrix size
+    dof: int  # tangent dimension
+
+
+_SO3 = _Group("so3", so3, 3, 3)
+_SE3 = _Group("se3", se3, 4, 6)
+
+
+def _param(x: Tensor | float, fn: str, arg: str, like: Tensor) -> Tensor:
+    """A float or floating tensor parameter, in the compute dtype and device of ``like``."""
+    if isinstance(x, Tensor):
+        if not x.is_floating_point():
+            raise TypeError(
+                f"{fn}: expected {arg} to be a float or floating-point tensor, got {x.dtype}"
+            )
+        return x.to(like.dtype)
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        raise TypeError(f"{fn}: expected {arg} to be a float or a tensor, got {type(x).__name__}")
+    return torch.tensor(float(x), dtype=like.dtype, device=like.device)
+
+
+# ----------------------------------------------------------------------------------------------
+# Sampling
+# ----------------------------------------------------------------------------------------------
+
+
+def _randn(
+    g: _Group,
+    mean: Tensor,
+    std: Tensor | float | None,
+    cov: Tensor | None,
+    scale_tril: Tensor | None,
+    sample_shape: tuple[int, ...] | torch.Size,
+    generator: torch.Generator | None,
+) -> Tensor:
+    fn = _NAME + g.name + "_randn"
+    m, dtype = _checks.tensor(mean, fn, "mean", (g.n, g.n))
+    given = [
+        k for k, v in (("std", std), ("cov", cov), ("scale_tril", scale_tril)) if v is not None
+    ]
+    if len(given) != 1:
+        raise ValueError(
+            f"{fn}: expected exactly one of std, cov and scale_tril, got "
+            f"{', '.join(given) if given else 'none'}"
+        )
+    shapes = [(m.shape[:-2], "mean")]
+    if std is not None:
+        s = _param(std, fn, "std", m)
+        shapes.append((s.shape, "std"))
+    else:
+        name = "cov" if cov is not None else "scale_tril"
+        L, _ = _checks.tensor(cov if cov is not None else scale_tril, fn, name, (g.dof, g.dof))
+        _checks.same_dtype(fn, mean=mean, **{name: cov if cov is not None else scale_tril})
+        if cov is not None:
+            L, info = torch.linalg.cholesky_ex(L)
+            # A covariance that is not positive definite gives NaN for its element only.
+            L = torch.where((info == 0)[..., None, None], L, torch.full_like(L, float("nan")))
+        else:
+            L = L.tril()
+        shapes.append((L.shape[:-2], name))
+    batch = _checks.batch_broadcast(fn, *shapes)
+    z = torch.randn(
+        (*sample_shape, *batch, g.dof), generator=generator, dtype=m.dtype, device=m.device
+    )
+    if std is not None:
+        eps = s.unsqueeze(-1) * z
+    else:
+        eps = (L @ z.unsqueeze(-1)).squeeze(-1)
+    return _checks.out(g.core.rplus(m, eps), dtype)
+
+
+def so3_randn(
+    mean: Float[Tensor, "*b1 3 3"],
+    std: Float[Tensor, "*b2"] | float | None = None,
+    *,
+    cov: Float[Tensor, "*b2 3 3"] | None = None,
+    scale_tril: Float[Tensor, "*b2 3 3"] | None = None,
+    sample_shape: tuple[int, ...] | torch.Size = (),
+    generator: torch.Generator | None = None,
+) -> Float[Tensor, "*sample_batch 3 3"]:
+    """Gaussian rotations about ``mean``: ``R = mean Exp(eps)``, ``eps ~ N(0, Sigma)``.
+
+    ``eps`` is a rotation vector in the body frame of ``mean`` (right perturbation), so
+    ``so3.rminus(R, mean)`` recovers it exactly while ``|eps| < pi``.  Give exactly one of
+    ``std`` (isotropic, ``Sigma = std^2 I``, in radians; a float or a tensor broadcasting with
+    the batch), ``cov`` (full ``3x3`` covariance, positive definite; one that is not gives NaN
+    for its element) or ``scale_tril`` (a lower-triangular factor ``L``, ``Sigma = L L^T``; use
+    it for singular covariances).  The result has shape ``(*sample_shape, *batch, 3, 3)`` with
+    ``batch`` the broadcast of the batch shapes of ``mean`` and ``std`` / ``cov``.
+
+    Example:
+        >>> g = torch.Generator().manual_seed(0)
+        >>> R = so3_randn(torch.eye(3), 0.1, sample_shape=(1000,), generator=g)
+        >>> R.shape
+        torch.Size([1000, 3, 3])
+        >>> round(so3.log(R).square().mean().sqrt().item(), 2)  # per-axis std
+        0.1
+    """
+    return _randn(_SO3, mean, std, cov, scale_tril, sample_shape, generator)
+
+
+def se3_randn(
+    mean: Float[Tensor, "*b1 4 4"],
+    std: Float[Tensor, "*b2"] | float | None = None,
+    *,
+    cov: Float[Tensor, "*b2 6 6"] | None = None,
+    scale_tril: Float[Tensor, "*b2 6 6"] | None = None,
+    sample_shape: tuple[int, ...] | torch.Size = (),
+    generator: torch.Generator | None = None,
+) -> Float[Tensor, "*sample_batch 4 4"]:
+    """Gaussian poses about ``mean``: ``T = mean Exp(eps)``, ``eps ~ N(0, Sigma)``.
+
+    ``eps`` is a twist ``(rho, phi)`` (translation part first) in the body frame of ``mean``, so
+    ``Sigma`` is ``6x6`` in that order; ``se3.rminus(T, mean)`` recovers ``eps`` exactly while
+    ``|phi| < pi``.  Give exactly one of ``std`` (isotropic; it mixes metres and radians, so it
+    is mostly useful for tests), ``cov`` (positive definite) or ``scale_tril`` (``Sigma = L L^T``,
+    for singular covariances such as rotation-only noise).  Shape
+    ``(*sample_shape, *batch, 4, 4)``.
+
+    Example:
+        >>> cov = torch.diag(torch.tensor([1.0, 1.0, 1.0, 0.01, 0.01, 0.01]))
+        >>> g = torch.Generator().manual_seed(0)
+        >>> T = se3_randn(torch.eye(4), cov=cov, sample_shape=(5, 2), generator=g)
+        >>> T.shape
+        torch.Size([5, 2, 4, 4])
+    """
+    return _randn(_SE3, mean, std, cov, scale_tril, sample_shape, generator)
+
+
+# ----------------------------------------------------------------------------------------------
+# Means
+# ----------------------------------------------------------------------------------------------
+
+
+def _weights(fn: str, x: Tensor, weights: Tensor | None, set_shape: tuple[int, ...]) -> Tensor:
+    """Normalised weights ``(..., N)`` broadcast against the set's batch shape."""
+    if weights is None:
+        n = set_shape[-1]
+        return torch.full(set_shape, 1.0 / n, dtype=x.dtype, device=x.device)
+    if not isinstance(weights, Tensor) or not weights.is_floating_point():
+        raise TypeError(f"{fn}: expected weights to be a floating-point tensor")
+    if weights.dim() == 0 or weights.shape[-1] != set_shape[-1]:
+        raise ValueError(
+            f"{fn}: expected weights of shape (..., {set_shape[-1]}) (one per element of the "
+            f"set), got {tuple(weights.shape)}"
+        )
+    w = weights.to(x.dtype)
+    return w / w.sum(-1, keepdim=True)
+
+
+def _set(fn: str, g: _Group, X: Tensor, weights: Tensor | None, arg: str):
+    x, dtype = _checks.tensor(X, fn, arg, (g.n, g.n))
+    if x.dim() < 3 or x.shape[-3] == 0:
+        raise ValueError(
+            f"{fn}: expected {arg} of shape (..., N, {g.n}, {g.n}) with N >= 1 (the set is the "
+            f"last batch dimension), got {tuple(X.shape)}"
+        )
+    w = _weights(fn, x, weights, x.shape[:-2])
+    if weights is not None:
+        _checks.same_dtype(fn, **{arg: X, "weights": weights})
+        _checks.batch_broadcast(fn, (x.shape[:-3], arg), (weights.shape[:-1], "weights"))
+    return x, w, dtype
+
+
+def _check_method(fn: str, method: str, iterations: int) -> None:
+    if method not in _METHODS:
+        raise ValueError(f"{fn}: expected method 'chordal' or 'geodesic', got {method!r}")
+    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 0:
+        raise ValueError(f"{fn}: expected iterations to be an int >= 0, got {iterations!r}")
+
+
+def _wsum(w: Tensor, x: Tensor, k: int) -> Tensor:
+    """``sum_i w_i x_i`` over the set dimension (``x`` has ``k`` trailing data dimensions)."""
+    return (w[(...,) + (None,) * k] * x).sum(-1 - k)
+
+
+def _chordal_so3(x: Tensor, w: Tensor) -> Tensor:
+    return so3.project(_wsum(w, x, 2))
+
+
+def _karcher(g: _Group, M: Tensor, x: Tensor, w: Tensor, iterations: int) -> Tensor:
+    # M <- M Exp(sum_i w_i Log(M^-1 X_i)): the Gauss-Newton step of sum_i w_i |Log(M^-1 X_i)|^2.
+    for _ in range(iterations):
+        d = g.core.rminus(x, M.unsqueeze(-3))
+        M = g.core.rplus(M, _wsum(w, d, 1))
+    return M
+
+
+def so3_mean(
+    R: Float[Tensor, "*b1 N 3 3"],
+    weights: Float[Tensor, "*b2 N"] | None = None,
+    *,
+    method: str = "geodesic",
+    iterations: int = 10,
+) -> Float[Tensor, "*b 3 3"]:
+    """Weighted mean of a set of rotations (the set is the last batch dimension).
+
+    ``method="chordal"``: the rotation nearest to ``sum_i w_i R_i`` (:func:`torchlie.so3.project`),
+    which minimises ``sum_i w_i |R - R_i|_F^2``.  This is the same minimiser as the quaternion
+    eigenvector mean of ``scipy.spatial.transform.Rotation.mean`` (since
+    ``|R(q) - R(p)|_F^2 = 8 (1 - (q . p)^2)``).
+
+    ``method="geodesic"`` (default): the Karcher mean, the stationary point of
+    ``sum_i w_i |Log(M^T R_i)|^2``, by ``iterations`` Gauss-Newton steps
+    ``M <- M Exp(sum_i w_i Log(M^T R_i))`` started from the chordal mean.  The count is fixed (no
+    convergence test, so no host sync).  Each step shrinks the residual
+    ``|sum_i w_i Log(M^T R_i)|`` by a factor of roughly ``theta^2 / 20``, ``theta`` the rms angle
+    of the set about its mean: the default 10 steps reach float64 rounding for sets with
+    ``theta`` up to about 0.9 rad (0.5 rad per axis) and about 1e-9 rad at ``theta = 1.7``;
+    raise ``iterations`` for wider sets.  Gradients flow through the unrolled steps.
+
+    Both are equivariant: ``mean(A R_i B) = A mean(R_i) B``.  Weights ``(..., N)`` (non-negative,
+    positive sum; normalised here) broadcast with the set; default uniform.
+
+    Example:
+        >>> R = so3.exp(torch.tensor([[0.0, 0.0, 0.2], [0.0, 0.0, 0.6]]))
+        >>> so3.log(so3_mean(R))
+        tensor([0.0000, 0.0000, 0.4000])
+        >>> so3.log(so3_mean(R, torch.tensor([3.0, 1.0])))
+        tensor([0.0000, 0.0000, 0.3000])
+    """
+    fn = _NAME + "so3_mean"
+    _check_method(fn, method, iterations)
+    x, w, dtype = _set(fn, _SO3, R, weights, "R")
+    M = _chordal_so3(x, w)
+    if method == "geodesic":
+        M = _karcher(_SO3, M, x, w, iterations)
+    return _checks.out(M, dtype)
+
+
+def se3_mean(
+    T: Float[Tensor, "*b1 N 4 4"],
+    weights: Float[Tensor, "*b2 N"] | None = None,
+    *,
+    method: str = "geodesic",
+    iterations: int = 10,
+) -> Float[Tensor, "*b 4 4"]:
+    """Weighted mean of a set of poses (the set is the last batch dimension).
+
+    ``method="chordal"``: rotation as :func:`so3_mean`'s chordal mean, translation the weighted
+    mean of the translations.  Equivariant under left multiplication ``A T_i`` (and under right
+    multiplication by a pure rotation), not under right multiplication in general.
+
+    ``method="geodesic"`` (default): the exponential barycenter, the pose ``M`` with
+    ``sum_i w_i Log(M^-1 T_i) = 0`` (twists in SE(3)'s own exponential coordinates), by
+    ``iterations`` fixed steps ``M <- M Exp(sum_i w_i Log(M^-1 T_i))`` from the chordal mean
+    (convergence as for :func:`so3_mean`, with the twists' rms norm in place of ``theta``).
+    It is equivariant under left and right multiplication; its rotation part is generally *not*
+    the rotations' Karcher mean (rotation and translation are coupled), and it coincides with
+    the chordal translation when all rotations are equal.
+
+    Example:
+        >>> T = se3.from_rt(torch.eye(3), torch.tensor([[0.0, 0.0, 0.0], [2.0, 4.0, 6.0]]))
+        >>> se3.to_rt(se3_mean(T))[1]
+        tensor([1., 2., 3.])
+    """
+    fn = _NAME + "se3_mean"
+    _check_method(fn, method, iterations)
+    x, w, dtype = _set(fn, _SE3, T, weights, "T")
+    R, t = x[..., :3, :3], x[..., :3, 3]
+    M = se3.from_rt(_chordal_so3(R, w), _wsum(w, t, 1))
+    if method == "geodesic":
+        M = _karcher(_SE3, M, x, w, iterations)
+    return _checks.out(M, dtype)
+
+
+# ----------------------------------------------------------------------------------------------
+# Keyframe interpolation
+# ----------------------------------------------------------------------------------------------
+
+
+def _keyframes(
+    g: _Group, times: Tensor, keyframes: Tensor, query: Tensor | float, extrapolate: bool
+) -> Tensor:
+    fn = _NAME + g.name + "_interpolate_keyframes"
+    kf, dtype = _checks.tensor(keyframes, fn, "keyframes", (g.n, g.n))
+    if not isinstance(times, Tensor) or not times.is_floating_point():
+        raise TypeError(f"{fn}: expected times to be a floating-point tensor")
+    if times.dim() != 1 or times.shape[0] == 0:
+        raise ValueError(
+            f"{fn}: expected times of shape (K,) with K >= 1, got {tuple(times.shape)}"
+        )
+    K = times.shape[0]
+    if kf.dim() < 3 or kf.shape[0] != K:
+        raise ValueError(
+            f"{fn}: expected keyframes of shape (K, ..., {g.n}, {g.n}) with K = {K} (one per "
+            f"time), got {tuple(keyframes.shape)}"
+        )
+    ts = times.to(kf.dtype)
+    q = _param(query, fn, "query_times", kf)
+    batch = kf.shape[1:-2]
+    lead = (None,) * len(batch)
+    if K == 1:
+        return _checks.out(kf[0].expand(*q.shape, *batch, g.n, g.n).clone(), dtype)
+    idx = torch.searchsorted(ts, q.contiguous(), right=True) - 1
+    idx = idx.clamp(0, K - 2)
+    t0, t1 = ts[idx], ts[idx + 1]
+    dt = t1 - t0
+    ok = dt > 0
+    u = torch.where(ok, (q - t0) / torch.where(ok, dt, torch.ones_like(dt)), torch.zeros_like(q))
+    if not extrapolate:
+        u = u.clamp(0.0, 1.0)
+    u = u[(...,) + lead]
+    return _checks.out(g.core.interpolate(kf[idx], kf[idx + 1], u), dtype)
+
+
+def so3_interpolate_keyframes(
+    times: Float[Tensor, " K"],
+    keyframes: Float[Tensor, "K *b 3 3"],
+    query_times: Float[Tensor, "*q"] | float,
+    *,
+    extrapolate: bool = False,
+) -> Float[Tensor, "*query_batch 3 3"]:
+    """Rotation trajectory through keyframes ``(times[k], keyframes[k])``, at ``query_times``.
+
+    Piecewise geodesic: between ``times[k] <= s < times[k+1]`` (found with
+    :func:`torch.searchsorted`) the result is :func:`torchlie.so3.interpolate` of the two
+    neighbours at ``u = (s - times[k]) / (times[k+1] - times[k])``, the shortest rotation
+    between them (as ``scipy.spatial.transform.Slerp``).  ``times`` must be sorted increasing
+    (not checked; a repeated time is a jump).  Outside ``[times[0], times[-1]]`` the result is
+    clamped to the first / last keyframe, or with ``extrapolate=True`` continues along the first
+    / last segment's geodesic.  ``keyframes`` may carry extra batch dimensions ``(K, *b, 3, 3)``
+    (several trajectories sharing the times); the result has shape ``(*q, *b, 3, 3)``.
+    Differentiable in the keyframes and in the query times.
+
+    Example:
+        >>> times = torch.tensor([0.0, 1.0, 3.0])
+        >>> keys = so3.exp(torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 2.0]]))
+        >>> so3.log(so3_interpolate_keyframes(times, keys, torch.tensor([0.5, 2.0, 4.0])))
+        tensor([[0.0000, 0.0000, 0.5000],
+                [0.0000, 0.0000, 1.5000],
+                [0.0000, 0.0000, 2.0000]])
+    """
+    return _keyframes(_SO3, times, keyframes, query_times, extrapolate)
+
+
+def se3_interpolate_keyframes(
+    times: Float[Tensor, " K"],
+    keyframes: Float[Tensor, "K *b 4 4"],
+    query_times: Float[Tensor, "*q"] | float,
+    *,
+    extrapolate: bool = False,
+) -> Float[Tensor, "*query_batch 4 4"]:
+    """Pose trajectory through timed keyframes (as :func:`so3_interpolate_keyframes`).
+
+    Each segment is :func:`torchlie.se3.interpolate`, the SE(3) geodesic (a screw motion: the
+    rotation part is the rotations' slerp, the translation follows the screw, not a straight
+    line).  Same sorting, clamping / ``extrapolate`` rules and shapes as the SO(3) version.
+
+    Example:
+        >>> times = torch.tensor([0.0, 2.0])
+        >>> keys = se3.from_rt(torch.eye(3), torch.tensor([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]]))
+        >>> se3.to_rt(se3_interpolate_keyframes(times, keys, torch.tensor([1.0, 3.0])))[1]
+        tensor([[1., 0., 0.],
+                [2., 0., 0.]])
+    """
+    return _keyframes(_SE3, times, keyframes, query_times, extrapolate)
+
+
+# ----------------------------------------------------------------------------------------------
+# Point-set alignment
+# ----------------------------------------------------------------------------------------------
+
+
+class Alignment(NamedTuple):
+    """Result of :func:`align`: ``q ~= scale * rotation @ p + translation``."""
+
+    rotation: Float[Tensor, "*b 3 3"]
+    translation: Float[Tensor, "*b 3"]
+    scale: Float[Tensor, "*b"]
+
+
+def align(
+    P: Float[Tensor, "*b1 N 3"],
+    Q: Float[Tensor, "*b2 N 3"],
+    weights: Float[Tensor, "*b3 N"] | None = None,
+    *,
+    scale: bool = False,
+    translation: bool = True,
+) -> Alignment:
+    """Similarity or rigid transform best mapping points ``P`` onto ``Q`` (Kabsch / Umeyama).
+
+    Minimises ``sum_i w_i |s R p_i + t - q_i|^2`` over rotations ``R`` (never reflections),
+    translations ``t`` and, with ``scale=True``, scales ``s > 0`` (else ``s = 1``).  With
+    ``translation=False``, ``t = 0`` and the points are not centred: the rotation then solves
+    Wahba's problem, as ``scipy.spatial.transform.Rotation.align_vectors(Q, P, w)``.
+
+    Closed form: with weighted centroids ``p_bar``, ``q_bar`` and
+    ``H = sum_i w_i (q_i - q_bar)(p_i - p_bar)^T``, ``R = so3.project(H)`` (the SVD solution
+    with the determinant fixed), ``s = tr(R^T H) / sum_i w_i |p_i - p_bar|^2`` and
+    ``t = q_bar - s R p_bar``.  Batch shapes of ``P``, ``Q`` and ``weights`` broadcast; weights
+    are non-negative with a positive sum.  Differentiable (through :func:`torchlie.so3.project`)
+    wherever the rotation is unique, i.e. the centred points are not all collinear; with fewer
+    than three points or collinear points the rotation is one of many minimisers and its
+    gradient is not finite.
+
+    Returns:
+        :class:`Alignment` ``(rotation (..., 3, 3), translation (..., 3), scale (...))``.
+
+    Example:
+        >>> P = torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+        >>> R = so3.exp(torch.tensor([0.0, 0.0, torch.pi / 2]))
+        >>> Q = 2.0 * P @ R.mT + torch.tensor([1.0, 2.0, 3.0])
+        >>> fit = align(P, Q, scale=True)
+        >>> torch.allclose(fit.rotation, R, atol=1e-6), round(fit.scale.item(), 5)
+        (True, 2.0)
+        >>> torch.allclose(fit.translation, torch.tensor([1.0, 2.0, 3.0]), atol=1e-5)
+        True
+    """
+    fn = _NAME + "align"
+    p, dtype = _checks.tensor(P, fn, "P", (3,))
+    q, _ = _checks.tensor(Q, fn, "Q", (3,))
+    _checks.same_dtype(fn, P=P, Q=Q)
+    if p.dim() < 2 or q.dim() < 2 or p.shape[-2] != q.shape[-2] or p.shape[-2] == 0:
+        raise ValueError(
+            f"{fn}: expected P and Q of shape (..., N, 3) with the same N >= 1, got "
+            f"{tuple(P.shape)} and {tuple(Q.shape)}"
+        )
+    shapes = [(p.shape[:-2], "P"), (q.shape[:-2], "Q")]
+    if weights is not None:
+        _weights(fn, p, weights, p.shape[:-1])  # type and shape checks
+        _checks.same_dtype(fn, P=P, weights=weights)
+        shapes.append((weights.shape[:-1], "weights"))
+    batch = _checks.batch_broadcast(fn, *shapes)
+    w = _weights(fn, p, weights, (*batch, p.shape[-2]))
+    if translation:
+        p_bar = _wsum(w, p, 1)
+        q_bar = _wsum(w, q, 1)
+        p = p - p_bar.unsqueeze(-2)
+        q = q - q_bar.unsqueeze(-2)
+    H = (q * w.unsqueeze(-1)).mT @ p
+    R = so3.project(H)
+    if scale:
+        s = (R * H).sum((-1, -2)) / (w * (p * p).sum(-1)).sum(-1)
+    else:
+        s = torch.ones(batch, dtype=p.dtype, device=p.device)
+    if translation:
+        t = q_bar - s.unsqueeze(-1) * (R @ p_bar.unsqueeze(-1)).squeeze(-1)
+    else:
+        t = torch.zeros((*batch, 3), dtype=p.dtype, device=p.device)
+    return Alignment(_checks.out(R, dtype), _checks.out(t, dtype), _checks.out(s, dtype))
+
+
+# ----------------------------------------------------------------------------------------------
+# Kinematics
+# ----------------------------------------------------------------------------------------------
+
+
+def _integrate(g: _Group, X: Tensor, v: Tensor, dt: Tensor | float, frame: str) -> Tensor:
+    fn = _NAME + g.name + "_integrate"
+    if frame not in ("body", "world"):
+        raise ValueError(f"{fn}: expected frame 'body' or 'world', got {frame!r}")
+    x, dtype = _checks.tensor(X, fn, "X", (g.n, g.n))
+    vel, _ = _checks.tensor(v, fn, "velocity", (g.dof,))
+    h = _param(dt, fn, "dt", x)
+    _checks.batch_broadcast(fn, (x.shape[:-2], "X"), (vel.shape[:-1], "velocity"), (h.shape, "dt"))
+    step = h.unsqueeze(-1) * vel
+    out = g.core.rplus(x, step) if frame == "body" else g.core.lplus(x, step)
+    return _checks.out(out, dtype)
+
+
+def so3_integrate(
+    R: Float[Tensor, "*b1 3 3"],
+    omega: Float[Tensor, "*b2 3"],
+    dt: Float[Tensor, "*b3"] | float,
+    frame: str = "body",
+) -> Float[Tensor, "*b 3 3"]:
+    """Rotation after rotating at a constant angular velocity ``omega`` for ``dt`` (exact).
+
+    ``frame="body"``: ``omega`` in the body frame, ``R Exp(omega dt)``; ``frame="world"``:
+    ``omega`` in the world frame, ``Exp(omega dt) R``.  They agree when
+    ``omega_world = R omega_body``.  Batch shapes of ``R``, ``omega`` and ``dt`` broadcast.
+
+    Example:
+        >>> R = so3_integrate(torch.eye(3), torch.tensor([0.0, 0.0, 2.0]), 0.25)
+        >>> so3.log(R)
+        tensor([0.0000, 0.0000, 0.5000])
+    """
+    return _integrate(_SO3, R, omega, dt, frame)
+
+
+def se3_integrate(
+    T: Float[Tensor, "*b1 4 4"],
+    xi: Float[Tensor, "*b2 6"],
+    dt: Float[Tensor, "*b3"] | float,
+    frame: str = "body",
+) -> Float[Tensor, "*b 4 4"]:
+    """Pose after moving with a constant twist ``xi = (v, omega)`` for ``dt`` (exact).
+
+    ``frame="body"``: ``xi`` is the body twist (linear and angular velocity in the body frame),
+    ``T Exp(xi dt)``; ``frame="world"``: ``xi`` is the spatial twist, ``Exp(xi dt) T``.  They
+    agree when ``xi_world = Ad_T xi_body``.  A constant body twist traces a screw (a helix),
+    not a straight line.  Batch shapes of ``T``, ``xi`` and ``dt`` broadcast.
+
+    Example:
+        >>> xi = torch.tensor([1.0, 0.0, 0.0, 0.0, 0.0, torch.pi])  # drive forward, turn left
+        >>> T = se3_integrate(torch.eye(4), xi, 1.0)  # half a circle of radius 1/pi
+        >>> torch.allclose(se3.to_rt(T)[1], torch.tensor([0.0, 2 / torch.pi, 0.0]), atol=1e-6)
+        True
+    """
+    return _integrate(_SE3, T, xi, dt, frame)
