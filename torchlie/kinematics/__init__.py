@@ -1,0 +1,61 @@
+"""Robot kinematics on torchlie: URDF chains, batched forward kinematics and Jacobians.
+
+>>> import torch
+>>> from torchlie.kinematics import Chain, sample_robot
+>>> arm = Chain.from_urdf(sample_robot("arm7"))
+>>> q = arm.random_configuration(1000)                    # (1000, 7), within the joint limits
+>>> poses = arm.forward_kinematics(q)                     # dict: link -> (1000, 4, 4)
+>>> poses["tool_tcp"].shape
+torch.Size([1000, 4, 4])
+>>> arm.jacobian(q, "tool_tcp").shape                     # rows (linear; angular)
+torch.Size([1000, 6, 7])
+
+Conventions (joint coordinates, ``q`` layout, Jacobian meaning) are in
+:mod:`torchlie.kinematics.chain`.  ``python -m torchlie.kinematics.validate ROBOT.urdf``
+checks every link pose and the end links' Jacobians against pytorch-kinematics and an exact
+float64 reference.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .chain import Chain
+from .urdf import JOINT_TYPES, JointSpec, MimicSpec, RobotSpec, URDFError, parse_urdf
+
+__all__ = [
+    "Chain",
+    "JOINT_TYPES",
+    "JointSpec",
+    "MimicSpec",
+    "RobotSpec",
+    "URDFError",
+    "parse_urdf",
+    "sample_robot",
+    "SAMPLE_ROBOTS",
+]
+
+_ROBOTS = Path(__file__).resolve().parent / "robots"
+
+#: Bundled robots: name -> file under ``torchlie/kinematics/robots``.
+SAMPLE_ROBOTS = {
+    "arm7": "arm7.urdf",
+    "tree": "tree.urdf",
+    "panda": "panda/panda.urdf",
+}
+
+
+def sample_robot(name: str) -> str:
+    """Path of a bundled URDF: ``"arm7"`` (7-DOF arm), ``"tree"`` (branching robot with every
+    joint type) or ``"panda"`` (Franka Emika Panda, Apache-2.0, see ``robots/panda/``).
+
+    Example:
+        >>> Path(sample_robot("arm7")).name
+        'arm7.urdf'
+    """
+    if name not in SAMPLE_ROBOTS:
+        raise ValueError(
+            f"torchlie.kinematics.sample_robot: unknown robot {name!r} "
+            f"(bundled: {', '.join(SAMPLE_ROBOTS)})"
+        )
+    return str(_ROBOTS / SAMPLE_ROBOTS[name])

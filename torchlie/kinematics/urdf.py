@@ -1,0 +1,413 @@
+"""URDF parsing into a validated, immutable robot description.
+
+Only the kinematic part of URDF is read: ``<robot>``, ``<link name>`` and ``<joint>`` with its
+``<parent>``, ``<child>``, ``<origin>``, ``<axis>``, ``<limit>`` and ``<mimic>`` elements.
+Everything else (visuals, inertia, transmissions, gazebo tags, ...) is ignored.
+
+The parser is the standard library's :mod:`xml.etree.ElementTree`: it is always present, so
+kinematics adds no runtime dependency, and URDF's kinematic subset is small enough that the
+checks a robot needs (one root, no cycles, known joint types, finite numbers) are clearer written
+out here than inherited from a general-purpose URDF library.
+
+Numbers are parsed with Python's ``float`` (correctly rounded to float64) and kept as Python
+floats; no float32 rounding happens on the way to :class:`~torchlie.kinematics.Chain`.
+
+Defaults follow the URDF specification: a missing ``<origin>`` is the identity, missing
+``xyz``/``rpy`` are zeros, a missing ``<axis>`` is ``(1, 0, 0)``, ``<limit lower/upper>``
+default to 0, ``<mimic multiplier>`` to 1 and ``offset`` to 0.
+
+Every problem raises :class:`URDFError` (a :class:`ValueError`) naming the file (or
+``"<string>"``), the element and what is wrong.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+
+__all__ = [
+    "JOINT_TYPES",
+    "URDFError",
+    "JointSpec",
+    "MimicSpec",
+    "RobotSpec",
+    "parse_urdf",
+]
+
+#: Joint types of the URDF specification, all supported.
+JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed", "floating", "planar")
+
+_ONE_DOF = ("revolute", "continuous", "prismatic")
+
+
+class URDFError(ValueError):
+    """A malformed or unsupported URDF.
+
+    Attributes:
+        source: the file name, or ``"<string>"`` for XML text.
+        element: the offending element, e.g. ``'<joint name="elbow"> <origin>'``.
+        problem: what is wrong with it.
+    """
+
+    def __init__(self, source: str, element: str, problem: str) -> None:
+        self.source = source
+        self.element = element
+        self.problem = problem
+        super().__init__(f"{source}: {element}: {problem}")
+
+
+@dataclass(frozen=True)
+class MimicSpec:
+    """``<mimic joint multiplier offset>``: value = ``multiplier * q[joint] + offset``."""
+
+    joint: str
+    multiplier: float = 1.0
+    offset: float = 0.0
+
+
+@dataclass(frozen=True)
+class JointSpec:
+    """One ``<joint>`` element, with the URDF defaults filled in.
+
+    ``axis`` is the axis exactly as written (not normalised; ``(1, 0, 0)`` when the element is
+    omitted, and then ``axis_given`` is False).  ``lower``/``upper`` are the position limits
+    (``None`` where the joint type has none); ``effort``/``velocity`` are kept as metadata.
+    """
+
+    name: str
+    type: str
+    parent: str
+    child: str
+    xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    axis: tuple[float, float, float] = (1.0, 0.0, 0.0)
+    axis_given: bool = False
+    lower: float | None = None
+    upper: float | None = None
+    effort: float | None = None
+    velocity: float | None = None
+    mimic: MimicSpec | None = None
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """A parsed, validated robot: a tree of links joined by joints.
+
+    ``links`` and ``joints`` are in document order; ``root`` is the one link that is no joint's
+    child; ``source`` is the file name or ``"<string>"``.
+    """
+
+    name: str
+    links: tuple[str, ...]
+    joints: tuple[JointSpec, ...]
+    root: str
+    source: str
+
+    def joint(self, name: str) -> JointSpec:
+        """The joint called ``name`` (``KeyError`` if there is none)."""
+        for j in self.joints:
+            if j.name == name:
+                return j
+        raise KeyError(name)
+
+    def parent_joint(self, link: str) -> JointSpec | None:
+        """The joint whose child is ``link`` (``None`` for the root)."""
+        for j in self.joints:
+            if j.child == link:
+                return j
+        return None
+
+
+def _describe(tag: str, name: str | None, index: int, sub: str | None = None) -> str:
+    head = f'<{tag} name="{name}">' if name else f"<{tag}> #{index + 1}"
+    return f"{head} <{sub}>" if sub else head
+
+
+def _local(tag: object) -> str:
+    """Tag without an XML namespace."""
+    tag = str(tag)
+    return tag.rsplit("}", 1)[-1]
+
+
+class _Reader:
+    def __init__(self, source: str) -> None:
+        self.source = source
+
+    def fail(self, element: str, problem: str) -> URDFError:
+        return URDFError(self.source, element, problem)
+
+    def attr(self, el: ET.Element, key: str, where: str) -> str:
+        value = el.get(key)
+        if value is None:
+            raise self.fail(where, f"missing required attribute '{key}'")
+        value = value.strip()
+        if not value:
+            raise self.fail(where, f"attribute '{key}' is empty")
+        return value
+
+    def number(self, text: str, key: str, where: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise self.fail(where, f"attribute '{key}' is not a number: {text!r}") from None
+        if not math.isfinite(value):
+            raise self.fail(where, f"attribute '{key}' is not finite: {text!r}")
+        return value
+
+    def opt_number(self, el: ET.Element, key: str, where: str) -> float | None:
+        text = el.get(key)
+        return None if text is None else self.number(text.strip(), key, where)
+
+    def vec3(self, el: ET.Element, key: str, where: str) -> tuple[float, float, float] | None:
+        text = el.get(key)
+        if text is None:
+            return None
+        parts = text.split()
+        if len(parts) != 3:
+            raise self.fail(where, f"attribute '{key}' must be three numbers, got {text!r}")
+        x, y, z = (self.number(p, key, where) for p in parts)
+        return (x, y, z)
+
+    def children(self, el: ET.Element, tag: str) -> list[ET.Element]:
+        return [c for c in el if _local(c.tag) == tag]
+
+    def single(self, el: ET.Element, tag: str, where: str) -> ET.Element | None:
+        found = self.children(el, tag)
+        if len(found) > 1:
+            raise self.fail(where, f"more than one <{tag}> element")
+        return found[0] if found else None
+
+
+def _read_joint(r: _Reader, el: ET.Element, index: int) -> JointSpec:
+    name_attr = el.get("name")
+    where = _describe("joint", name_attr, index)
+    name = r.attr(el, "name", where)
+    jtype = r.attr(el, "type", where)
+    if jtype not in JOINT_TYPES:
+        raise r.fail(
+            where, f"unknown joint type {jtype!r} (expected one of {', '.join(JOINT_TYPES)})"
+        )
+
+    links = {}
+    for tag in ("parent", "child"):
+        sub = r.single(el, tag, where)
+        if sub is None:
+            raise r.fail(where, f"missing required element <{tag}>")
+        links[tag] = r.attr(sub, "link", _describe("joint", name, index, tag))
+
+    xyz = rpy = None
+    origin = r.single(el, "origin", where)
+    if origin is not None:
+        w = _describe("joint", name, index, "origin")
+        xyz = r.vec3(origin, "xyz", w)
+        rpy = r.vec3(origin, "rpy", w)
+
+    axis = None
+    axis_el = r.single(el, "axis", where)
+    if axis_el is not None:
+        w = _describe("joint", name, index, "axis")
+        axis = r.vec3(axis_el, "xyz", w)
+        if axis is None:
+            raise r.fail(w, "missing required attribute 'xyz'")
+        if jtype != "fixed" and math.hypot(*axis) == 0.0:
+            raise r.fail(w, "the axis is the zero vector")
+
+    lower = upper = effort = velocity = None
+    limit = r.single(el, "limit", where)
+    if limit is not None:
+        w = _describe("joint", name, index, "limit")
+        effort = r.opt_number(limit, "effort", w)
+        velocity = r.opt_number(limit, "velocity", w)
+        if jtype in ("revolute", "prismatic"):
+            lower = r.opt_number(limit, "lower", w)
+            upper = r.opt_number(limit, "upper", w)
+            lower = 0.0 if lower is None else lower
+            upper = 0.0 if upper is None else upper
+            if lower > upper:
+                raise r.fail(w, f"lower limit {lower} is above upper limit {upper}")
+    elif jtype in ("revolute", "prismatic"):
+        raise r.fail(where, f"a {jtype} joint requires a <limit> element")
+
+    mimic = None
+    mimic_el = r.single(el, "mimic", where)
+    if mimic_el is not None:
+        w = _describe("joint", name, index, "mimic")
+        if jtype not in _ONE_DOF:
+            raise r.fail(w, f"a {jtype} joint cannot mimic another joint")
+        target = r.attr(mimic_el, "joint", w)
+        mult = r.opt_number(mimic_el, "multiplier", w)
+        off = r.opt_number(mimic_el, "offset", w)
+        mimic = MimicSpec(target, 1.0 if mult is None else mult, 0.0 if off is None else off)
+
+    return JointSpec(
+        name=name,
+        type=jtype,
+        parent=links["parent"],
+        child=links["child"],
+        xyz=xyz or (0.0, 0.0, 0.0),
+        rpy=rpy or (0.0, 0.0, 0.0),
+        axis=axis or (1.0, 0.0, 0.0),
+        axis_given=axis is not None,
+        lower=lower,
+        upper=upper,
+        effort=effort,
+        velocity=velocity,
+        mimic=mimic,
+    )
+
+
+def _check_tree(r: _Reader, links: list[str], joints: list[JointSpec]) -> str:
+    """Check the links and joints form one tree; return its root link."""
+    link_set = set(links)
+    parent_of: dict[str, JointSpec] = {}
+    for j in joints:
+        where = _describe("joint", j.name, 0)
+        for role, link in (("parent", j.parent), ("child", j.child)):
+            if link not in link_set:
+                raise r.fail(
+                    f"{where} <{role}>", f"link {link!r} is not declared by any <link> element"
+                )
+        if j.parent == j.child:
+            raise r.fail(where, f"cycle: link {j.child!r} is its own parent")
+        if j.child in parent_of:
+            other = parent_of[j.child].name
+            raise r.fail(
+                where, f"link {j.child!r} is already the child of joint {other!r} (not a tree)"
+            )
+        parent_of[j.child] = j
+
+    roots = [link for link in links if link not in parent_of]
+    if len(roots) > 1:
+        raise r.fail(
+            "<robot>",
+            f"{len(roots)} root links ({', '.join(repr(x) for x in roots)}); exactly one link "
+            "may be without a parent joint",
+        )
+
+    # With every other link having exactly one parent, a link that is not reachable from the
+    # root lies on (or below) a cycle: walk up its parents until a link repeats.
+    reachable = set(roots)
+    children: dict[str, list[str]] = {}
+    for j in joints:
+        children.setdefault(j.parent, []).append(j.child)
+    stack = list(roots)
+    while stack:
+        for c in children.get(stack.pop(), []):
+            if c not in reachable:
+                reachable.add(c)
+                stack.append(c)
+    for link in links:
+        if link in reachable:
+            continue
+        seen: list[str] = []
+        cur = link
+        while cur not in seen:
+            seen.append(cur)
+            cur = parent_of[cur].parent
+        cycle = seen[seen.index(cur) :]
+        down = list(reversed(cycle))  # joints in parent -> child order
+        names = " -> ".join(repr(parent_of[x].name) for x in down)
+        loop = ", ".join(repr(parent_of[x].parent) for x in down)
+        raise r.fail(
+            _describe("joint", parent_of[cur].name, 0),
+            f"cycle through joints {names} (links {loop})",
+        )
+    return roots[0]
+
+
+def _check_mimics(r: _Reader, joints: list[JointSpec]) -> None:
+    by_name = {j.name: j for j in joints}
+    for j in joints:
+        if j.mimic is None:
+            continue
+        where = _describe("joint", j.name, 0, "mimic")
+        target = by_name.get(j.mimic.joint)
+        if target is None:
+            raise r.fail(where, f"mimicked joint {j.mimic.joint!r} does not exist")
+        if target.type not in _ONE_DOF:
+            raise r.fail(
+                where, f"mimicked joint {target.name!r} is {target.type}, not a one-DoF joint"
+            )
+        # Follow mimic chains to make sure they end at a joint with its own DoF.
+        seen = [j.name]
+        cur = target
+        while cur.mimic is not None:
+            if cur.name in seen:
+                raise r.fail(where, "mimic cycle: " + " -> ".join(seen + [cur.name]))
+            seen.append(cur.name)
+            nxt = by_name.get(cur.mimic.joint)
+            if nxt is None:  # reported when that joint itself is checked
+                break
+            cur = nxt
+
+
+def _parse_root(r: _Reader, root: ET.Element) -> RobotSpec:
+    if _local(root.tag) != "robot":
+        raise r.fail(f"<{_local(root.tag)}>", "the root element must be <robot>")
+    name = r.attr(root, "name", "<robot>")
+
+    links: list[str] = []
+    for i, el in enumerate(r.children(root, "link")):
+        lname = r.attr(el, "name", _describe("link", None, i))
+        if lname in links:
+            raise r.fail(_describe("link", lname, i), "duplicate link name")
+        links.append(lname)
+    if not links:
+        raise r.fail("<robot>", "no <link> elements")
+
+    joints: list[JointSpec] = []
+    names: set[str] = set()
+    for i, el in enumerate(r.children(root, "joint")):
+        j = _read_joint(r, el, i)
+        if j.name in names:
+            raise r.fail(_describe("joint", j.name, i), "duplicate joint name")
+        names.add(j.name)
+        joints.append(j)
+
+    root_link = _check_tree(r, links, joints)
+    _check_mimics(r, joints)
+    return RobotSpec(name, tuple(links), tuple(joints), root_link, r.source)
+
+
+def _looks_like_xml(text: str) -> bool:
+    return text.lstrip().startswith("<")
+
+
+def parse_urdf(source: str | os.PathLike[str] | bytes) -> RobotSpec:
+    """Parse a URDF file or URDF text into a validated :class:`RobotSpec`.
+
+    Args:
+        source: a path to a ``.urdf`` file, or the XML text itself (a string starting with
+            ``<``, or bytes).
+
+    Raises:
+        URDFError: malformed XML, a missing required element or attribute, a malformed
+            number, an unknown joint type, a link that is not declared, two roots, a cycle,
+            or a mimic joint pointing at nothing.  The message names the file (or
+            ``"<string>"``), the element and the problem.
+        FileNotFoundError: ``source`` is a path that does not exist.
+
+    Example:
+        >>> spec = parse_urdf('''<robot name="r"><link name="a"/><link name="b"/>
+        ...   <joint name="j" type="continuous"><parent link="a"/><child link="b"/></joint>
+        ... </robot>''')
+        >>> spec.root, spec.joints[0].axis, spec.joints[0].axis_given
+        ('a', (1.0, 0.0, 0.0), False)
+    """
+    if isinstance(source, bytes):
+        label, data = "<string>", source
+    elif isinstance(source, str) and _looks_like_xml(source):
+        label, data = "<string>", source.encode("utf-8")
+    else:
+        label = os.fspath(source)
+        with open(label, "rb") as f:
+            data = f.read()
+    r = _Reader(label)
+    try:
+        root = ET.fromstring(data)
+    except ET.ParseError as e:
+        line, col = e.position
+        raise r.fail(f"line {line}, column {col + 1}", f"not well-formed XML ({e})") from None
+    return _parse_root(r, root)

@@ -1,0 +1,620 @@
+"""Validate torchlie's kinematics of a robot against pytorch-kinematics and a float64 reference.
+
+Usage::
+
+    python -m torchlie.kinematics.validate [ROBOT.urdf] [--samples N] [--dtype float32|float64]
+    torchlie-validate tree            # a bundled robot: arm7 (the default), tree or panda
+
+For ``N`` random configurations within the joint limits it compares every link's pose and the
+Jacobian of every end link (a link without children) computed by :class:`Chain` with
+
+* an exact float64 reference (:mod:`torchlie.kinematics.reference`, an independent
+  joint-by-joint implementation; its Jacobian comes from forward-mode autodiff), at a tolerance
+  of ``1e-12`` (float64) or ``1e-5`` (float32), times ``1 + reach`` for positions and
+  Jacobians (``reach``: the longest sum of joint offsets and travel from the root, in m);
+* pytorch-kinematics, if installed, at ``1e-5`` (times ``1 + reach``): it parses origins and
+  computes in float32.  Its known deviations from URDF are handled and reported as such, not
+  as torchlie failures: it ignores ``<mimic>`` (it is given the expanded joint values), it reads
+  an omitted ``<axis>`` as +Z instead of +X (it is given the axis explicitly), and it cannot
+  load floating or planar joints (they become fixed joints in its copy, and the links below
+  them are compared with the reference only).
+
+It prints a table (per link: largest position error in m and rotation error in rad, per end
+link: largest Jacobian error) and timings of both libraries, shows a progress bar on stderr for
+long runs, and exits with status 1 if anything is outside its tolerance (0 otherwise, 2 for a
+bad command line or URDF).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+import xml.etree.ElementTree as ET
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import torch
+from torch import Tensor
+
+from .. import so3
+from . import SAMPLE_ROBOTS, sample_robot
+from .chain import Chain
+from .reference import reference_forward_kinematics, reference_jacobians
+from .urdf import RobotSpec, URDFError, parse_urdf
+
+__all__ = ["LinkResult", "JacobianResult", "ValidationReport", "validate", "main"]
+
+
+@runtime_checkable
+class TextStream(Protocol):
+    """Anything with ``write(str)`` and ``flush()`` (a file, ``sys.stdout``, ``io.StringIO``)."""
+
+    def write(self, s: str, /) -> object: ...
+
+    def flush(self) -> object: ...
+
+
+TOL_REFERENCE = {torch.float64: 1e-12, torch.float32: 1e-5}
+TOL_PK = 1e-5
+
+
+@dataclass
+class LinkResult:
+    """Largest errors of one link's pose over all configurations (``None``: not compared)."""
+
+    link: str
+    joint: str
+    joint_type: str
+    ref_position: float
+    ref_rotation: float
+    pk_position: float | None
+    pk_rotation: float | None
+    ok: bool
+
+
+@dataclass
+class JacobianResult:
+    """Largest absolute error of one end link's Jacobian (``None``: not compared)."""
+
+    link: str
+    ref_error: float
+    pk_error: float | None
+    ok: bool
+
+
+@dataclass
+class ValidationReport:
+    """Everything :func:`validate` measured; ``ok`` is the verdict."""
+
+    robot: str
+    source: str
+    samples: int
+    dtype: torch.dtype
+    reach: float
+    links: list[LinkResult] = field(default_factory=list)
+    jacobians: list[JacobianResult] = field(default_factory=list)
+    deviations: list[str] = field(default_factory=list)
+    timings: dict[str, dict[str, float]] = field(default_factory=dict)
+    pk_version: str | None = None
+    ok: bool = True
+
+
+# ----------------------------------------------------------------------------------------------
+# pytorch-kinematics adapter
+# ----------------------------------------------------------------------------------------------
+
+
+def _import_pk():
+    try:
+        import pytorch_kinematics as pk
+    except ImportError:
+        return None
+    return pk
+
+
+def _pk_version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("pytorch_kinematics")
+    except Exception:  # pragma: no cover - metadata missing
+        return "?"
+
+
+def _pk_text(text: bytes) -> str:
+    """URDF text for pytorch-kinematics: explicit axes, floating/planar joints made fixed."""
+    root = ET.fromstring(text)
+    for el in root:
+        if str(el.tag).rsplit("}", 1)[-1] != "joint":
+            continue
+        jtype = el.get("type")
+        if jtype in ("floating", "planar"):
+            el.set("type", "fixed")
+        elif jtype in ("revolute", "continuous", "prismatic"):
+            if not any(str(c.tag).rsplit("}", 1)[-1] == "axis" for c in el):
+                ET.SubElement(el, "axis", {"xyz": "1 0 0"})
+    return ET.tostring(root, encoding="unicode")
+
+
+class _PK:
+    """pytorch-kinematics' chain of the robot, fed expanded joint values."""
+
+    def __init__(self, pk, spec: RobotSpec, chain: Chain, text: bytes) -> None:
+        import contextlib
+        import io
+        import warnings
+
+        # Its URDF reader prints a line to stderr for every element it does not know.
+        with warnings.catch_warnings(), contextlib.redirect_stderr(io.StringIO()):
+            warnings.simplefilter("ignore")
+            self.chain = pk.build_chain_from_urdf(_pk_text(text))
+        self.pk = pk
+        self.names = list(self.chain.get_joint_parameter_names())
+        # q_pk = q @ E^T + b (mimic joints are independent joints for pk).
+        n = chain.n_dof
+        self.E = torch.zeros(len(self.names), n, dtype=torch.float64)
+        self.b = torch.zeros(len(self.names), dtype=torch.float64)
+        dof = {name: i for i, name in enumerate(chain.joint_names)}
+        by_name = {j.name: j for j in spec.joints}
+        for k, name in enumerate(self.names):
+            mult, off, j = 1.0, 0.0, by_name[name]
+            while j.mimic is not None:  # value = mult * value(j) + off
+                off += mult * j.mimic.offset
+                mult *= j.mimic.multiplier
+                j = by_name[j.mimic.joint]
+            self.E[k, dof[j.name]] = mult
+            self.b[k] = off
+        self._serial: dict[str, tuple[object, Tensor]] = {}
+
+    def values(self, q64: Tensor) -> Tensor:
+        return (q64 @ self.E.T + self.b).to(torch.float32)
+
+    def fk(self, th: Tensor) -> dict[str, Tensor]:
+        return {k: v.get_matrix() for k, v in self.chain.forward_kinematics(th).items()}
+
+    def serial(self, link: str):
+        if link not in self._serial:
+            s = self.pk.SerialChain(self.chain, link)
+            idx = torch.tensor([self.names.index(n) for n in s.get_joint_parameter_names()])
+            self._serial[link] = (s, idx)
+        return self._serial[link]
+
+    def jacobian(self, th: Tensor, link: str) -> Tensor:
+        """``(B, 6, n_dof)`` in torchlie's DoFs (mimic columns folded in with ``E``)."""
+        s, idx = self.serial(link)
+        Js = s.jacobian(th[:, idx]).to(torch.float64)  # (B, 6, n_serial)
+        full = Js.new_zeros(th.shape[0], 6, len(self.names))
+        full[:, :, idx] = Js
+        return full @ self.E
+
+
+# ----------------------------------------------------------------------------------------------
+# Helpers
+# ----------------------------------------------------------------------------------------------
+
+
+def _resolve(robot: str | os.PathLike[str]) -> tuple[str | bytes, bytes, str]:
+    """(source for the parser, the XML bytes, label) of a path, a bundled name or XML text."""
+    if isinstance(robot, str) and robot.lstrip().startswith("<"):
+        return robot, robot.encode("utf-8"), "<string>"
+    path = os.fspath(robot)
+    if not os.path.exists(path) and path in SAMPLE_ROBOTS:
+        path = sample_robot(path)
+    with open(path, "rb") as f:
+        data = f.read()
+    return path, data, path
+
+
+def _reach(spec: RobotSpec) -> float:
+    """Longest root-to-link sum of joint offsets and joint travel, in m."""
+    total = {spec.root: 0.0}
+    pending = list(spec.joints)
+    while pending:
+        rest = []
+        for j in pending:
+            if j.parent not in total:
+                rest.append(j)
+                continue
+            extra = 0.0
+            if j.type == "prismatic":
+                extra = max(abs(j.lower or 0.0), abs(j.upper or 0.0))
+            elif j.type == "planar":
+                extra = math.sqrt(2.0)
+            elif j.type == "floating":
+                extra = math.sqrt(3.0)
+            total[j.child] = total[j.parent] + math.hypot(*j.xyz) + extra
+        pending = rest
+    return max(total.values())
+
+
+def _below(spec: RobotSpec, types: tuple[str, ...]) -> dict[str, str]:
+    """Links below a joint of one of ``types``: link -> that joint's name."""
+    out: dict[str, str] = {}
+    pending = list(spec.joints)
+    done = {spec.root}
+    while pending:
+        rest = []
+        for j in pending:
+            if j.parent not in done:
+                rest.append(j)
+                continue
+            if j.type in types:
+                out[j.child] = j.name
+            elif j.parent in out:
+                out[j.child] = out[j.parent]
+            done.add(j.child)
+        pending = rest
+    return out
+
+
+def _pose_errors(T: Tensor, T_ref: Tensor) -> tuple[float, float]:
+    T, T_ref = T.to(torch.float64), T_ref.to(torch.float64)
+    dp = torch.linalg.vector_norm(T[..., :3, 3] - T_ref[..., :3, 3], dim=-1)
+    dr = so3.distance(T[..., :3, :3], T_ref[..., :3, :3])
+    return float(dp.max()), float(dr.max())
+
+
+def _best_time(fn: Callable[[], object], budget: float = 0.3, reps: int = 50) -> float:
+    """Best wall time of ``fn`` in seconds (one warm-up call, then up to ``reps`` calls)."""
+    fn()
+    best = math.inf
+    start = time.perf_counter()
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+        if time.perf_counter() - start > budget:
+            break
+    return best
+
+
+class _Progress:
+    def __init__(self, total: int, stream: TextStream | None) -> None:
+        self.total, self.stream = total, stream
+
+    def update(self, done: int) -> None:
+        if self.stream is None:
+            return
+        width = 30
+        k = width * done // max(self.total, 1)
+        self.stream.write(f"\r[{'#' * k}{'.' * (width - k)}] {done}/{self.total} configurations")
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.stream is not None:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def _fmt(x: float | None) -> str:
+    return "n/c" if x is None else f"{x:.1e}"
+
+
+# ----------------------------------------------------------------------------------------------
+# The validation
+# ----------------------------------------------------------------------------------------------
+
+
+def validate(
+    robot: str | os.PathLike[str],
+    *,
+    samples: int = 1000,
+    dtype: torch.dtype = torch.float64,
+    seed: int = 0,
+    batch: int = 1000,
+    compare_pk: bool = True,
+    progress: bool | None = None,
+    out: TextStream | None = None,
+    err: TextStream | None = None,
+) -> ValidationReport:
+    """Run the validation and print its report; see the module docstring.
+
+    Args:
+        robot: a URDF path, a bundled robot name (``"arm7"``, ``"tree"``, ``"panda"``) or the
+            URDF text.
+        samples: number of random configurations within the joint limits.
+        dtype: torchlie's dtype (pytorch-kinematics always runs in float32).
+        seed: seed of the configurations.
+        batch: configurations per batch (and batch size of the timings).
+        compare_pk: compare with pytorch-kinematics when it is installed.
+        progress: progress bar on ``err``; ``None`` shows it when there is more than one batch.
+        out, err: streams for the report and the progress bar (default stdout, stderr).
+
+    Returns:
+        The :class:`ValidationReport`; ``report.ok`` is False on any mismatch.
+
+    Example:
+        >>> import io
+        >>> report = validate("arm7", samples=50, out=io.StringIO())
+        >>> report.ok, len(report.links), [j.link for j in report.jacobians]
+        (True, 12, ['tool_tcp', 'wrist_camera'])
+    """
+    out = sys.stdout if out is None else out
+    err = sys.stderr if err is None else err
+    source, text, label = _resolve(robot)
+    spec = parse_urdf(source)
+    chain = Chain(spec, dtype=dtype)
+    reach = _reach(spec)
+    scale = 1.0 + reach
+    tol_ref = TOL_REFERENCE[dtype]
+    report = ValidationReport(spec.name, label, samples, dtype, reach)
+
+    q = chain.random_configuration(samples, generator=torch.Generator().manual_seed(seed))
+    q64 = q.to(torch.float64)  # exactly the values torchlie sees
+
+    pk = _import_pk() if compare_pk else None
+    pkc: _PK | None = None
+    free = _below(spec, ("floating", "planar"))
+    if pk is not None:
+        report.pk_version = _pk_version()
+        try:
+            pkc = _PK(pk, spec, chain, text)
+        except Exception as e:  # pk cannot load it: not torchlie's failure
+            report.deviations.append(
+                f"pytorch_kinematics could not load this URDF ({type(e).__name__}: {e}); "
+                "compared with the float64 reference only"
+            )
+    elif compare_pk:
+        report.deviations.append(
+            "pytorch_kinematics is not installed (pip install 'torchlie[validate]'): compared "
+            "with the float64 reference only"
+        )
+    if pkc is not None:
+        mimics = [j for j in spec.joints if j.mimic is not None]
+        if mimics:
+            desc = ", ".join(
+                f"{j.name} = {j.mimic.multiplier:g} * {j.mimic.joint} + {j.mimic.offset:g}"
+                for j in mimics
+                if j.mimic is not None
+            )
+            report.deviations.append(
+                f"pk ignores <mimic> (it makes them independent joints): it was given the "
+                f"expanded values {desc}, and its Jacobian columns were folded accordingly"
+            )
+        no_axis = [
+            j.name
+            for j in spec.joints
+            if not j.axis_given and j.type in ("revolute", "continuous", "prismatic")
+        ]
+        if no_axis:
+            report.deviations.append(
+                "pk reads an omitted <axis> as +Z (URDF: +X): its copy has axis '1 0 0' written "
+                f"out for {', '.join(no_axis)}"
+            )
+        free_joints = [j.name for j in spec.joints if j.type in ("floating", "planar")]
+        if free_joints:
+            report.deviations.append(
+                "pk cannot load floating or planar joints: they are fixed joints in its copy "
+                f"({', '.join(free_joints)}); the links below them ({', '.join(free)}) are "
+                "compared with the float64 reference only"
+            )
+        report.deviations.append(
+            "pk parses origins and computes in float32: compared at "
+            f"{TOL_PK:g} (x {scale:.2f} for positions and Jacobians), the float64 reference "
+            f"at {tol_ref:g}"
+        )
+
+    parent = {j.child: j for j in spec.joints}
+    stats = {
+        n: [0.0, 0.0, 0.0 if pkc and n not in free else None, 0.0] for n in spec.links
+    }  # ref dp, ref dr, pk dp (None: n/c), pk dr
+    jstats = {n: [0.0, 0.0 if pkc and n not in free else None] for n in chain.leaf_links}
+
+    chunks = [(i, min(i + batch, samples)) for i in range(0, samples, batch)]
+    show = (len(chunks) > 1) if progress is None else progress
+    bar = _Progress(samples, err if show else None)
+    bar.update(0)
+    for a, b in chunks:
+        qc, qc64 = q[a:b], q64[a:b]
+        T = chain.forward_kinematics(qc)
+        T_ref = reference_forward_kinematics(spec, qc64)
+        th = pk_T = None
+        if pkc is not None:
+            th = pkc.values(qc64)
+            pk_T = pkc.fk(th)
+        for n in spec.links:
+            dp, dr = _pose_errors(T[n], T_ref[n])
+            s = stats[n]
+            s[0], s[1] = max(s[0], dp), max(s[1], dr)
+            if s[2] is not None and pk_T is not None:
+                dp, dr = _pose_errors(T[n], pk_T[n])
+                s[2], s[3] = max(s[2], dp), max(s[3], dr)
+        J_ref = reference_jacobians(spec, qc64, list(chain.leaf_links))
+        for n in chain.leaf_links:
+            J = chain.jacobian(qc, n).to(torch.float64)
+            js = jstats[n]
+            js[0] = max(js[0], float((J - J_ref[n]).abs().max()) if J.numel() else 0.0)
+            if js[1] is not None and pkc is not None and th is not None and n != spec.root:
+                J_pk = pkc.jacobian(th, n)
+                js[1] = max(js[1], float((J - J_pk).abs().max()) if J.numel() else 0.0)
+        bar.update(b)
+    bar.close()
+
+    for n in spec.links:
+        s = stats[n]
+        j = parent.get(n)
+        ok = s[0] <= tol_ref * scale and s[1] <= tol_ref
+        if s[2] is not None:
+            ok = ok and s[2] <= TOL_PK * scale and s[3] <= TOL_PK
+        report.links.append(
+            LinkResult(
+                n,
+                j.name if j else "-",
+                j.type if j else "root",
+                s[0],
+                s[1],
+                s[2],
+                None if s[2] is None else s[3],
+                ok,
+            )
+        )
+    for n in chain.leaf_links:
+        js = jstats[n]
+        ok = js[0] <= tol_ref * scale and (js[1] is None or js[1] <= TOL_PK * scale)
+        report.jacobians.append(JacobianResult(n, js[0], js[1], ok))
+    report.ok = all(r.ok for r in report.links) and all(r.ok for r in report.jacobians)
+
+    # Timings on one batch: FK of all links (dict) and the first end link's Jacobian.
+    nb = min(batch, samples)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # like-for-like and stable on a busy machine; restored below
+    try:
+        _time_all(report, chain, pkc, q, q64, nb, free, spec.root)
+    finally:
+        torch.set_num_threads(threads)
+
+    _print_report(report, chain, tol_ref, scale, nb, out)
+    return report
+
+
+def _time_all(
+    report: ValidationReport,
+    chain: Chain,
+    pkc: _PK | None,
+    q: Tensor,
+    q64: Tensor,
+    nb: int,
+    free: dict[str, str],
+    root: str,
+) -> None:
+    dtype = chain.dtype
+    if nb > 0:
+        leaf = chain.leaf_links[0]
+        runs: list[tuple[str, Chain | None]] = [(f"torchlie {str(dtype)[6:]}", chain)]
+        if dtype != torch.float32:
+            runs.append(("torchlie float32", chain.to(dtype=torch.float32)))
+        for name, c in runs:
+            assert c is not None
+            qt = q[:nb].to(c.dtype)
+            report.timings[name] = {
+                "fk": _best_time(lambda c=c, qt=qt: c.forward_kinematics(qt)),
+                "jacobian": _best_time(lambda c=c, qt=qt: c.jacobian(qt, leaf)),
+            }
+        if pkc is not None:
+            th = pkc.values(q64[:nb])
+            t_fk = _best_time(lambda: pkc.chain.forward_kinematics(th))
+            t_j = math.nan
+            if leaf not in free and leaf != root:
+                s_chain, idx = pkc.serial(leaf)
+                ths = th[:, idx]
+                t_j = _best_time(lambda: s_chain.jacobian(ths))
+            report.timings["pytorch_kinematics float32"] = {"fk": t_fk, "jacobian": t_j}
+
+
+def _print_report(
+    report: ValidationReport, chain: Chain, tol_ref: float, scale: float, nb: int, out: TextStream
+) -> None:
+    w = out.write
+    n_joints = len(chain.spec.joints)
+    w(f"torchlie.kinematics.validate: robot '{report.robot}' ({report.source})\n")
+    w(
+        f"{len(chain.link_names)} links, {n_joints} joints, {chain.n_dof} DoF; "
+        f"{report.samples} random configurations within the joint limits; torchlie in "
+        f"{str(report.dtype)[6:]}\n"
+    )
+    pk_desc = (
+        f"pytorch_kinematics {report.pk_version} (float32)"
+        if report.pk_version
+        else "pytorch_kinematics: not compared"
+    )
+    w(f"compared with: exact float64 reference; {pk_desc}\n")
+    w(
+        f"tolerances: reference {tol_ref:g} rad, {tol_ref * scale:.1e} m; pytorch_kinematics "
+        f"{TOL_PK:g} rad, {TOL_PK * scale:.1e} m (1 + reach = {scale:.2f} m)\n\n"
+    )
+    name_w = max(12, *(len(r.link) for r in report.links)) + 2
+    joint_w = max(10, *(len(r.joint) for r in report.links)) + 2
+    head = (
+        f"{'link':<{name_w}}{'joint':<{joint_w}}{'type':<12}"
+        f"{'ref |dp| m':>12}{'ref |dR| rad':>14}{'pk |dp| m':>12}{'pk |dR| rad':>14}  status\n"
+    )
+    w(head)
+    w("-" * (len(head) - 1) + "\n")
+    for r in report.links:
+        w(
+            f"{r.link:<{name_w}}{r.joint:<{joint_w}}{r.joint_type:<12}"
+            f"{_fmt(r.ref_position):>12}{_fmt(r.ref_rotation):>14}"
+            f"{_fmt(r.pk_position):>12}{_fmt(r.pk_rotation):>14}  "
+            f"{'ok' if r.ok else 'MISMATCH'}\n"
+        )
+    w(f"\n{'Jacobian of end link':<{name_w + joint_w + 12}}{'ref max|dJ|':>12}{'pk max|dJ|':>14}\n")
+    for r in report.jacobians:
+        w(
+            f"{r.link:<{name_w + joint_w + 12}}{_fmt(r.ref_error):>12}{_fmt(r.pk_error):>14}"
+            f"{'':>26}  {'ok' if r.ok else 'MISMATCH'}\n"
+        )
+    if any(r.pk_position is None for r in report.links) and report.pk_version:
+        w("n/c: not comparable with pytorch_kinematics (see below)\n")
+    if report.deviations:
+        w("\npytorch_kinematics deviations from URDF, handled (not torchlie failures):\n")
+        for d in report.deviations:
+            w(f"  - {d}\n")
+    if report.timings:
+        w(f"\ntimings, batch of {nb}, one thread (best of repeated calls, ms per call):\n")
+        w(f"  {'':<28}{'FK, all links':>16}{'Jacobian ' + chain.leaf_links[0]:>28}\n")
+        for name, t in report.timings.items():
+            jac = "n/c" if math.isnan(t["jacobian"]) else f"{t['jacobian'] * 1e3:.3f}"
+            w(f"  {name:<28}{t['fk'] * 1e3:>16.3f}{jac:>28}\n")
+        pk_t = report.timings.get("pytorch_kinematics float32")
+        tl_t = report.timings.get("torchlie float32")
+        if pk_t and tl_t:
+            w(f"  torchlie float32 speed-up: FK {pk_t['fk'] / tl_t['fk']:.1f}x")
+            if not math.isnan(pk_t["jacobian"]):
+                w(f", Jacobian {pk_t['jacobian'] / tl_t['jacobian']:.1f}x")
+            w("\n")
+    worst_ref = max([r.ref_position for r in report.links] + [0.0])
+    if report.ok:
+        w(
+            f"\nPASS: all {len(report.links)} link poses and {len(report.jacobians)} end-link "
+            f"Jacobians within tolerance (largest position error vs reference {worst_ref:.1e} m)\n"
+        )
+    else:
+        bad = [r.link for r in report.links if not r.ok]
+        bad += [f"Jacobian of {r.link}" for r in report.jacobians if not r.ok]
+        w(f"\nFAIL: outside tolerance: {', '.join(bad)}\n")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command-line entry point (``torchlie-validate``); returns the exit status."""
+    parser = argparse.ArgumentParser(
+        prog="torchlie-validate",
+        description="Compare torchlie's forward kinematics and Jacobians of a URDF robot with "
+        "pytorch-kinematics and an exact float64 reference.",
+    )
+    parser.add_argument(
+        "robot",
+        nargs="?",
+        default="arm7",
+        help=f"URDF file, or a bundled robot: {', '.join(SAMPLE_ROBOTS)} (default arm7)",
+    )
+    parser.add_argument("--samples", type=int, default=1000, help="random configurations")
+    parser.add_argument("--dtype", choices=("float32", "float64"), default="float64")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--batch", type=int, default=1000, help="configurations per batch")
+    parser.add_argument("--no-pk", action="store_true", help="skip pytorch-kinematics")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    args = parser.parse_args(argv)
+    if args.samples < 1 or args.batch < 1:
+        parser.error("--samples and --batch must be positive")
+    try:
+        report = validate(
+            args.robot,
+            samples=args.samples,
+            dtype=getattr(torch, args.dtype),
+            seed=args.seed,
+            batch=args.batch,
+            compare_pk=not args.no_pk,
+            progress=False if args.no_progress else None,
+        )
+    except (URDFError, OSError) as e:
+        print(f"torchlie-validate: error: {e}", file=sys.stderr)
+        return 2
+    return 0 if report.ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
