@@ -1,0 +1,550 @@
+"""Layers, losses and manifold parametrizations for networks that predict or optimise poses.
+
+* :class:`RotationHead` / :class:`PoseHead`: an ``nn.Linear`` to an unconstrained
+  representation, then the map to a rotation (:func:`representation_to_matrix`).  The output is
+  a valid rotation for every finite input, zero and huge ones included, with finite gradients
+  (degenerate raw vectors get a documented fixed value).
+* :func:`geodesic_loss` / :func:`se3_geodesic_loss`: rotation angle (or squared chordal) and
+  translation losses with torch's ``reduction`` argument.
+* :class:`SO3Parametrization` / :class:`SE3Parametrization`: for
+  :func:`torch.nn.utils.parametrize.register_parametrization`, so that a plain parameter
+  optimised by any torch optimiser (SGD, Adam, LBFGS, ...) is always read as a rotation / pose.
+
+Representations (sizes in :data:`REPRESENTATIONS`):
+
+================  ====  =========================================================================
+``"6d"``          6     first two columns, Gram-Schmidt
+                        (:func:`torchlie.conversions.rot6d_to_matrix`)
+``"9d"``          9     3x3 matrix row by row, nearest rotation by SVD
+                        (:func:`torchlie.conversions.rot9d_to_matrix`)
+``"quaternion"``  4     ``(w, x, y, z)``, normalised (any scale), canonical hemisphere ``w >= 0``
+``"rotvec"``      3     rotation vector, :func:`torchlie.so3.exp`
+================  ====  =========================================================================
+
+The 6-D and 9-D representations are continuous (every rotation has a neighbourhood of raw
+vectors that map smoothly onto a neighbourhood of it) and usually train best; the quaternion
+and the rotation vector cover SO(3) twice or infinitely often, so a network that must output a
+*single* representative of each rotation has to jump somewhere.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+from . import _checks, se3, so3
+from . import conversions as _conv
+from . import quaternion as _quat
+from ._typing import Float
+from .groups import SE3, SO3
+
+__all__ = [
+    "REPRESENTATIONS",
+    "representation_to_matrix",
+    "RotationHead",
+    "PoseHead",
+    "geodesic_loss",
+    "se3_geodesic_loss",
+    "SO3Parametrization",
+    "SE3Parametrization",
+]
+
+_NAME = "torchlie.nn."
+
+#: Size of the raw vector of each rotation representation.
+REPRESENTATIONS: dict[str, int] = {"6d": 6, "9d": 9, "quaternion": 4, "rotvec": 3}
+
+#: Relative sine below which the two 6-D columns count as parallel (module ``_safe_rot6d``), in
+#: units of the compute dtype's machine epsilon.
+_PARALLEL_EPS = 64.0
+
+_REDUCTIONS = ("mean", "sum", "none")
+
+
+def _check_choice(fn: str, arg: str, value: object, choices) -> None:
+    if not isinstance(value, str) or value not in choices:
+        allowed = ", ".join(repr(c) for c in choices)
+        raise ValueError(f"{fn}: unknown {arg} {value!r}; expected one of {allowed}")
+
+
+# ----------------------------------------------------------------------------------------------
+# Raw representation -> rotation matrix, with deterministic fallbacks at degenerate inputs
+# ----------------------------------------------------------------------------------------------
+
+
+def _basis(k: Tensor, like: Tensor) -> Tensor:
+    """Unit coordinate vectors ``e_k`` (``k`` integer, shape ``(...)``) as ``(..., 3)``."""
+    return torch.nn.functional.one_hot(k, 3).to(like.dtype)
+
+
+def _scaled(v: Tensor) -> Tensor:
+    """``v / max|v_i|`` (detached; a zero vector stays zero): O(1) entries at any magnitude."""
+    v = v.detach()
+    s = v.abs().amax(dim=-1, keepdim=True)
+    return v / torch.where(s == 0, torch.ones_like(s), s)
+
+
+def _safe_rot6d(x: Tensor) -> Tensor:
+    """Replace the degenerate parts of a raw 6-vector (rule: :func:`representation_to_matrix`)."""
+    a1, a2 = x[..., :3], x[..., 3:]
+    e1 = torch.tensor([1.0, 0.0, 0.0], dtype=x.dtype, device=x.device)
+    zero1 = (a1 == 0).all(dim=-1, keepdim=True)
+    a1 = torch.where(zero1, e1, a1)
+    u1, u2 = _scaled(a1), _scaled(a2)
+    c = torch.linalg.cross(u1, u2, dim=-1)
+    tau = _PARALLEL_EPS * torch.finfo(x.dtype).eps
+    s2 = (c * c).sum(-1, keepdim=True)
+    n2 = (u1 * u1).sum(-1, keepdim=True) * (u2 * u2).sum(-1, keepdim=True)
+    parallel = s2 <= (tau * tau) * n2  # a2 = 0 included; False for NaN/Inf (they stay NaN)
+    fallback = _basis(torch.argmin(u1.abs(), dim=-1), a2)
+    a2 = torch.where(parallel, fallback, a2)
+    return torch.cat((a1, a2), dim=-1)
+
+
+def _unit_quaternion(x: Tensor) -> Tensor:
+    """Canonical unit quaternion of a raw 4-vector (zero -> identity)."""
+    zero = (x == 0).all(dim=-1, keepdim=True)
+    one = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=x.dtype, device=x.device)
+    q = torch.where(zero, one, x)
+    return _quat.canonicalize(_conv._unit(q))
+
+
+def _to_matrix(x: Tensor, representation: str) -> Tensor:
+    if representation == "6d":
+        return _conv.rot6d_to_matrix(_safe_rot6d(x))
+    if representation == "9d":
+        zero = (x == 0).all(dim=-1, keepdim=True)
+        eye = torch.eye(3, dtype=x.dtype, device=x.device).flatten()
+        return _conv.rot9d_to_matrix(torch.where(zero, eye, x))
+    if representation == "quaternion":
+        return _quat.to_matrix(_unit_quaternion(x))
+    return so3.exp(x)
+
+
+def representation_to_matrix(
+    x: Float[Tensor, "*b k"], representation: str
+) -> Float[Tensor, "*b 3 3"]:
+    """Rotation matrix of a raw (unconstrained) representation vector; the map of the heads.
+
+    ``k`` is ``REPRESENTATIONS[representation]``: 6, 9, 4 or 3.  Every finite input gives a
+    valid rotation, with a finite gradient except at the singular 9-D inputs named below, at any
+    magnitude: the 6-D, 9-D and quaternion maps are invariant to the (positive) scale of their
+    input, from ``1e-30`` to ``1e30`` in float32; the rotation vector is valid up to
+    ``|x| ~ 1e19`` in float32 (``1e150`` in float64), the range of :func:`torchlie.so3.exp`.
+
+    Degenerate inputs, where the map is undefined, get a fixed, documented value with a zero
+    (finite) gradient:
+
+    * ``"6d"`` ``(a1, a2)``: ``a1 = 0`` is read as ``e_x``; ``a2`` parallel to ``a1`` (relative
+      sine below ``64 eps``, ``a2 = 0`` included) is read as ``e_k``, the coordinate axis
+      of the smallest ``|a1_k|`` (the first on ties), which is never near ``a1``.  So ``0``
+      gives the identity, and ``(a1, 0)`` the rotation whose first column is ``a1 / |a1|``.
+    * ``"9d"``: the zero matrix gives the identity.  Other singular matrices (a set of measure
+      zero that a linear layer does not produce in practice) give a valid rotation, but the
+      gradient there may not be finite: at rank 1, or where the two smallest signed singular
+      values sum to 0, the nearest rotation is not unique.
+    * ``"quaternion"``: ``0`` gives the identity.  Otherwise the vector is normalised (any scale)
+      and put in the canonical hemisphere ``w >= 0``; at ``w = 0`` the rule of
+      :mod:`torchlie.quaternion` applies (largest-magnitude vector component positive).  The
+      flip ``q -> -q`` is *not* a smooth map of the raw vector (it jumps across ``w = 0``), but
+      the matrix is: ``R(q) = R(-q)``, so the matrix and its gradient do not see the flip.
+    * ``"rotvec"``: :func:`torchlie.so3.exp` is defined and smooth everywhere.
+
+    Non-finite input gives NaN for that element only.
+
+    Example:
+        >>> representation_to_matrix(torch.zeros(6), "6d")
+        tensor([[1., 0., 0.],
+                [0., 1., 0.],
+                [0., 0., 1.]])
+        >>> representation_to_matrix(torch.tensor([0.0, 0.0, 0.0, 1e6]), "quaternion")
+        tensor([[-1.,  0.,  0.],
+                [ 0., -1.,  0.],
+                [ 0.,  0.,  1.]])
+    """
+    fn = _NAME + "representation_to_matrix"
+    _check_choice(fn, "representation", representation, REPRESENTATIONS)
+    v, dtype = _checks.tensor(x, fn, "x", (REPRESENTATIONS[representation],))
+    return _checks.out(_to_matrix(v, representation), dtype)
+
+
+# ----------------------------------------------------------------------------------------------
+# Heads
+# ----------------------------------------------------------------------------------------------
+
+
+class RotationHead(nn.Module):
+    """Features ``(..., in_features)`` -> rotations: ``nn.Linear`` then a rotation map.
+
+    The linear layer maps to the raw representation (``REPRESENTATIONS[representation]``
+    numbers), which :func:`representation_to_matrix` turns into a rotation matrix; the result is
+    a valid rotation for every finite input, zero and huge features included, with finite
+    gradients (degenerate raw vectors: see :func:`representation_to_matrix`).
+
+    Args:
+        in_features: size of the last input dimension.
+        representation: ``"6d"`` (default), ``"9d"``, ``"quaternion"`` or ``"rotvec"``.
+        output: ``"matrix"`` (a ``(..., 3, 3)`` tensor, default) or ``"SO3"`` (an
+            :class:`torchlie.SO3`).
+        bias, device, dtype: passed to ``nn.Linear``.
+
+    Example:
+        >>> head = RotationHead(16, representation="6d")
+        >>> R = head(torch.randn(8, 16))
+        >>> R.shape, bool(so3.is_valid(R).all())
+        (torch.Size([8, 3, 3]), True)
+    """
+
+    def __init__(
+        self,
+        in_features: int,
+        representation: str = "6d",
+        output: str = "matrix",
+        *,
+        bias: bool = True,
+        device: torch.device | str | None = None,
+        dtype: torch.dtype | None = None,
+    ) -> None:
+        super().__init__()
+        fn = _NAME + "RotationHead"
+        _check_choice(fn, "representation", representation, REPRESENTATIONS)
+        _check_choice(fn, "output", output, ("matrix", "SO3"))
+        self.representation = representation
+        self.output = output
+        self.linear = nn.Linear(
+            in_features, REPRESENTATIONS[representation], bias=bias, device=device, dtype=dtype
+        )
+
+    def extra_repr(self) -> str:
+        return f"representation={self.representation!r}, output={self.output!r}"
+
+    def raw(self, features: Float[Tensor, "*b f"]) -> Float[Tensor, "*b k"]:
+        """The unconstrained representation vector ``(..., k)`` (the linear layer's output).
+
+        Example:
+            >>> RotationHead(16, representation="9d").raw(torch.zeros(2, 16)).shape
+            torch.Size([2, 9])
+        """
+        return self.linear(features)
+
+    def forward(self, features: Float[Tensor, "*b f"]) -> Float[Tensor, "*b 3 3"] | SO3:
+        """Rotation matrices ``(..., 3, 3)`` (or an :class:`torchlie.SO3`)."""
+        R = representation_to_matrix(self.linear(features), self.representation)
+        return SO3._wrap(R) if self.output == "SO3" else R
+
+    def quaternion(self, features: Float[Tensor, "*b f"]) -> Float[Tensor, "*b 4"]:
+        """Canonical unit quaternions ``(..., 4)`` (``w >= 0``) of the predicted rotations.
+
+        For ``representation="quaternion"`` this is the normalised raw output put in the
+        canonical hemisphere (not a smooth function of it at ``w = 0``, see
+        :func:`representation_to_matrix`); otherwise :func:`torchlie.quaternion.from_matrix`
+        of the matrix.
+
+        Example:
+            >>> head = RotationHead(2, representation="quaternion")
+            >>> _ = torch.nn.init.zeros_(head.linear.weight)
+            >>> _ = head.linear.bias.data.copy_(torch.tensor([-2.0, 0.0, 0.0, 2.0]))
+            >>> head.quaternion(torch.zeros(2)).detach()  # (-2, 0, 0, 2) flipped to w >= 0
+            tensor([ 0.7071, -0.0000, -0.0000, -0.7071])
+        """
+        x = self.linear(features)
+        if self.representation == "quaternion":
+            fn = _NAME + "RotationHead.quaternion"
+            v, dtype = _checks.tensor(x, fn, "x", (4,))
+            return _checks.out(_unit_quaternion(v), dtype)
+        return _quat.from_matrix(representation_to_matrix(x, self.representation))
+
+
+class PoseHead(nn.Module):
+    """Features ``(..., in_features)`` -> poses ``(..., 4, 4)`` ``[[R, t], [0, 1]]``.
+
+    One ``nn.Linear`` to ``k + 3`` numbers: the first ``k`` are the rotation's raw
+    representation (as :class:`RotationHead`), the last 3 the translation ``t`` as it is.
+
+    Args:
+        in_features: size of the last input dimension.
+        representation: ``"6d"`` (default), ``"9d"``, ``"quaternion"`` or ``"rotvec"``.
+        output: ``"matrix"`` (default) or ``"SE3"`` (an :class:`torchlie.SE3`).
+        bias, device, dtype: passed to ``nn.Linear``.
+
+    Example:
+        >>> head = PoseHead(16, representation="9d")
+        >>> T = head(torch.zeros(2, 16))
+        >>> T.shape, bool(se3.is_valid(T).all())
+        (torch.Size([2, 4, 4]), True)
+    """
+
+    def __init__(
+        self,
+        in_features: int,
+        representation: str = "6d",
+        output: str = "matrix",
+        *,
+        bias: bool = True,
+        device: torch.device | str | None = None,
+        dtype: torch.dtype | None = None,
+    ) -> None:
+        super().__init__()
+        fn = _NAME + "PoseHead"
+        _check_choice(fn, "representation", representation, REPRESENTATIONS)
+        _check_choice(fn, "output", output, ("matrix", "SE3"))
+        self.representation = representation
+        self.output = output
+        k = REPRESENTATIONS[representation]
+        self.linear = nn.Linear(in_features, k + 3, bias=bias, device=device, dtype=dtype)
+
+    def extra_repr(self) -> str:
+        return f"representation={self.representation!r}, output={self.output!r}"
+
+    def forward(self, features: Float[Tensor, "*b f"]) -> Float[Tensor, "*b 4 4"] | SE3:
+        """Poses ``(..., 4, 4)`` (or an :class:`torchlie.SE3`)."""
+        y = self.linear(features)
+        R = representation_to_matrix(y[..., :-3], self.representation)
+        T = se3.from_rt(R, y[..., -3:])
+        return SE3._wrap(T) if self.output == "SE3" else T
+
+
+# ----------------------------------------------------------------------------------------------
+# Losses
+# ----------------------------------------------------------------------------------------------
+
+
+def _reduce(loss: Tensor, reduction: str) -> Tensor:
+    if reduction == "mean":
+        return loss.mean()
+    if reduction == "sum":
+        return loss.sum()
+    return loss
+
+
+def geodesic_loss(
+    R_pred: Float[Tensor, "*b1 3 3"],
+    R_target: Float[Tensor, "*b2 3 3"],
+    kind: str = "angle",
+    reduction: str = "mean",
+) -> Float[Tensor, "*b"]:
+    """Rotation error between predicted and target rotations (batch shapes broadcast).
+
+    ``kind="angle"``: the geodesic distance, the angle of ``R_pred^T R_target`` in radians,
+    ``[0, pi]`` (:func:`torchlie.so3.distance`).  It is not differentiable at 0 (a cone) or at
+    pi (a ridge); the gradient there is the zero subgradient, so it is always finite.
+    ``kind="chordal"``: the squared chordal distance ``|R_pred - R_target|_F^2``, equal to
+    ``8 sin^2(angle / 2)`` for rotations; smooth everywhere, its gradient vanishes at 0 and at
+    pi.
+
+    Args:
+        R_pred, R_target: rotation matrices ``(..., 3, 3)``.
+        kind: ``"angle"`` (default) or ``"chordal"``.
+        reduction: ``"mean"`` (default), ``"sum"`` or ``"none"``, as in torch's losses.
+
+    Returns:
+        A scalar, or the per-element losses ``(...)`` for ``reduction="none"``.
+
+    Example:
+        >>> R = so3.exp(torch.tensor([[0.0, 0.0, 0.5], [0.0, 0.0, 1.0]]))
+        >>> geodesic_loss(R, torch.eye(3), reduction="none")
+        tensor([0.5000, 1.0000])
+        >>> geodesic_loss(R, torch.eye(3))
+        tensor(0.7500)
+    """
+    fn = _NAME + "geodesic_loss"
+    _check_choice(fn, "kind", kind, ("angle", "chordal"))
+    _check_choice(fn, "reduction", reduction, _REDUCTIONS)
+    a, dtype = _checks.tensor(R_pred, fn, "R_pred", (3, 3))
+    b, _ = _checks.tensor(R_target, fn, "R_target", (3, 3))
+    _checks.same_dtype(fn, R_pred=R_pred, R_target=R_target)
+    _checks.batch_broadcast(fn, (a.shape[:-2], "R_pred"), (b.shape[:-2], "R_target"))
+    if kind == "angle":
+        loss = so3.distance(a, b)
+    else:
+        d = a - b
+        loss = (d * d).sum(dim=(-1, -2))
+    return _checks.out(_reduce(loss, reduction), dtype)
+
+
+def se3_geodesic_loss(
+    T_pred: Float[Tensor, "*b1 4 4"],
+    T_target: Float[Tensor, "*b2 4 4"],
+    rotation_weight: float = 1.0,
+    translation_weight: float = 1.0,
+    kind: str = "angle",
+    reduction: str = "mean",
+) -> Float[Tensor, "*b"]:
+    """Weighted pose error ``rotation_weight * rot + translation_weight * trans``.
+
+    ``kind="angle"``: ``rot`` is the rotation angle of ``R_pred^T R_target`` (radians) and
+    ``trans`` the distance ``|t_pred - t_target|`` (:func:`torchlie.se3.distance`); both have the
+    zero subgradient where they are not differentiable (zero error, angle pi), so the gradient
+    is always finite.  ``kind="chordal"``: ``rot = |R_pred - R_target|_F^2`` and
+    ``trans = |t_pred - t_target|^2``, smooth everywhere.  The weights convert the two units
+    (radians and your length unit) into one loss; the bottom rows are not read.
+
+    Args:
+        T_pred, T_target: poses ``(..., 4, 4)`` (batch shapes broadcast).
+        rotation_weight, translation_weight: non-negative weights.
+        kind: ``"angle"`` (default) or ``"chordal"``.
+        reduction: ``"mean"`` (default), ``"sum"`` or ``"none"``.
+
+    Example:
+        >>> T = se3.from_rt(so3.exp(torch.tensor([0.0, 0.3, 0.0])), torch.tensor([3.0, 4.0, 0.0]))
+        >>> se3_geodesic_loss(T, se3.identity(), rotation_weight=10.0)
+        tensor(8.)
+    """
+    fn = _NAME + "se3_geodesic_loss"
+    _check_choice(fn, "kind", kind, ("angle", "chordal"))
+    _check_choice(fn, "reduction", reduction, _REDUCTIONS)
+    a, dtype = _checks.tensor(T_pred, fn, "T_pred", (4, 4))
+    b, _ = _checks.tensor(T_target, fn, "T_target", (4, 4))
+    _checks.same_dtype(fn, T_pred=T_pred, T_target=T_target)
+    _checks.batch_broadcast(fn, (a.shape[:-2], "T_pred"), (b.shape[:-2], "T_target"))
+    if kind == "angle":
+        rot, trans = se3.distance(a, b)
+    else:
+        dR = a[..., :3, :3] - b[..., :3, :3]
+        dt = a[..., :3, 3] - b[..., :3, 3]
+        rot, trans = (dR * dR).sum(dim=(-1, -2)), (dt * dt).sum(dim=-1)
+    loss = rotation_weight * rot + translation_weight * trans
+    return _checks.out(_reduce(loss, reduction), dtype)
+
+
+# ----------------------------------------------------------------------------------------------
+# Parametrizations
+# ----------------------------------------------------------------------------------------------
+
+
+_SO3_PARAMS = {"quaternion": (4,), "matrix": (3, 3), "rotvec": (3,)}
+_SE3_PARAMS = {"pos_quat": (7,), "matrix": (4, 4), "twist": (6,)}
+
+
+class SO3Parametrization(nn.Module):
+    """Keep a parameter on SO(3): for :func:`torch.nn.utils.parametrize.register_parametrization`.
+
+    The registered tensor (``module.weight``) is always read as valid rotations ``(..., 3, 3)``,
+    whatever any optimiser (SGD, Adam, LBFGS, ...) does to the stored parameter
+    (``module.parametrizations.weight.original``): the rotation is computed from it on every
+    read, so nothing needs re-projecting after a step.  Assigning ``module.weight = R`` stores
+    ``right_inverse(R)``.  ``state_dict`` holds the stored parameter.
+
+    ``representation`` chooses the stored parameter:
+
+    * ``"quaternion"`` (default): ``(..., 4)``, read as :func:`torchlie.quaternion.to_matrix`
+      (the rotation of ``q / |q|``): smooth everywhere except at ``q = 0``, no chart
+      singularity, no SVD; the cheapest and most robust choice.  The gradient is orthogonal
+      to ``q``, so plain gradient steps only make ``|q|`` grow; adaptive optimisers move
+      ``|q|`` a little (64 random targets, 1000 Adam steps at lr 0.01: ``|q|`` stayed within
+      ``[0.78, 1.40]``).  ``right_inverse`` is :func:`torchlie.quaternion.from_matrix`.
+    * ``"matrix"``: an unconstrained ``(..., 3, 3)`` matrix read as its nearest rotation,
+      :func:`torchlie.so3.project`; ``right_inverse`` stores the assigned matrix as it is (the
+      stored value *is* the rotation until the first step).  Costs an SVD per read and an
+      eigen-decomposition per backward (several times slower than ``"quaternion"`` in
+      that Adam run), and optimisers move the stored matrix off SO(3) along directions that do not
+      change the rotation (its singular values ended within ``[0.0025, 2.4]``).
+    * ``"rotvec"``: a rotation vector ``(..., 3)`` read as :func:`torchlie.so3.exp`;
+      ``right_inverse`` is :func:`torchlie.so3.log`.  Three numbers per rotation, and weight
+      decay pulls towards the identity; but the chart degenerates as the angle approaches
+      ``2 pi`` (the gradient across the axis vanishes), which long optimisations can approach
+      (in that Adam run the largest angle stored reached 5.25 rad).
+
+    Keep the stored parameter out of weight decay for ``"quaternion"`` and ``"matrix"``: decay
+    shrinks it towards 0, where the rotation is undefined.  All three work with
+    ``torch.compile(fullgraph=True)``.
+
+    Example:
+        >>> from torch.nn.utils import parametrize
+        >>> holder = torch.nn.Module()
+        >>> holder.R = torch.nn.Parameter(so3.identity(5))
+        >>> _ = parametrize.register_parametrization(holder, "R", SO3Parametrization())
+        >>> holder.parametrizations.R.original.shape
+        torch.Size([5, 4])
+        >>> with torch.no_grad():
+        ...     _ = holder.parametrizations.R.original.add_(torch.randn(5, 4))
+        >>> bool(so3.is_valid(holder.R).all())
+        True
+    """
+
+    def __init__(self, representation: str = "quaternion") -> None:
+        super().__init__()
+        fn = _NAME + "SO3Parametrization"
+        _check_choice(fn, "representation", representation, _SO3_PARAMS)
+        self.representation = representation
+
+    def extra_repr(self) -> str:
+        return f"representation={self.representation!r}"
+
+    def forward(self, X: Tensor) -> Float[Tensor, "*b 3 3"]:
+        """The rotations ``(..., 3, 3)`` of the stored parameter ``X``."""
+        fn = _NAME + "SO3Parametrization"
+        _checks.tensor(X, fn, "X", _SO3_PARAMS[self.representation])
+        if self.representation == "quaternion":
+            return _quat.to_matrix(X)
+        if self.representation == "matrix":
+            return so3.project(X)
+        return so3.exp(X)
+
+    def right_inverse(self, R: Float[Tensor, "*b 3 3"]) -> Tensor:
+        """The stored parameter that reads as the rotations ``R``."""
+        _checks.tensor(R, _NAME + "SO3Parametrization.right_inverse", "R", (3, 3))
+        if self.representation == "quaternion":
+            return _quat.from_matrix(R)
+        if self.representation == "matrix":
+            return R.clone()  # never alias the caller's tensor
+        return so3.log(R)
+
+
+class SE3Parametrization(nn.Module):
+    """Keep a parameter on SE(3): for :func:`torch.nn.utils.parametrize.register_parametrization`.
+
+    The registered tensor is always read as valid poses ``(..., 4, 4)`` (as
+    :class:`SO3Parametrization`).  ``representation`` chooses the stored parameter:
+
+    * ``"pos_quat"`` (default): ``(..., 7)`` ``(t, q)``, read as
+      :func:`torchlie.se3.from_pos_quat` (translation as it is, rotation of ``q / |q|``);
+      ``right_inverse`` is :func:`torchlie.se3.to_pos_quat`.  Rotation and translation are
+      decoupled, which usually conditions pose optimisation well.
+    * ``"matrix"``: an unconstrained ``(..., 4, 4)`` matrix; the rotation block is read through
+      :func:`torchlie.so3.project`, the translation column as it is, and the bottom row as
+      ``(0, 0, 0, 1)`` (the stored bottom row is not read and gets no gradient);
+      ``right_inverse`` stores the assigned pose as it is.
+    * ``"twist"``: a twist ``(..., 6)`` ``(rho, phi)`` read as :func:`torchlie.se3.exp`;
+      ``right_inverse`` is :func:`torchlie.se3.log`.  Rotation and translation are coupled
+      (``t = so3.jac_left(phi) rho``), which slows first-order optimisers: fitting 6 random
+      poses with Adam (lr 0.02, 1000 steps, cosine schedule), this form ended 0.3 rad away
+      where the other two were within 1e-6 rad.
+
+    Example:
+        >>> from torch.nn.utils import parametrize
+        >>> holder = torch.nn.Module()
+        >>> holder.pose = torch.nn.Parameter(se3.identity(5))
+        >>> _ = parametrize.register_parametrization(holder, "pose", SE3Parametrization())
+        >>> with torch.no_grad():
+        ...     _ = holder.parametrizations.pose.original.add_(torch.randn(5, 7))
+        >>> bool(se3.is_valid(holder.pose).all())
+        True
+    """
+
+    def __init__(self, representation: str = "pos_quat") -> None:
+        super().__init__()
+        fn = _NAME + "SE3Parametrization"
+        _check_choice(fn, "representation", representation, _SE3_PARAMS)
+        self.representation = representation
+
+    def extra_repr(self) -> str:
+        return f"representation={self.representation!r}"
+
+    def forward(self, X: Tensor) -> Float[Tensor, "*b 4 4"]:
+        """The poses ``(..., 4, 4)`` of the stored parameter ``X``."""
+        _checks.tensor(X, _NAME + "SE3Parametrization", "X", _SE3_PARAMS[self.representation])
+        if self.representation == "pos_quat":
+            return se3.from_pos_quat(X)
+        if self.representation == "matrix":
+            return se3.from_rt(so3.project(X[..., :3, :3]), X[..., :3, 3])
+        return se3.exp(X)
+
+    def right_inverse(self, T: Float[Tensor, "*b 4 4"]) -> Tensor:
+        """The stored parameter that reads as the poses ``T``."""
+        _checks.tensor(T, _NAME + "SE3Parametrization.right_inverse", "T", (4, 4))
+        if self.representation == "pos_quat":
+            return se3.to_pos_quat(T)
+        if self.representation == "matrix":
+            return T.clone()  # never alias the caller's tensor
+        return se3.log(T)
