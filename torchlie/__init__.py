@@ -33,8 +33,18 @@ Python on tensor values, so every op works under ``torch.compile(fullgraph=True)
 ``torch.func.vmap`` / ``jacrev`` / ``jacfwd`` and on CUDA.
 """
 
-from . import conversions, quaternion, se3, so3, statistics
+from . import conversions, kinematics, nn, quaternion, se3, so3, statistics
 from .groups import SE3, SO3
 
-__all__ = ["SE3", "SO3", "conversions", "quaternion", "se3", "so3", "statistics"]
+__all__ = [
+    "SE3",
+    "SO3",
+    "conversions",
+    "kinematics",
+    "nn",
+    "quaternion",
+    "se3",
+    "so3",
+    "statistics",
+]
 __version__ = "0.1.0"

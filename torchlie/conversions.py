@@ -381,7 +381,11 @@ def _rot6d_to_matrix(x: Tensor) -> Tensor:
     a1, a2 = x[..., :3], x[..., 3:]
     b1 = _unit(a1)
     r = a2 - (b1 * a2).sum(-1, keepdim=True) * b1
-    r = _unit(r)
+    # a2 parallel to a1 (residual at rounding level) has no second direction: NaN, documented
+    # (max-abs comparison: no squares, so no overflow or underflow at extreme scales)
+    tol = 64 * torch.finfo(x.dtype).eps
+    parallel = r.abs().amax(-1, keepdim=True) <= tol * a2.abs().amax(-1, keepdim=True)
+    r = _unit(torch.where(parallel, torch.full_like(r, float("nan")), r))
     b2 = _unit(r - (b1 * r).sum(-1, keepdim=True) * b1)
     b3 = torch.linalg.cross(b1, b2, dim=-1)
     b1 = b1 + 0.0 * b2  # a degenerate a2 makes the whole matrix NaN, not only two columns

@@ -433,7 +433,11 @@ def _polar_frame(M: Tensor, R: Tensor):
     R = torch.where(finite, R, eye)
     P = R.transpose(-1, -2) @ torch.where(finite, M, eye)
     s, V = torch.linalg.eigh(0.5 * (P + P.transpose(-1, -2)))
-    return finite, R, V, s.unsqueeze(-1) + s.unsqueeze(-2)
+    # The diagonal of the skew solution is 0 whatever the denominator: 1 there keeps a rank-2
+    # M (s_3 = 0, where the nearest rotation is still unique and smooth) free of 0/0.
+    eye_b = torch.eye(3, dtype=torch.bool, device=M.device)
+    denom = torch.where(eye_b, torch.ones_like(P), s.unsqueeze(-1) + s.unsqueeze(-2))
+    return finite, R, V, denom
 
 
 def _project_backward(saved, g: Tensor):
