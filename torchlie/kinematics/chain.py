@@ -123,11 +123,6 @@ def _unit(v: Sequence[float]) -> Tensor:
     return torch.tensor([x / n for x in v], dtype=torch.float64)
 
 
-def _hat64(a: Tensor) -> Tensor:
-    x, y, z = a.tolist()
-    return torch.tensor([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]], dtype=torch.float64)
-
-
 def _block(R: Tensor | None = None, t: Tensor | None = None) -> Tensor:
     """4x4 ``[[R, t], [0, 0]]`` (zeros where not given)."""
     M = torch.zeros(4, 4, dtype=torch.float64)
@@ -163,7 +158,7 @@ def _constants(j: JointSpec) -> list[Tensor]:
             out.append(T @ E)
         return out
     a = _unit(j.axis)
-    K = _hat64(a)
+    K = _so3.hat(a)
     if kind == "rot":
         return [T, T @ _block(K), T @ _block(K @ K)]
     if kind == "prism":
