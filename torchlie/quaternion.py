@@ -198,45 +198,58 @@ def from_matrix(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 4"]:
     return _checks.out(_from_matrix(x), dtype)
 
 
-def _orthogonalize_step(R: Tensor) -> Tensor:
-    """One Newton step of the polar decomposition, ``R - R (R^T R - I) / 2``."""
-    E = R.transpose(-1, -2) @ R
-    E = E - torch.eye(3, dtype=R.dtype, device=R.device)
-    return R - 0.5 * (R @ E)
+def _orthogonalize_step(R: Tensor) -> tuple[Tensor, ...]:
+    """One Newton step of the polar decomposition, ``R - R (R^T R - I) / 2``, from components.
+
+    Returns the 9 entries row by row (no batched 3x3 matmul: those cost more than the rest).
+    """
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = R.flatten(-2).unbind(-1)
+    e00 = m00 * m00 + m10 * m10 + m20 * m20 - 1.0
+    e11 = m01 * m01 + m11 * m11 + m21 * m21 - 1.0
+    e22 = m02 * m02 + m12 * m12 + m22 * m22 - 1.0
+    e01 = m00 * m01 + m10 * m11 + m20 * m21
+    e02 = m00 * m02 + m10 * m12 + m20 * m22
+    e12 = m01 * m02 + m11 * m12 + m21 * m22
+    out = []
+    for a, b, c in ((m00, m01, m02), (m10, m11, m12), (m20, m21, m22)):
+        out.append(a - 0.5 * (a * e00 + b * e01 + c * e02))
+        out.append(b - 0.5 * (a * e01 + b * e11 + c * e12))
+        out.append(c - 0.5 * (a * e02 + b * e12 + c * e22))
+    return tuple(out)
 
 
 def _from_matrix(R: Tensor) -> Tensor:
-    m = _orthogonalize_step(R)
-    m00, m01, m02, m10, m11, m12, m20, m21, m22 = m.flatten(-2).unbind(-1)
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = _orthogonalize_step(R)
     # 4 q_i^2 for i = w, x, y, z
-    d = torch.stack(
-        (
-            1.0 + m00 + m11 + m22,
-            1.0 + m00 - m11 - m22,
-            1.0 - m00 + m11 - m22,
-            1.0 - m00 - m11 + m22,
-        ),
-        dim=-1,
-    )
+    d0 = 1.0 + m00 + m11 + m22
+    d1 = 1.0 + m00 - m11 - m22
+    d2 = 1.0 - m00 + m11 - m22
+    d3 = 1.0 - m00 - m11 + m22
     s21, s02, s10 = m21 - m12, m02 - m20, m10 - m01  # 4 w (x, y, z)
     a01, a02, a12 = m01 + m10, m02 + m20, m12 + m21  # 4 (xy, xz, yz)
-    d0, d1, d2, d3 = d.unbind(-1)
-    # Row i holds 4 q_i q: proportional to q with a positive i-th entry.
-    cand = torch.stack(
-        (
-            torch.stack((d0, s21, s02, s10), -1),
-            torch.stack((s21, d1, a01, a02), -1),
-            torch.stack((s02, a01, d2, a12), -1),
-            torch.stack((s10, a02, a12, d3), -1),
-        ),
-        dim=-2,
+    # Pivot: the largest d_i (the first on ties), selected by a chain of where (no argmax).
+    # Candidate i holds 4 q_i q: proportional to q with a positive i-th entry.
+    is1 = d1 > d0
+    dmax = torch.where(is1, d1, d0)
+    is2 = d2 > dmax
+    dmax = torch.where(is2, d2, dmax)
+    is3 = d3 > dmax
+    is2 = is2 & ~is3
+    is1 = is1 & ~is2 & ~is3
+
+    def pick(c0: Tensor, c1: Tensor, c2: Tensor, c3: Tensor) -> Tensor:
+        return torch.where(is3, c3, torch.where(is2, c2, torch.where(is1, c1, c0)))
+
+    cw = pick(d0, s21, s02, s10)
+    c = torch.stack(
+        (cw, pick(s21, d1, a01, a02), pick(s02, a01, d2, a12), pick(s10, a02, a12, d3)), dim=-1
     )
-    pivot = torch.argmax(d, dim=-1, keepdim=True)
-    c = torch.gather(cand, -2, pivot.unsqueeze(-1).expand(*pivot.shape[:-1], 1, 4))[..., 0, :]
-    # c = 4 q_p q with q_p > 0, so |c| = 4 q_p >= 2 for a rotation: the division is safe, and
-    # a NaN element stays in its own row.
-    q = c * torch.rsqrt((c * c).sum(-1, keepdim=True))
-    return _canonicalize(q)
+    # |c| = 4 q_p >= 2 for a rotation: the division is safe, and a NaN element stays in its row.
+    # Canonical sign: the pivot entry is positive, so flipping on w < 0 gives the canonical
+    # representative (at w = 0 the pivot is the largest-magnitude vector component).
+    scale = torch.rsqrt((c * c).sum(-1, keepdim=True))
+    scale = torch.where(cw.unsqueeze(-1) < 0, -scale, scale)
+    return c * scale
 
 
 # ----------------------------------------------------------------------------------------------
@@ -282,7 +295,11 @@ def to_rotvec(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 3"]:
 
 
 def _to_rotvec(q: Tensor) -> Tensor:
-    q = _canonicalize(q)
+    return _rotvec_of_canonical(_canonicalize(q))
+
+
+def _rotvec_of_canonical(q: Tensor) -> Tensor:
+    """:func:`to_rotvec` of a quaternion already in canonical sign (as ``_from_matrix`` returns)."""
     w = q[..., :1]
     v = q[..., 1:]
     n = _coeffs.norm(v, keepdim=True)

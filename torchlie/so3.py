@@ -122,7 +122,7 @@ def _exp(w: Tensor) -> Tensor:
 
 
 def _log(R: Tensor) -> Tensor:
-    return _quat._to_rotvec(_quat._from_matrix(R))
+    return _quat._rotvec_of_canonical(_quat._from_matrix(R))
 
 
 # ----------------------------------------------------------------------------------------------
