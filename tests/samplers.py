@@ -12,6 +12,18 @@ import torch
 
 PI = math.pi
 
+
+def eps(dtype: torch.dtype) -> float:
+    """Machine epsilon of ``dtype`` (tolerances are stated in multiples of it)."""
+    return torch.finfo(dtype).eps
+
+
+def unit(v) -> torch.Tensor:
+    """``v`` as a float64 unit vector."""
+    v = torch.as_tensor(v, dtype=torch.float64)
+    return v / v.norm()
+
+
 #: The angle sweep of the numerical specification.
 ANGLES = [
     0.0, 1e-12, 1e-8, 1e-6, 1e-4, 1e-2, 1.0, 3.0,

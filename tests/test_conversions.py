@@ -10,7 +10,7 @@ import warnings
 import numpy as np
 import pytest
 import torch
-from samplers import ANGLES, PI, haar_quaternions, hard_quaternions, rotvecs
+from samplers import ANGLES, PI, eps, haar_quaternions, hard_quaternions, rotvecs
 from scipy.spatial.transform import Rotation
 
 from torchlie import conversions as C
@@ -32,10 +32,6 @@ PROPER = [s for s in SEQS if s[0] == s[2]]
 #: <= 4 eps moves the unit quaternion by <= 8 eps and a matrix entry by <= 32 eps, plus rounding.
 LOCK_EPS = 4.0
 RT_LOCK_TOL = 8 * LOCK_EPS + 8
-
-
-def eps(dtype: torch.dtype) -> float:
-    return torch.finfo(dtype).eps
 
 
 def wrap(d: torch.Tensor) -> torch.Tensor:

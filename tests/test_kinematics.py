@@ -6,6 +6,7 @@ import math
 
 import pytest
 import torch
+from samplers import eps
 from scipy.spatial.transform import Rotation
 
 from torchlie.kinematics import Chain, sample_robot
@@ -16,10 +17,6 @@ from torchlie.kinematics.reference import (
 )
 
 F64 = torch.float64
-
-
-def eps(dtype: torch.dtype) -> float:
-    return torch.finfo(dtype).eps
 
 
 def robot(body: str, links: tuple[str, ...]) -> str:

@@ -13,15 +13,11 @@ from types import ModuleType
 
 import pytest
 import torch
-from samplers import ANGLES, PI, rotvecs
+from samplers import ANGLES, PI, eps, rotvecs
 
 from torchlie import se3, so3
 
 F64 = torch.float64
-
-
-def eps(dtype: torch.dtype) -> float:
-    return torch.finfo(dtype).eps
 
 
 @dataclass(frozen=True)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import samplers
 import torch
+from samplers import eps
 from scipy.spatial.transform import Rotation, Slerp
 from torch.autograd import gradcheck, gradgradcheck
 
@@ -21,10 +22,6 @@ F64 = torch.float64
 LOW = [torch.float16, torch.bfloat16]
 # Angles for gradcheck: the spec's GRAD_ANGLES plus exactly 0 (every op here is smooth there).
 GC_ANGLES = [0.0] + samplers.GRAD_ANGLES
-
-
-def eps(dtype: torch.dtype) -> float:
-    return torch.finfo(dtype).eps
 
 
 def haar(n: int, seed: int = 0, dtype=F64) -> torch.Tensor:

@@ -9,22 +9,13 @@ import mpmath
 import numpy as np
 import pytest
 import torch
-from samplers import ANGLES, GRAD_ANGLES, PI, rotvecs
+from samplers import ANGLES, GRAD_ANGLES, PI, eps, rotvecs, unit
 from scipy.spatial.transform import Rotation
 from torch.autograd import gradcheck, gradgradcheck
 
 from torchlie import quaternion, se3, so3
 
 F64 = torch.float64
-
-
-def eps(dtype: torch.dtype) -> float:
-    return torch.finfo(dtype).eps
-
-
-def unit(v) -> torch.Tensor:
-    v = torch.as_tensor(v, dtype=F64)
-    return v / v.norm()
 
 
 def twists(angles=ANGLES, n_random: int = 20, seed: int = 0, rho_norm: float | None = None):

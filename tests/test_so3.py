@@ -7,21 +7,12 @@ import math
 import numpy as np
 import pytest
 import torch
-from samplers import ANGLES, GRAD_ANGLES, PI, axes, rotvecs
+from samplers import ANGLES, GRAD_ANGLES, PI, axes, eps, rotvecs, unit
 from scipy.spatial.transform import Rotation, Slerp
 
 from torchlie import so3
 
 F64 = torch.float64
-
-
-def eps(dtype: torch.dtype) -> float:
-    return torch.finfo(dtype).eps
-
-
-def unit(v) -> torch.Tensor:
-    v = torch.as_tensor(v, dtype=F64)
-    return v / v.norm()
 
 
 # ----------------------------------------------------------------------------------------------

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 import torch
+from samplers import eps
 from scipy.spatial.transform import Rotation, Slerp
 from torch.autograd import gradcheck
 
@@ -25,10 +26,6 @@ from torchlie.statistics import (
 )
 
 F64 = torch.float64
-
-
-def eps(dtype: torch.dtype) -> float:
-    return torch.finfo(dtype).eps
 
 
 def gen(seed: int) -> torch.Generator:
