@@ -20,6 +20,11 @@ name               value                                            series at 0
 ``jinv``           (1 - (t/2) cot(t/2)) / t2                        1/12 + t2/720 + ...
 ``atan_ratio``     atan2(n, w) / n  (for n >= 0)                    (1/w)(1 - (n/w)**2/3 + ...)
 =================  ==============================================  =========================
+
+Forward-only evaluations (``*_values``) serve the forward passes of the custom autograd Functions,
+which run without autograd: there no branch needs to be safe to differentiate, so a clamp of the
+half angle replaces the series and its ``where`` (``sin(h)/h`` is exact to rounding for every
+``h > 0``, and equals 1 for the clamped value).  They must not be differentiated.
 """
 
 from __future__ import annotations
@@ -218,6 +223,56 @@ def norm(v: Tensor, dim: int = -1, keepdim: bool = False) -> Tensor:
     return sqrt0((v * v).sum(dim=dim, keepdim=keepdim))
 
 
+#: Clamp of the half angle in the forward-only evaluations: sin(h)/h rounds to 1 below it.
+_H_MIN = {torch.float32: 1e-30, torch.float64: 1e-150}
+
+
+def exp_values(w: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """``(sin t / t, (1 - cos t)/t^2, cos t)`` of ``t = |w|`` (``w`` of shape ``(..., 3)``).
+
+    Forward-only (module docstring).  With ``h = t/2`` and ``s = sin(h)/h``: ``sin t / t =
+    s cos h``, ``(1 - cos t)/t^2 = s^2 / 2`` and ``cos t = (cos h - sin h)(cos h + sin h)``, free
+    of cancellation at every angle.  One ``sqrt``, ``sin`` and ``cos`` per element, in the
+    precision of :func:`theta2` (float64 for float32 input); the results are in that precision.
+    """
+    t2 = theta2(w)
+    h = t2.sqrt().mul_(0.5).clamp_min_(_H_MIN[t2.dtype])
+    sh, ch = torch.sin(h), torch.cos(h)
+    s = sh / h
+    return s * ch, s.mul_(s).mul_(0.5), (ch - sh).mul_(ch.add_(sh))
+
+
+def jl_values(w: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """``(sin t / t, (1 - cos t)/t^2, (t - sin t)/t^3)`` of ``t = |w|``: ``Jl = a I + b hat(w) +
+    c w w^T``.
+
+    Forward-only (module docstring); the first two as in :func:`exp_values`.  The third is
+    ``(1 - sin t / t)/t^2`` with no series: its absolute error is about ``eps / t^2``, so the
+    term it enters, ``c w w^T``, is accurate to about ``eps`` at every angle (and 0 at t = 0).
+    Use it only in that product.
+    """
+    t2 = theta2(w)
+    h = t2.sqrt().mul_(0.5).clamp_min_(_H_MIN[t2.dtype])
+    s = torch.sin(h).div_(h)
+    a = torch.cos(h).mul_(s)
+    c = (1.0 - a).div_(t2.clamp_min(_H_MIN[t2.dtype]))
+    return a, s.mul_(s).mul_(0.5), c
+
+
+def jl_inv_values(w: Tensor) -> tuple[Tensor, Tensor]:
+    """``((t/2) cot(t/2), (1 - (t/2) cot(t/2))/t^2)`` of ``t = |w|`` in ``[0, pi]``:
+    ``Jl^-1 = e I - hat(w)/2 + D w w^T``.
+
+    Forward-only (module docstring).  ``e = cos(h) / (sin(h)/h)`` with ``h = t/2``; ``D`` has,
+    like the third value of :func:`jl_values`, an absolute error of about ``eps / t^2`` and is
+    meant only for the product ``D w w^T``.
+    """
+    t2 = theta2(w)
+    h = t2.sqrt().mul_(0.5).clamp_min_(_H_MIN[t2.dtype])
+    e = torch.cos(h).div_(torch.sin(h).div_(h))
+    return e, (1.0 - e).div_(t2.clamp_min(_H_MIN[t2.dtype]))
+
+
 def theta2(w: Tensor, keepdim: bool = False) -> Tensor:
     """|w|^2 over the last dimension, in the dtype the coefficients are evaluated in.
 
@@ -228,4 +283,7 @@ def theta2(w: Tensor, keepdim: bool = False) -> Tensor:
     """
     if w.dtype == torch.float32:
         w = w.double()
-    return (w * w).sum(-1, keepdim=keepdim)
+    # Component-wise: a reduction over a trailing dimension of 3 costs several times more.
+    x, y, z = w.unbind(-1)
+    t2 = torch.addcmul(torch.addcmul(x * x, y, y), z, z)
+    return t2.unsqueeze(-1) if keepdim else t2

@@ -198,27 +198,42 @@ def from_matrix(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 4"]:
     return _checks.out(_from_matrix(x), dtype)
 
 
+def _planes(M: Tensor, n: int) -> tuple[Tensor, ...]:
+    """The ``n`` trailing entries of ``M`` (flattened row by row) as contiguous planes.
+
+    One transposing copy: every later component-wise operation then reads contiguous memory
+    instead of a strided view that pulls the whole matrix through the cache again.
+    """
+    return M.reshape(M.shape[: M.dim() - 2] + (n,)).movedim(-1, 0).contiguous().unbind(0)
+
+
 def _orthogonalize_step(R: Tensor) -> tuple[Tensor, ...]:
     """One Newton step of the polar decomposition, ``R - R (R^T R - I) / 2``, from components.
 
     Returns the 9 entries row by row (no batched 3x3 matmul: those cost more than the rest).
     """
-    m00, m01, m02, m10, m11, m12, m20, m21, m22 = R.flatten(-2).unbind(-1)
-    e00 = m00 * m00 + m10 * m10 + m20 * m20 - 1.0
-    e11 = m01 * m01 + m11 * m11 + m21 * m21 - 1.0
-    e22 = m02 * m02 + m12 * m12 + m22 * m22 - 1.0
-    e01 = m00 * m01 + m10 * m11 + m20 * m21
-    e02 = m00 * m02 + m10 * m12 + m20 * m22
-    e12 = m01 * m02 + m11 * m12 + m21 * m22
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = _planes(R, 9)
+
+    def dot3(a: Tensor, b: Tensor, c: Tensor, d: Tensor, e: Tensor, f: Tensor) -> Tensor:
+        return torch.addcmul(torch.addcmul(a * d, b, e), c, f)
+
+    e00 = dot3(m00, m10, m20, m00, m10, m20) - 1.0
+    e11 = dot3(m01, m11, m21, m01, m11, m21) - 1.0
+    e22 = dot3(m02, m12, m22, m02, m12, m22) - 1.0
+    e01 = dot3(m00, m10, m20, m01, m11, m21)
+    e02 = dot3(m00, m10, m20, m02, m12, m22)
+    e12 = dot3(m01, m11, m21, m02, m12, m22)
     out = []
     for a, b, c in ((m00, m01, m02), (m10, m11, m12), (m20, m21, m22)):
-        out.append(a - 0.5 * (a * e00 + b * e01 + c * e02))
-        out.append(b - 0.5 * (a * e01 + b * e11 + c * e12))
-        out.append(c - 0.5 * (a * e02 + b * e12 + c * e22))
+        out.append(torch.add(a, dot3(a, b, c, e00, e01, e02), alpha=-0.5))
+        out.append(torch.add(b, dot3(a, b, c, e01, e11, e12), alpha=-0.5))
+        out.append(torch.add(c, dot3(a, b, c, e02, e12, e22), alpha=-0.5))
     return tuple(out)
 
 
-def _from_matrix(R: Tensor) -> Tensor:
+def _from_matrix_parts(R: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+    """``(cw, cx, cy, cz, sign)``: ``c`` is proportional to the quaternion of ``R``, with
+    ``|c| >= 2`` for a rotation; ``sign * c / |c|`` is the canonical unit quaternion."""
     m00, m01, m02, m10, m11, m12, m20, m21, m22 = _orthogonalize_step(R)
     # 4 q_i^2 for i = w, x, y, z
     d0 = 1.0 + m00 + m11 + m22
@@ -227,29 +242,49 @@ def _from_matrix(R: Tensor) -> Tensor:
     d3 = 1.0 - m00 - m11 + m22
     s21, s02, s10 = m21 - m12, m02 - m20, m10 - m01  # 4 w (x, y, z)
     a01, a02, a12 = m01 + m10, m02 + m20, m12 + m21  # 4 (xy, xz, yz)
-    # Pivot: the largest d_i (the first on ties), selected by a chain of where (no argmax).
-    # Candidate i holds 4 q_i q: proportional to q with a positive i-th entry.
+    # Pivot: the largest d_i (the first on ties).  Candidate i holds 4 q_i q: proportional to q
+    # with a positive i-th entry.  The selection is a one-hot sum: f_i in {0, 1} with exactly
+    # one 1, so sum_i f_i c_i is exactly the selected candidate (and so is its gradient).
     is1 = d1 > d0
-    dmax = torch.where(is1, d1, d0)
+    dmax = torch.maximum(d0, d1)
     is2 = d2 > dmax
-    dmax = torch.where(is2, d2, dmax)
-    is3 = d3 > dmax
-    is2 = is2 & ~is3
-    is1 = is1 & ~is2 & ~is3
+    is3 = d3 > torch.maximum(dmax, d2)
+    f3 = is3.to(d0.dtype)
+    f2 = (is2 & ~is3).to(d0.dtype)
+    f1 = (is1 & ~(is2 | is3)).to(d0.dtype)
+    f0 = 1.0 - (f1 + f2 + f3)
 
     def pick(c0: Tensor, c1: Tensor, c2: Tensor, c3: Tensor) -> Tensor:
-        return torch.where(is3, c3, torch.where(is2, c2, torch.where(is1, c1, c0)))
+        return torch.addcmul(torch.addcmul(torch.addcmul(c0 * f0, c1, f1), c2, f2), c3, f3)
 
     cw = pick(d0, s21, s02, s10)
-    c = torch.stack(
-        (cw, pick(s21, d1, a01, a02), pick(s02, a01, d2, a12), pick(s10, a02, a12, d3)), dim=-1
-    )
-    # |c| = 4 q_p >= 2 for a rotation: the division is safe, and a NaN element stays in its row.
     # Canonical sign: the pivot entry is positive, so flipping on w < 0 gives the canonical
     # representative (at w = 0 the pivot is the largest-magnitude vector component).
-    scale = torch.rsqrt((c * c).sum(-1, keepdim=True))
-    scale = torch.where(cw.unsqueeze(-1) < 0, -scale, scale)
-    return c * scale
+    # cw + 0.0 turns -0.0 into +0.0: no flip at w = 0.
+    sign = torch.copysign(torch.ones_like(cw), cw + 0.0)
+    return cw, pick(s21, d1, a01, a02), pick(s02, a01, d2, a12), pick(s10, a02, a12, d3), sign
+
+
+def _from_matrix(R: Tensor) -> Tensor:
+    cw, cx, cy, cz, sign = _from_matrix_parts(R)
+    # |c| = 4 q_p >= 2 for a rotation: the division is safe, and a NaN element stays in its row.
+    n2 = torch.addcmul(torch.addcmul(torch.addcmul(cw * cw, cx, cx), cy, cy), cz, cz)
+    scale = torch.rsqrt(n2) * sign
+    return torch.stack((cw * scale, cx * scale, cy * scale, cz * scale), dim=-1)
+
+
+def _log_of_matrix(R: Tensor) -> Tensor:
+    """Rotation vector of ``R`` (forward of :func:`torchlie.so3.log`; runs without autograd).
+
+    ``2 atan2(|c_v|, |c_w|) c_v / |c_v|`` with the sign of the canonical quaternion, straight
+    from the unnormalised Shepperd candidate ``c`` (atan2 is scale-invariant).  At ``c_v = 0``
+    (the identity) the quotient's denominator is clamped, which gives exactly 0.
+    """
+    cw, cx, cy, cz, sign = _from_matrix_parts(R)
+    nv = torch.addcmul(torch.addcmul(cx * cx, cy, cy), cz, cz).sqrt_()
+    f = torch.atan2(nv, cw.abs()).mul_(2.0).div_(nv.clamp_min(torch.finfo(nv.dtype).tiny))
+    f = f.mul_(sign)
+    return torch.stack((f * cx, f * cy, f * cz), dim=-1)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -115,14 +115,24 @@ def _jl_inv_apply(w: Tensor, v: Tensor, sign: float = 1.0) -> Tensor:
 
 
 def _exp(w: Tensor) -> Tensor:
-    t2 = _coeffs.theta2(w)
-    b = _coeffs.cosc(t2)
-    a, c = _coeffs.sinc(t2).to(w.dtype), (1.0 - b * t2).to(w.dtype)
-    return _abc_matrix(c, a, b.to(w.dtype), w)
+    """Forward of :func:`exp` (runs without autograd: forward-only coefficients)."""
+    a, b, c = (v.to(w.dtype) for v in _coeffs.exp_values(w))
+    x, y, z = w.unbind(-1)
+    bx, by, bz = b * x, b * y, b * z
+    ax, ay, az = a * x, a * y, a * z
+    bxy, bxz, byz = bx * y, bx * z, by * z
+    return torch.stack(
+        (
+            torch.addcmul(c, bx, x), bxy - az, bxz + ay,
+            bxy + az, torch.addcmul(c, by, y), byz - ax,
+            bxz - ay, byz + ax, torch.addcmul(c, bz, z),
+        ),
+        dim=-1,
+    ).unflatten(-1, (3, 3))  # fmt: skip
 
 
 def _log(R: Tensor) -> Tensor:
-    return _quat._rotvec_of_canonical(_quat._from_matrix(R))
+    return _quat._log_of_matrix(R)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -130,11 +140,56 @@ def _log(R: Tensor) -> Tensor:
 # ----------------------------------------------------------------------------------------------
 
 
+def _rt_g_vee(R: Tensor, G: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Components of ``vee(R^T G - G^T R)`` (the full vee: twice that of the skew part).
+
+    ``= sum_k cross(G_k, R_k)`` over the rows, from components (no batched 3x3 product).
+    """
+    # Planar copies (one transposition each): the 18 products then read contiguous memory.
+    r = R.flatten(-2).movedim(-1, 0).contiguous().unbind(0)
+    g = G.flatten(-2).movedim(-1, 0).contiguous().unbind(0)
+    out = []
+    for i, j in ((1, 2), (2, 0), (0, 1)):
+        acc = g[i] * r[j]
+        for k in (3, 6):
+            acc = torch.addcmul(acc, g[k + i], r[k + j])
+        for k in (0, 3, 6):
+            acc = torch.addcmul(acc, g[k + j], r[k + i], value=-1.0)
+        out.append(acc)
+    return out[0], out[1], out[2]
+
+
+def _jl_apply_values(w: Tensor, v: tuple[Tensor, Tensor, Tensor], sign: float = 1.0) -> Tensor:
+    """``Jl(w) v`` (``sign=1``) or ``Jr(w) v`` (``sign=-1``) from components; forward-only.
+
+    ``Jl(w) v = a v + b (w x v) + c (w . v) w`` with the coefficients of
+    :func:`torchlie._coeffs.jl_values` (not differentiable: backward passes without
+    ``create_graph`` only).
+    """
+    a, b, c = (t.to(w.dtype) for t in _coeffs.jl_values(w))
+    if sign < 0:
+        b = -b
+    x, y, z = w.unbind(-1)
+    p, q, r = v
+    cwv = c * torch.addcmul(torch.addcmul(x * p, y, q), z, r)
+    out = []
+    for vi, wi, (w1, v2), (w2, v1) in (
+        (p, x, (y, r), (z, q)),
+        (q, y, (z, p), (x, r)),
+        (r, z, (x, q), (y, p)),
+    ):
+        cross = torch.addcmul(w1 * v2, w2, v1, value=-1.0)
+        out.append(torch.addcmul(torch.addcmul(a * vi, b, cross), cwv, wi))
+    return torch.stack(out, dim=-1)
+
+
 def _exp_backward(saved, g: Tensor):
     w, R = saved
     # dL/dw = Jl(w) vee(R^T G - G^T R) (full vee, i.e. twice the skew part's)
-    M = R.transpose(-1, -2) @ g
-    return (_jl_apply(w, 2.0 * _vee(M)),)
+    if torch.is_grad_enabled():  # create_graph: differentiable ops
+        M = R.transpose(-1, -2) @ g
+        return (_jl_apply(w, 2.0 * _vee(M)),)
+    return (_jl_apply_values(w, _rt_g_vee(R, g)),)
 
 
 def _exp_jvp(saved, dw: Tensor) -> Tensor:
@@ -151,10 +206,42 @@ _ExpFn = custom_function(
 )
 
 
+def _jl_inv_apply_values(w: Tensor, v: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Components of ``Jl(w)^-1 v = e v - (w x v)/2 + D (w . v) w``; forward-only."""
+    e, d = (t.to(w.dtype) for t in _coeffs.jl_inv_values(w))
+    x, y, z = w.unbind(-1)
+    p, q, r = v.unbind(-1)
+    dwv = d * torch.addcmul(torch.addcmul(x * p, y, q), z, r)
+    out = []
+    for vi, wi, (w1, v2), (w2, v1) in (
+        (p, x, (y, r), (z, q)),
+        (q, y, (z, p), (x, r)),
+        (r, z, (x, q), (y, p)),
+    ):
+        cross = torch.addcmul(w1 * v2, w2, v1, value=-1.0)
+        out.append(torch.addcmul(torch.add(e * vi, cross, alpha=-0.5), dwv, wi))
+    return out[0], out[1], out[2]
+
+
+def _r_hat_values(R: Tensor, u: tuple[Tensor, Tensor, Tensor]) -> Tensor:
+    """``R hat(u)`` from components: row ``i`` is ``cross(R_i, u)``."""
+    r = _quat._planes(R, 9)
+    ux, uy, uz = u
+    out = []
+    for i in (0, 3, 6):
+        rx, ry, rz = r[i], r[i + 1], r[i + 2]
+        out.append(torch.addcmul(ry * uz, rz, uy, value=-1.0))
+        out.append(torch.addcmul(rz * ux, rx, uz, value=-1.0))
+        out.append(torch.addcmul(rx * uy, ry, ux, value=-1.0))
+    return torch.stack(out, dim=-1).unflatten(-1, (3, 3))
+
+
 def _log_backward(saved, g: Tensor):
     R, w = saved
     # Gradient of log o polar: G = R hat(Jl^-1(w) g) / 2 (tangent part only).
-    return (0.5 * (R @ _hat(_jl_inv_apply(w, g))),)
+    if torch.is_grad_enabled():  # create_graph: differentiable ops
+        return (0.5 * (R @ _hat(_jl_inv_apply(w, g))),)
+    return (_r_hat_values(R, _jl_inv_apply_values(w, 0.5 * g)),)
 
 
 def _log_jvp(saved, dR: Tensor) -> Tensor:
