@@ -54,6 +54,18 @@ __all__ = [
 ]
 
 
+def _planes(M: Tensor, n: int) -> tuple[Tensor, ...]:
+    """The ``n`` trailing entries of ``M`` (the last dimension of size ``n``, or a 3x3 matrix
+    flattened row by row for ``n = 9``) as contiguous planes.
+
+    One transposing copy: every later component-wise operation then reads contiguous memory
+    instead of a strided view that pulls the whole matrix through the cache again.
+    """
+    if n == 9:
+        M = M.flatten(-2)
+    return M.movedim(-1, 0).contiguous().unbind(0)
+
+
 def multiply(q1: Float[Tensor, "*b1 4"], q2: Float[Tensor, "*b2 4"]) -> Float[Tensor, "*b 4"]:
     """Hamilton product ``q1 * q2`` (batch shapes broadcast).
 
@@ -71,14 +83,21 @@ def multiply(q1: Float[Tensor, "*b1 4"], q2: Float[Tensor, "*b2 4"]) -> Float[Te
 
 
 def _multiply(a: Tensor, b: Tensor) -> Tensor:
-    aw, ax, ay, az = a.unbind(-1)
-    bw, bx, by, bz = b.unbind(-1)
+    aw, ax, ay, az = _planes(a, 4)
+    bw, bx, by, bz = _planes(b, 4)
+
+    def dot4(p: Tensor, q: Tensor, *terms: tuple[Tensor, Tensor, float]) -> Tensor:
+        out = p * q
+        for m, n, sign in terms:
+            out = torch.addcmul(out, m, n, value=sign)
+        return out
+
     return torch.stack(
         (
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
+            dot4(aw, bw, (ax, bx, -1.0), (ay, by, -1.0), (az, bz, -1.0)),
+            dot4(aw, bx, (ax, bw, 1.0), (ay, bz, 1.0), (az, by, -1.0)),
+            dot4(aw, by, (ax, bz, -1.0), (ay, bw, 1.0), (az, bx, 1.0)),
+            dot4(aw, bz, (ax, by, 1.0), (ay, bx, -1.0), (az, bw, 1.0)),
         ),
         dim=-1,
     )
@@ -164,7 +183,7 @@ def to_matrix(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 3 3"]:
 
 
 def _to_matrix(q: Tensor) -> Tensor:
-    w, x, y, z = q.unbind(-1)
+    w, x, y, z = _planes(q, 4)
     s = 2.0 / (w * w + x * x + y * y + z * z)
     xs, ys, zs = x * s, y * s, z * s
     wx, wy, wz = w * xs, w * ys, w * zs
@@ -196,15 +215,6 @@ def from_matrix(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 4"]:
     """
     x, dtype = _checks.tensor(R, "torchlie.quaternion.from_matrix", "R", (3, 3))
     return _checks.out(_from_matrix(x), dtype)
-
-
-def _planes(M: Tensor, n: int) -> tuple[Tensor, ...]:
-    """The ``n`` trailing entries of ``M`` (flattened row by row) as contiguous planes.
-
-    One transposing copy: every later component-wise operation then reads contiguous memory
-    instead of a strided view that pulls the whole matrix through the cache again.
-    """
-    return M.reshape(M.shape[: M.dim() - 2] + (n,)).movedim(-1, 0).contiguous().unbind(0)
 
 
 def _orthogonalize_step(R: Tensor) -> tuple[Tensor, ...]:
@@ -432,9 +442,11 @@ def apply(q: Float[Tensor, "*b1 4"], points: Float[Tensor, "*b2 3"]) -> Float[Te
 def _apply(q: Tensor, p: Tensor) -> Tensor:
     w = q[..., :1]
     v = q[..., 1:]
+    if v.dim() != p.dim():  # linalg.cross broadcasts sizes, not numbers of dimensions
+        v, p = torch.broadcast_tensors(v, p)
     s = 2.0 / (q * q).sum(-1, keepdim=True)
-    t = s * _cross(v, p)
-    return p + w * t + _cross(v, t)
+    t = s * torch.linalg.cross(v, p, dim=-1)
+    return torch.addcmul(p, w, t) + torch.linalg.cross(v, t, dim=-1)
 
 
 def exp(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
