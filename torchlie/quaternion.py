@@ -61,8 +61,8 @@ def _planes(M: Tensor, n: int) -> tuple[Tensor, ...]:
     One transposing copy: every later component-wise operation then reads contiguous memory
     instead of a strided view that pulls the whole matrix through the cache again.
     """
-    if n == 9:
-        M = M.flatten(-2)
+    if n == 9:  # one copy even when M is a strided block (the rotation block of a pose)
+        return M.movedim((-2, -1), (0, 1)).contiguous().flatten(0, 1).unbind(0)
     return M.movedim(-1, 0).contiguous().unbind(0)
 
 

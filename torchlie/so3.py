@@ -117,7 +117,7 @@ def _jl_inv_apply(w: Tensor, v: Tensor, sign: float = 1.0) -> Tensor:
 def _exp(w: Tensor) -> Tensor:
     """Forward of :func:`exp` (runs without autograd: forward-only coefficients)."""
     a, b, c = (v.to(w.dtype) for v in _coeffs.exp_values(w))
-    x, y, z = w.unbind(-1)
+    x, y, z = _quat._planes(w, 3)
     bx, by, bz = b * x, b * y, b * z
     ax, ay, az = a * x, a * y, a * z
     bxy, bxz, byz = bx * y, bx * z, by * z
@@ -169,7 +169,7 @@ def _jl_apply_values(w: Tensor, v: tuple[Tensor, Tensor, Tensor], sign: float = 
     a, b, c = (t.to(w.dtype) for t in _coeffs.jl_values(w))
     if sign < 0:
         b = -b
-    x, y, z = w.unbind(-1)
+    x, y, z = _quat._planes(w, 3)
     p, q, r = v
     cwv = c * torch.addcmul(torch.addcmul(x * p, y, q), z, r)
     out = []
@@ -209,8 +209,8 @@ _ExpFn = custom_function(
 def _jl_inv_apply_values(w: Tensor, v: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """Components of ``Jl(w)^-1 v = e v - (w x v)/2 + D (w . v) w``; forward-only."""
     e, d = (t.to(w.dtype) for t in _coeffs.jl_inv_values(w))
-    x, y, z = w.unbind(-1)
-    p, q, r = v.unbind(-1)
+    x, y, z = _quat._planes(w, 3)
+    p, q, r = _quat._planes(v, 3)
     dwv = d * torch.addcmul(torch.addcmul(x * p, y, q), z, r)
     out = []
     for vi, wi, (w1, v2), (w2, v1) in (
