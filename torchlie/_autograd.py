@@ -15,19 +15,78 @@ The vmap rule is generated (``generate_vmap_rule = True``): every piece is batch
 ``torch.compile`` (Dynamo) does not trace Functions that define ``jvp``, so each op is built
 twice, with and without ``jvp``, and :meth:`CustomFunction.__call__` picks the one without
 while compiling.  That choice reads a flag of the tracer, never a tensor value.
+
+Per-call cost.  ``Function.apply`` binds its arguments with ``inspect.signature`` on every call
+(tens of microseconds, more than a small op's whole arithmetic), so :meth:`CustomFunction.__call__`
+takes one of three paths, each decided from flags and ``requires_grad`` only:
+
+* inside a ``torch.func`` transform (vmap, grad, jvp, jacrev, ...): the public
+  ``Function.apply``, which hands the call to functorch;
+* nothing to differentiate (grad mode off or no input requiring grad, and no forward-mode AD
+  level entered, so no input can carry a tangent): the plain ``forward``, no Function at all;
+* otherwise (reverse or forward mode AD): the Function's C entry point
+  (``torch._C._FunctionBase.apply``), which is what ``Function.apply`` ends in outside the
+  transforms; the argument binding it skips is the identity for ``forward(*inputs)`` (no
+  defaults, no keywords).
 """
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable, Sequence
 
 import torch
 from torch import Tensor
 from torch.autograd import Function
+from torch.autograd import forward_ad as _forward_ad
+
+# What ``Function.apply`` calls once it has bound the arguments and found no functorch
+# transform: the C implementation, bound to a Function class with ``__get__``.
+_C_APPLY = torch._C._FunctionBase.__dict__["apply"]
+_transforms_active = torch._C._are_functorch_transforms_active
+_grad_enabled = torch.is_grad_enabled
+_is_compiling = torch.compiler.is_compiling
+_unwrap_if_dead = torch._C._functorch.unwrap_if_dead
+# ``torch.autograd.forward_ad._current_level``: the dual level last entered (-1: none).  Every
+# dual level, ``torch.func.jvp``'s included, is entered through that module, which keeps it.
+
+
+def _positional(forward: Callable[..., Tensor]) -> Callable[..., Tensor]:
+    """``forward`` as a function of exactly its positional tensor inputs.
+
+    A fixed arity (not ``*inputs``): Dynamo tells a ``setup_context``-style forward from one
+    that takes ``ctx`` by its signature, and with ``*inputs`` it passes ``ctx`` to a forward of
+    two or more inputs.  No defaults, no keywords: the argument binding of ``Function.apply`` is
+    the identity, which is what lets ``__call__`` go to the C entry point directly.
+    """
+    n = len(inspect.signature(forward).parameters)
+    if n == 1:
+
+        def f1(a: Tensor) -> Tensor:
+            return forward(a)
+
+        return f1
+    if n == 2:
+
+        def f2(a: Tensor, b: Tensor) -> Tensor:
+            return forward(a, b)
+
+        return f2
+    if n == 3:
+
+        def f3(a: Tensor, b: Tensor, c: Tensor) -> Tensor:
+            return forward(a, b, c)
+
+        return f3
+    raise ValueError(f"custom_function: forward takes 1 to 3 tensors, got {n} parameters")
 
 
 class CustomFunction:
-    """A callable pair of ``torch.autograd.Function`` s (eager with jvp; compiled without)."""
+    """A callable pair of ``torch.autograd.Function`` s (eager with jvp; compiled without).
+
+    Called with tensors only (``requires_grad`` is read from every input); the path it takes is
+    described in the module docstring.
+    """
 
     def __init__(
         self,
@@ -37,8 +96,7 @@ class CustomFunction:
         backward: Callable[..., tuple[Tensor | None, ...]],
         jvp: Callable[..., Tensor],
     ) -> None:
-        def _forward(*inputs: Tensor) -> Tensor:
-            return forward(*inputs)
+        _forward = _positional(forward)
 
         def _setup_context(ctx, inputs, output) -> None:
             saved = save(inputs, output)
@@ -59,13 +117,25 @@ class CustomFunction:
             "__module__": __name__,
         }
         self.name = name
+        self.forward = forward
         self.compiled = type(name + "Function", (Function,), dict(body))
         self.eager = type(name + "FunctionJvp", (self.compiled,), {"jvp": staticmethod(_jvp)})
+        self._apply_c = _C_APPLY.__get__(self.eager, self.eager)
 
     def __call__(self, *inputs: Tensor) -> Tensor:
-        if torch.compiler.is_compiling():
+        if _is_compiling():
             return self.compiled.apply(*inputs)
-        return self.eager.apply(*inputs)
+        if _transforms_active():
+            return self.eager.apply(*inputs)
+        if _forward_ad._current_level < 0:  # no input can carry a forward-mode tangent
+            if not _grad_enabled():
+                return self.forward(*inputs)
+            for x in inputs:
+                if x.requires_grad:
+                    break
+            else:
+                return self.forward(*inputs)
+        return self._apply_c(*[_unwrap_if_dead(x) for x in inputs])
 
 
 def custom_function(

@@ -1,0 +1,330 @@
+"""The call paths of the custom autograd Functions, and the shared input checks.
+
+``CustomFunction.__call__`` skips ``Function.apply`` where it can (plain forward when nothing is
+differentiated, the Function's C entry point in reverse and forward mode AD).  These tests pin
+that every path gives the same values and derivatives as the public ``Function.apply``, and that
+forward-mode AD, ``torch.func`` transforms, double backward and ``torch.compile`` still work.
+"""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+import torch
+from torch.autograd import forward_ad as fwAD
+
+from torchlie import _autograd, _checks, quaternion, se3, so3
+
+F64 = torch.float64
+
+
+def _rotvecs(gen: torch.Generator, n: int = 5) -> torch.Tensor:
+    w = torch.randn(n, 3, generator=gen, dtype=F64)
+    return w * (2.5 / w.norm(dim=-1, keepdim=True)) * torch.rand(n, 1, generator=gen, dtype=F64)
+
+
+def _twists(gen: torch.Generator, n: int = 5) -> torch.Tensor:
+    return torch.cat((torch.randn(n, 3, generator=gen, dtype=F64), _rotvecs(gen, n)), dim=-1)
+
+
+# Each case: the public op and a float64 input at a generic point (rotations away from 0 and pi,
+# a well-conditioned matrix for project).
+CASES = {
+    "so3.exp": (so3.exp, lambda g: _rotvecs(g)),
+    "so3.log": (so3.log, lambda g: so3.exp(_rotvecs(g))),
+    "so3.project": (
+        so3.project,
+        lambda g: so3.exp(_rotvecs(g)) + 0.2 * torch.randn(5, 3, 3, generator=g, dtype=F64),
+    ),
+    "se3.log": (se3.log, lambda g: se3.exp(_twists(g))),
+}
+
+
+@pytest.fixture(params=list(CASES))
+def case(request, gen):
+    fn, make = CASES[request.param]
+    return fn, make(gen)
+
+
+def _custom_functions() -> list[_autograd.CustomFunction]:
+    found = []
+    for module in (so3, se3, quaternion):
+        found += [v for v in vars(module).values() if isinstance(v, _autograd.CustomFunction)]
+    return found
+
+
+def _public_call(self, *inputs):
+    """``CustomFunction.__call__`` without the fast paths: always ``Function.apply``."""
+    if torch.compiler.is_compiling():
+        return self.compiled.apply(*inputs)
+    return self.eager.apply(*inputs)
+
+
+@pytest.fixture
+def public_path(monkeypatch):
+    """Route every custom Function through the public ``Function.apply``."""
+
+    def use():
+        monkeypatch.setattr(_autograd.CustomFunction, "__call__", _public_call)
+
+    return use
+
+
+@pytest.fixture
+def no_public_apply(monkeypatch):
+    """Make ``Function.apply`` of every custom Function raise (the fast paths must not call it)."""
+
+    def fail(*args, **kwargs):
+        raise AssertionError("Function.apply called")
+
+    for cf in _custom_functions():
+        for cls in (cf.eager, cf.compiled):
+            monkeypatch.setattr(cls, "apply", fail)
+
+
+def _value_and_grad(fn, x: torch.Tensor, seed: int = 0):
+    x = x.detach().requires_grad_()
+    y = fn(x)
+    g = torch.randn(y.shape, generator=torch.Generator().manual_seed(seed), dtype=y.dtype)
+    g = g.to(y.device)
+    (dx,) = torch.autograd.grad(y, x, g)
+    return y.detach(), dx
+
+
+# ----------------------------------------------------------------------------------------------
+# Fast paths against the public Function.apply
+# ----------------------------------------------------------------------------------------------
+
+
+def test_fast_paths_match_function_apply(case, public_path, device):
+    fn, x = case
+    x = x.to(device)
+    y_fast = fn(x)
+    y_fast_grad, dx_fast = _value_and_grad(fn, x)
+    public_path()
+    y_ref = fn(x)
+    y_ref_grad, dx_ref = _value_and_grad(fn, x)
+    # Same kernels in the same order: bit-for-bit equal.
+    assert torch.equal(y_fast, y_ref)
+    assert torch.equal(y_fast_grad, y_ref)
+    assert torch.equal(dx_fast, dx_ref)
+
+
+def test_fast_paths_do_not_call_function_apply(case, no_public_apply):
+    fn, x = case
+    fn(x)  # plain forward
+    with torch.no_grad():
+        fn(x.detach().requires_grad_())
+    _value_and_grad(fn, x)  # C entry point
+    with fwAD.dual_level():
+        fwAD.unpack_dual(fn(fwAD.make_dual(x.detach(), torch.ones_like(x))))
+
+
+def _graph_nodes(node, depth: int = 4) -> list:
+    """``node`` and the autograd nodes up to ``depth`` steps behind it."""
+    out = [node]
+    if depth > 0:
+        for nxt, _ in node.next_functions:
+            if nxt is not None:
+                out += _graph_nodes(nxt, depth - 1)
+    return out
+
+
+def test_reverse_mode_records_the_custom_backward(case):
+    fn, x = case
+    y = fn(x.detach().requires_grad_())
+    assert y.requires_grad
+    names = [type(n).__name__ for n in _graph_nodes(y.grad_fn)]
+    assert any(n.endswith("FunctionJvpBackward") for n in names), names
+
+
+def test_no_grad_call_has_no_grad_fn(case, device):
+    fn, x = case
+    x = x.to(device)
+    xg = x.detach().requires_grad_()
+    y = fn(x)
+    assert y.grad_fn is None and not y.requires_grad
+    with torch.no_grad():
+        y = fn(xg)
+    assert y.grad_fn is None and not y.requires_grad
+    with torch.inference_mode():
+        y = fn(xg)
+    assert y.grad_fn is None and not y.requires_grad
+    torch.testing.assert_close(y, fn(x), rtol=0, atol=0)
+
+
+# ----------------------------------------------------------------------------------------------
+# Forward mode, torch.func, double backward
+# ----------------------------------------------------------------------------------------------
+
+
+def _jacobian(fn, x: torch.Tensor) -> torch.Tensor:
+    """Reverse-mode Jacobian (autograd, the C entry point), shape ``y.shape + x.shape``."""
+    return torch.autograd.functional.jacobian(fn, x)
+
+
+def _jvp_from_jacobian(J: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    return (J.reshape(-1, t.numel()) @ t.reshape(-1)).reshape(J.shape[: J.dim() - t.dim()])
+
+
+@pytest.mark.parametrize("grad_mode", [True, False], ids=["grad", "no_grad"])
+def test_dual_tensor_gets_its_jvp(case, gen, grad_mode):
+    fn, x = case
+    t = torch.randn(x.shape, generator=gen, dtype=F64)
+    expected = _jvp_from_jacobian(_jacobian(fn, x), t)
+    with torch.set_grad_enabled(grad_mode), fwAD.dual_level():
+        y, dy = fwAD.unpack_dual(fn(fwAD.make_dual(x, t)))
+    assert dy is not None
+    torch.testing.assert_close(y, fn(x), rtol=0, atol=0)
+    torch.testing.assert_close(dy, expected, rtol=1e-10, atol=1e-12)
+    # Central difference along t (float64, h = 1e-6: truncation ~1e-12, rounding ~1e-10).
+    h = 1e-6
+    fd = (fn(x + h * t) - fn(x - h * t)) / (2 * h)
+    torch.testing.assert_close(dy, fd, rtol=1e-7, atol=1e-8)
+
+
+def test_torch_func_jvp_jacfwd_jacrev(case, gen):
+    fn, x = case
+    J = _jacobian(fn, x)
+    t = torch.randn(x.shape, generator=gen, dtype=F64)
+    y, dy = torch.func.jvp(fn, (x,), (t,))
+    torch.testing.assert_close(y, fn(x), rtol=0, atol=0)
+    torch.testing.assert_close(dy, _jvp_from_jacobian(J, t), rtol=1e-10, atol=1e-12)
+    torch.testing.assert_close(torch.func.jacfwd(fn)(x), J, rtol=1e-10, atol=1e-12)
+    torch.testing.assert_close(torch.func.jacrev(fn)(x), J, rtol=1e-10, atol=1e-12)
+
+
+def test_torch_func_vmap_and_grad(case, gen):
+    fn, x = case
+    torch.testing.assert_close(torch.func.vmap(fn)(x), fn(x), rtol=1e-14, atol=1e-14)
+    c = torch.randn(fn(x).shape, generator=gen, dtype=F64)
+    dx_func = torch.func.grad(lambda z: (fn(z) * c).sum())(x)
+    xg = x.detach().requires_grad_()
+    (dx_ref,) = torch.autograd.grad(fn(xg), xg, c)
+    torch.testing.assert_close(dx_func, dx_ref, rtol=1e-12, atol=1e-14)
+    # Per-element Jacobians: vmap of jacrev against the batched reverse-mode Jacobian.
+    J = _jacobian(fn, x)  # (n, *out, n, *in): block diagonal over the batch
+    Jb = torch.func.vmap(torch.func.jacrev(fn))(x)
+    diag = torch.stack([J[i].select(J.dim() - x.dim() - 1, i) for i in range(x.shape[0])])
+    torch.testing.assert_close(Jb, diag, rtol=1e-10, atol=1e-12)
+
+
+def test_gradcheck_forward_and_double_backward(case):
+    fn, x = case
+    x = x[:2].detach().requires_grad_()
+    assert torch.autograd.gradcheck(fn, (x,), check_forward_ad=True)
+    assert torch.autograd.gradgradcheck(fn, (x,))
+
+
+@pytest.mark.compile
+def test_compiled_fullgraph_with_backward():
+    """One compile: so3.exp / so3.log (custom Functions) and a broadcasting compose, backward."""
+    g = torch.Generator().manual_seed(3)
+    R0 = so3.exp(_rotvecs(g, 2)).reshape(2, 1, 3, 3)
+    w0 = _rotvecs(g, 3)
+
+    def f(R, w):
+        return so3.log(so3.compose(R, so3.exp(w)))  # batch (2, 1) with (3,) -> (2, 3)
+
+    w1, w2 = w0.clone().requires_grad_(), w0.clone().requires_grad_()
+    y1 = f(R0, w1)
+    y2 = torch.compile(f, fullgraph=True)(R0, w2)
+    assert y2.shape == (2, 3, 3)
+    torch.testing.assert_close(y2, y1, rtol=1e-12, atol=1e-12)
+    c = torch.randn(y1.shape, generator=g, dtype=F64)
+    (d1,) = torch.autograd.grad(y1, w1, c)
+    (d2,) = torch.autograd.grad(y2, w2, c)
+    torch.testing.assert_close(d2, d1, rtol=1e-10, atol=1e-12)
+
+
+# ----------------------------------------------------------------------------------------------
+# _checks
+# ----------------------------------------------------------------------------------------------
+
+BROADCAST_CASES = [
+    [(), ()],
+    [(1,), (1,)],
+    [(5,), (5,)],
+    [(5,), (1,)],
+    [(1,), (5,)],
+    [(), (2, 3)],
+    [(2, 1), (3,)],
+    [(4, 1, 2), (3, 1)],
+    [(0,), (1,)],
+    [(1, 0), (3, 1)],
+    [(2, 1, 1), (1, 3, 1), (4,)],
+    [(7,)],
+]
+
+
+@pytest.mark.parametrize("shapes", BROADCAST_CASES, ids=str)
+def test_batch_broadcast_matches_torch(shapes):
+    named = [(torch.Size(s), f"x{i}") for i, s in enumerate(shapes)]
+    out = _checks.batch_broadcast("f", *named)
+    assert type(out) is torch.Size
+    assert out == torch.broadcast_shapes(*shapes)
+
+
+@pytest.mark.parametrize(
+    "shapes", [[(2,), (3,)], [(0,), (2,)], [(2, 3), (4, 3)], [(1, 2), (3,), (2, 1)]], ids=str
+)
+def test_batch_broadcast_error_names_function_and_shapes(shapes):
+    named = [(torch.Size(s), f"x{i}") for i, s in enumerate(shapes)]
+    desc = ", ".join(f"x{i} batch {tuple(s)}" for i, s in enumerate(shapes))
+    with pytest.raises(
+        ValueError, match="^" + re.escape(f"mod.fn: batch shapes do not broadcast: {desc}") + "$"
+    ):
+        _checks.batch_broadcast("mod.fn", *named)
+    with pytest.raises(RuntimeError):
+        torch.broadcast_shapes(*shapes)
+
+
+def test_batch_broadcast_error_from_an_op():
+    R1, R2 = so3.identity(2), so3.identity(4)
+    msg = "so3.compose: batch shapes do not broadcast: R1 batch (2,), R2 batch (4,)"
+    with pytest.raises(ValueError, match=re.escape(msg)):
+        so3.compose(R1, R2)
+
+
+def test_tensor_check_errors_and_compute_dtype():
+    with pytest.raises(
+        TypeError, match=re.escape("m.f: expected x to be a torch.Tensor, got list")
+    ):
+        _checks.tensor([0.0, 0.0, 0.0], "m.f", "x", (3,))
+    with pytest.raises(
+        TypeError,
+        match=re.escape(
+            "m.f: expected x to be a floating-point tensor (float16, bfloat16, float32 or "
+            "float64), got dtype torch.int64"
+        ),
+    ):
+        _checks.tensor(torch.zeros(3, dtype=torch.int64), "m.f", "x", (3,))
+    for shape in [(4, 2), (3, 4), (2, 4, 3), (), (3,), (9,)]:
+        x = torch.zeros(shape)
+        with pytest.raises(
+            ValueError, match=re.escape(f"m.f: expected R of shape (..., 3, 3), got {shape}")
+        ):
+            _checks.tensor(x, "m.f", "R", (3, 3))
+    for shape in [(3, 3), (2, 5, 3, 3)]:
+        x = torch.zeros(shape, dtype=F64)
+        y, dtype = _checks.tensor(x, "m.f", "R", (3, 3))
+        assert y is x and dtype == F64
+    for half in (torch.float16, torch.bfloat16):
+        y, dtype = _checks.tensor(torch.zeros(2, 3, dtype=half), "m.f", "w", (3,))
+        assert y.dtype == torch.float32 and dtype == half
+        assert _checks.out(y, dtype).dtype == half
+    y, dtype = _checks.tensor(torch.zeros(2), "m.f", "t", ())
+    assert y.shape == (2,) and dtype == torch.float32
+
+
+def test_same_dtype():
+    a, b = torch.zeros(3), torch.zeros(3, dtype=F64)
+    _checks.same_dtype("m.f", a=a, c=a.clone())
+    with pytest.raises(
+        TypeError,
+        match=re.escape(
+            "m.f: expected inputs of one dtype, got a is torch.float32, b is torch.float64"
+        ),
+    ):
+        _checks.same_dtype("m.f", a=a, b=b)
