@@ -764,3 +764,109 @@ def test_compile_fullgraph_matches_eager():
     (gc,) = torch.autograd.grad((ch(Tg, T.flip(0), t) * p.repeat(1, 2)).sum(), Tg)
     (ge,) = torch.autograd.grad((h(Tg, T.flip(0), t) * p.repeat(1, 2)).sum(), Tg)
     torch.testing.assert_close(gc, ge)
+
+
+# ----------------------------------------------------------------------------------------------
+# compose / inverse / act: custom backward and forward mode, bottom rows never read
+# ----------------------------------------------------------------------------------------------
+
+
+def _raw_4x4(*batch, seed):
+    """Arbitrary 4x4 matrices (not poses): the three ops are polynomial in the entries read."""
+    g = torch.Generator().manual_seed(seed)
+    return torch.randn(*batch, 4, 4, generator=g, dtype=F64, requires_grad=True)
+
+
+@pytest.mark.parametrize(
+    "fn, make",
+    [
+        (se3.compose, lambda: (_raw_4x4(2, 1, seed=20), _raw_4x4(3, seed=21))),
+        (se3.compose, lambda: (_raw_4x4(seed=22), _raw_4x4(2, seed=23))),
+        (se3.inverse, lambda: (_raw_4x4(2, 3, seed=24),)),
+        (se3.act, lambda: (_raw_4x4(2, 1, seed=25), torch.randn(3, 3, dtype=F64).requires_grad_())),
+        (se3.act, lambda: (_raw_4x4(3, seed=26), torch.randn(3, dtype=F64).requires_grad_())),
+    ],
+)
+def test_group_ops_gradcheck_with_broadcasting(fn, make):
+    args = make()
+    assert gradcheck(fn, args, check_forward_ad=True)
+    assert gradgradcheck(fn, args, check_fwd_over_rev=True)
+    # the bottom rows are not read, so their gradient is exactly zero
+    out = fn(*args)
+    grads = torch.autograd.grad(out, args, torch.randn_like(out))
+    for x, gx in zip(args, grads, strict=True):
+        assert gx.shape == x.shape
+        if x.shape[-2:] == (4, 4):
+            assert bool((gx[..., 3, :] == 0).all())
+
+
+@pytest.mark.parametrize("grad", [False, True])
+def test_group_ops_ignore_bottom_rows(grad):
+    g = torch.Generator().manual_seed(27)
+    A, B = se3.random(2, 5, generator=g, dtype=F64)
+    p = torch.randn(5, 3, generator=g, dtype=F64)
+    bad_A, bad_B = A.clone(), B.clone()
+    bad_A[..., 3, :] = torch.nan
+    bad_B[..., 3, :] = torch.tensor([1.0, -2.0, 3.0, 7.0], dtype=F64)
+    if grad:
+        bad_A.requires_grad_()
+        bad_B.requires_grad_()
+    cases = [
+        (se3.compose(bad_A, bad_B), se3.compose(A, B)),
+        (se3.inverse(bad_A), se3.inverse(A)),
+        (se3.act(bad_A, p), se3.act(A, p)),
+    ]
+    for got, want in cases:
+        torch.testing.assert_close(got, want, rtol=0, atol=0)
+    if grad:
+        total = sum((got * torch.randn_like(got)).sum() for got, _ in cases)
+        gA, gB = torch.autograd.grad(total, (bad_A, bad_B))
+        assert bool(torch.isfinite(gA).all()) and bool(torch.isfinite(gB).all())
+        assert bool((gA[..., 3, :] == 0).all()) and bool((gB[..., 3, :] == 0).all())
+
+
+def test_group_ops_reverse_mode_matches_forward_mode_under_vmap():
+    g = torch.Generator().manual_seed(28)
+    A, B = se3.random(2, 4, generator=g, dtype=F64)
+    p = torch.randn(4, 3, generator=g, dtype=F64)
+    vmap, jacrev, jacfwd = torch.func.vmap, torch.func.jacrev, torch.func.jacfwd
+    for fn, args in ((se3.compose, (A, B)), (se3.inverse, (A,)), (se3.act, (A, p))):
+        for i in range(len(args)):
+            Jr = vmap(jacrev(fn, argnums=i))(*args)
+            Jf = vmap(jacfwd(fn, argnums=i))(*args)
+            torch.testing.assert_close(Jr, Jf, rtol=0, atol=1e-14)
+    # vmap of a call that records a graph (the custom Functions' generated vmap rule)
+    Ag = A.clone().requires_grad_()
+    for fn, rest in ((se3.compose, (B,)), (se3.inverse, ()), (se3.act, (p,))):
+        w = torch.randn_like(fn(A, *rest))
+        (got,) = torch.autograd.grad((vmap(fn)(Ag, *rest) * w).sum(), Ag)
+        (want,) = torch.autograd.grad((fn(Ag, *rest) * w).sum(), Ag)
+        torch.testing.assert_close(got, want, rtol=0, atol=1e-14)
+
+
+@pytest.mark.parametrize("half", [torch.float16, torch.bfloat16])
+def test_inverse_act_half_precision_computed_in_float32(half):
+    T = se3.random(3, generator=torch.Generator().manual_seed(29)).to(half)
+    p = torch.randn(3, 3).to(half)
+    for got, want in (
+        (se3.inverse(T), se3.inverse(T.float())),
+        (se3.act(T, p), se3.act(T.float(), p.float())),
+    ):
+        assert got.dtype == half
+        torch.testing.assert_close(got, want.to(half), rtol=0, atol=0)
+
+
+@pytest.mark.compile
+def test_group_ops_backward_compiles_fullgraph():
+    def f(A, B, p):
+        return (se3.act(se3.inverse(se3.compose(A, B)), p) ** 2).sum()
+
+    g = torch.Generator().manual_seed(30)
+    A, B = se3.random(2, 3, generator=g, dtype=F64)
+    p = torch.randn(3, 3, generator=g, dtype=F64, requires_grad=True)
+    A.requires_grad_()
+    compiled = torch.compile(f, fullgraph=True, backend="aot_eager")
+    got = torch.autograd.grad(compiled(A, B, p), (A, p))
+    want = torch.autograd.grad(f(A, B, p), (A, p))
+    for a, b in zip(got, want, strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=1e-13)

@@ -227,36 +227,25 @@ def norm(v: Tensor, dim: int = -1, keepdim: bool = False) -> Tensor:
 _H_MIN = {torch.float32: 1e-30, torch.float64: 1e-150}
 
 
-def exp_values(w: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """``(sin t / t, (1 - cos t)/t^2, cos t)`` of ``t = |w|`` (``w`` of shape ``(..., 3)``).
+def rodrigues_values(w: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """``(a, b, c, d) = (sin t / t, (1 - cos t)/t^2, (t - sin t)/t^3, cos t)`` of ``t = |w|``.
 
-    Forward-only (module docstring).  With ``h = t/2`` and ``s = sin(h)/h``: ``sin t / t =
-    s cos h``, ``(1 - cos t)/t^2 = s^2 / 2`` and ``cos t = (cos h - sin h)(cos h + sin h)``, free
-    of cancellation at every angle.  One ``sqrt``, ``sin`` and ``cos`` per element, in the
-    precision of :func:`theta2` (float64 for float32 input); the results are in that precision.
+    ``Exp(w) = d I + a hat(w) + b w w^T`` and ``Jl(w) = a I + b hat(w) + c w w^T``.
+    Forward-only (module docstring).  With ``h = t/2`` and ``s = sin(h)/h``: ``a = s cos h``,
+    ``b = s^2 / 2`` and ``d = (cos h - sin h)(cos h + sin h)``, free of cancellation at every
+    angle; one ``sqrt``, ``sin`` and ``cos`` per element.  ``c = (1 - a)/t^2`` has no series: its
+    absolute error is about ``eps / t^2``, so the term it enters, ``c w w^T``, is accurate to
+    about ``eps`` at every angle (and 0 at t = 0); use it only in that product.  Computed in
+    the precision of :func:`theta2` (float64 for float32 input) and returned in it.
     """
     t2 = theta2(w)
     h = t2.sqrt().mul_(0.5).clamp_min_(_H_MIN[t2.dtype])
     sh, ch = torch.sin(h), torch.cos(h)
     s = sh / h
-    return s * ch, s.mul_(s).mul_(0.5), (ch - sh).mul_(ch.add_(sh))
-
-
-def jl_values(w: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """``(sin t / t, (1 - cos t)/t^2, (t - sin t)/t^3)`` of ``t = |w|``: ``Jl = a I + b hat(w) +
-    c w w^T``.
-
-    Forward-only (module docstring); the first two as in :func:`exp_values`.  The third is
-    ``(1 - sin t / t)/t^2`` with no series: its absolute error is about ``eps / t^2``, so the
-    term it enters, ``c w w^T``, is accurate to about ``eps`` at every angle (and 0 at t = 0).
-    Use it only in that product.
-    """
-    t2 = theta2(w)
-    h = t2.sqrt().mul_(0.5).clamp_min_(_H_MIN[t2.dtype])
-    s = torch.sin(h).div_(h)
-    a = torch.cos(h).mul_(s)
+    a = s * ch
     c = (1.0 - a).div_(t2.clamp_min(_H_MIN[t2.dtype]))
-    return a, s.mul_(s).mul_(0.5), c
+    d = (ch - sh).mul_(ch.add_(sh))
+    return a, s.mul_(s).mul_(0.5), c, d
 
 
 def jl_inv_values(w: Tensor) -> tuple[Tensor, Tensor]:
@@ -264,7 +253,7 @@ def jl_inv_values(w: Tensor) -> tuple[Tensor, Tensor]:
     ``Jl^-1 = e I - hat(w)/2 + D w w^T``.
 
     Forward-only (module docstring).  ``e = cos(h) / (sin(h)/h)`` with ``h = t/2``; ``D`` has,
-    like the third value of :func:`jl_values`, an absolute error of about ``eps / t^2`` and is
+    like ``c`` of :func:`rodrigues_values`, an absolute error of about ``eps / t^2`` and is
     meant only for the product ``D w w^T``.
     """
     t2 = theta2(w)

@@ -177,18 +177,6 @@ def _ad(xi: Tensor) -> Tensor:
     return _blocks(P, so3._hat(xi[..., :3]), torch.zeros_like(P), P)
 
 
-def _compose(A: Tensor, B: Tensor) -> Tensor:
-    RA, tA = _rot(A), _trans(A)
-    R = RA @ _rot(B)
-    t = _mv(RA, _trans(B)) + tA
-    return _assemble(R, t.expand(*R.shape[:-2], 3))
-
-
-def _inverse(T: Tensor) -> Tensor:
-    Rt = _rot(T).transpose(-1, -2)
-    return _assemble(Rt, -_mv(Rt, _trans(T)))
-
-
 def _between(A: Tensor, B: Tensor) -> Tensor:
     """``A^-1 B`` from components."""
     Rt = _rot(A).transpose(-1, -2)
@@ -198,19 +186,198 @@ def _between(A: Tensor, B: Tensor) -> Tensor:
 
 
 # ----------------------------------------------------------------------------------------------
+# compose / inverse / act kernels (private)
+#
+# Each op is one forward that allocates its result once (a tiny batched matmul for the 3x3 and
+# 3x4 products, a few strided writes) and a custom backward in the same style: autograd's own
+# graph of the slices, matmuls and concatenations costs about twice as many passes over memory.
+# ----------------------------------------------------------------------------------------------
+
+
+def _pad_row(top: Tensor) -> Tensor:
+    """``(..., 3, 4) -> (..., 4, 4)`` with a zero last row."""
+    return torch.nn.functional.pad(top, (0, 0, 0, 1))
+
+
+def _with_last_row(top: Tensor) -> Tensor:
+    """``(..., 3, 4) -> (..., 4, 4)`` with the last row ``(0, 0, 0, 1)``."""
+    out = _pad_row(top)
+    out.select(-2, 3).select(-1, 3).fill_(1.0)
+    return out
+
+
+def _compose_fwd(A: Tensor, B: Tensor) -> Tensor:
+    top = torch.matmul(A[..., :3, :3], B[..., :3, :])  # [R1 R2, R1 t2]
+    top.select(-1, 3).add_(A[..., :3, 3])
+    return _with_last_row(top)
+
+
+def _compose_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor, Tensor]:
+    A, B = saved
+    G3 = G[..., :3, :]
+    dR1 = torch.matmul(G3, B[..., :3, :].transpose(-1, -2))  # G_R R2^T + g t2^T
+    dA = _pad_row(torch.cat((dR1, G3[..., 3:]), dim=-1))
+    dB = _pad_row(torch.matmul(A[..., :3, :3].transpose(-1, -2), G3))
+    return dA.sum_to_size(A.shape), dB.sum_to_size(B.shape)
+
+
+def _compose_jvp(saved: tuple[Tensor, ...], dA: Tensor, dB: Tensor) -> Tensor:
+    A, B = saved
+    top = torch.matmul(dA[..., :3, :3], B[..., :3, :])
+    top = top + torch.matmul(A[..., :3, :3], dB[..., :3, :])
+    top.select(-1, 3).add_(dA[..., :3, 3])
+    return _pad_row(top)
+
+
+_ComposeFn = custom_function(
+    "Se3Compose",
+    forward=_compose_fwd,
+    save=lambda inputs, out: (inputs[0], inputs[1]),
+    backward=_compose_bwd,
+    jvp=_compose_jvp,
+)
+
+
+def _inverse_fwd(T: Tensor) -> Tensor:
+    Rt = T[..., :3, :3].transpose(-1, -2)
+    return _with_last_row(torch.cat((Rt, torch.matmul(Rt, T[..., :3, 3:]).neg_()), dim=-1))
+
+
+def _inverse_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor]:
+    # out = [R^T, -R^T t]: dR = G_R^T - t g^T and dt = -R g (g = the translation column of G).
+    (T,) = saved
+    h = -G[..., :3, 3:]
+    dR = torch.addcmul(G[..., :3, :3].transpose(-1, -2), T[..., :3, 3:], h.transpose(-1, -2))
+    dt = torch.matmul(T[..., :3, :3], h)
+    return (_pad_row(torch.cat((dR, dt), dim=-1)),)
+
+
+def _inverse_jvp(saved: tuple[Tensor, ...], dT: Tensor) -> Tensor:
+    (T,) = saved
+    dRt = dT[..., :3, :3].transpose(-1, -2)
+    Rt = T[..., :3, :3].transpose(-1, -2)
+    dt = torch.matmul(dRt, T[..., :3, 3:]) + torch.matmul(Rt, dT[..., :3, 3:])
+    return _pad_row(torch.cat((dRt, -dt), dim=-1))
+
+
+_InverseFn = custom_function(
+    "Se3Inverse",
+    forward=_inverse_fwd,
+    save=lambda inputs, out: (inputs[0],),
+    backward=_inverse_bwd,
+    jvp=_inverse_jvp,
+)
+
+
+def _homogeneous(p: Tensor) -> Tensor:
+    return torch.nn.functional.pad(p, (0, 1), value=1.0)
+
+
+def _act_fwd(T: Tensor, p: Tensor) -> Tensor:
+    return torch.matmul(T[..., :3, :], _homogeneous(p).unsqueeze(-1)).squeeze(-1)
+
+
+def _act_bwd(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]:
+    # out = [R, t] (p, 1): d[R, t] = g (p, 1)^T and dp = R^T g.
+    T, p = saved
+    dT = _pad_row(g.unsqueeze(-1) * _homogeneous(p).unsqueeze(-2))
+    dp = torch.matmul(T[..., :3, :3].transpose(-1, -2), g.unsqueeze(-1)).squeeze(-1)
+    return dT.sum_to_size(T.shape), dp.sum_to_size(p.shape)
+
+
+def _act_jvp(saved: tuple[Tensor, ...], dT: Tensor, dp: Tensor) -> Tensor:
+    T, p = saved
+    out = torch.matmul(dT[..., :3, :], _homogeneous(p).unsqueeze(-1))
+    return (out + torch.matmul(T[..., :3, :3], dp.unsqueeze(-1))).squeeze(-1)
+
+
+def _compose(A: Tensor, B: Tensor) -> Tensor:
+    return _ComposeFn(A, B)
+
+
+def _inverse(T: Tensor) -> Tensor:
+    return _InverseFn(T)
+
+
+_ActFn = custom_function(
+    "Se3Act",
+    forward=_act_fwd,
+    save=lambda inputs, out: (inputs[0], inputs[1]),
+    backward=_act_bwd,
+    jvp=_act_jvp,
+)
+
+
+# ----------------------------------------------------------------------------------------------
 # exp / log
 # ----------------------------------------------------------------------------------------------
 
 
-def _exp(xi: Tensor) -> Tensor:
+def _exp_forward(xi: Tensor) -> Tensor:
+    """``[[Exp(phi), Jl(phi) rho], [0, 1]]`` from components, one set of coefficients for both
+    blocks (runs without autograd: forward-only coefficients)."""
+    xyz, (a, b, c, d) = so3._rodrigues(xi[..., 3:])
+    R = so3._exp_entries(xyz, a, b, d)
+    t = so3._jl_components(xyz, _quat._planes(xi[..., :3], 3), a, b, c)
+    zero, one = torch.zeros_like(a), torch.ones_like(a)
+    entries = (*R[0:3], t[0], *R[3:6], t[1], *R[6:9], t[2], zero, zero, zero, one)
+    return torch.stack(entries, dim=-1).unflatten(-1, (4, 4))
+
+
+def _exp_backward(saved, G: Tensor):
+    # T = [[R, t], [0, 1]], R = Exp(phi), t = Jl(phi) rho.  With a left perturbation,
+    # dt = (Q(rho, phi) - t^ Jl(phi)) dphi + Jl(phi) drho, so
+    #     g_rho = Jr(phi) g_t,
+    #     g_phi = Jl(phi) vee(R^T G_R - G_R^T R) + Jr(phi) (t x g_t) + Q(-rho, -phi) g_t.
+    xi, T = saved
     rho, phi = xi[..., :3], xi[..., 3:]
-    return _assemble(so3._ExpFn(phi), so3._jl_apply(phi, rho))
+    R, t = _rot(T), _trans(T)
+    g_R, g_t = _rot(G), _trans(G)
+    q_term = _q_apply(-rho, -phi, g_t)
+    t_x_g = torch.linalg.cross(t, g_t, dim=-1)
+    if torch.is_grad_enabled():  # create_graph: differentiable ops
+        g_rho = so3._jl_apply(phi, g_t, sign=-1.0)
+        g_phi = so3._jl_apply(phi, 2.0 * so3._vee(R.transpose(-1, -2) @ g_R))
+        g_phi = g_phi + so3._jl_apply(phi, t_x_g, sign=-1.0)
+    else:
+        xyz, (a, b, c, _) = so3._rodrigues(phi)
+        g_rho = torch.stack(so3._jl_components(xyz, _quat._planes(g_t, 3), a, -b, c), dim=-1)
+        u = so3._rt_g_vee(R, g_R)
+        g_phi = torch.stack(so3._jl_components(xyz, u, a, b, c), dim=-1)
+        g_phi = g_phi + torch.stack(
+            so3._jl_components(xyz, _quat._planes(t_x_g, 3), a, -b, c), dim=-1
+        )
+    return (torch.cat((g_rho, g_phi + q_term), dim=-1),)
+
+
+def _exp_jvp(saved, dxi: Tensor) -> Tensor:
+    # dT = [[e_phi^ R, e_phi^ t + e_rho], [0, 0]] with (e_rho, e_phi) = J_left(xi) dxi.
+    xi, T = saved
+    rho, phi = xi[..., :3], xi[..., 3:]
+    e_phi = so3._jl_apply(phi, dxi[..., 3:])
+    e_rho = so3._jl_apply(phi, dxi[..., :3]) + _q_apply(rho, phi, dxi[..., 3:])
+    dR = so3._hat(e_phi) @ _rot(T)
+    dt = torch.linalg.cross(e_phi, _trans(T), dim=-1) + e_rho
+    return _pad_row(torch.cat((dR, dt.unsqueeze(-1)), dim=-1))
+
+
+_ExpFn = custom_function(
+    "Se3Exp",
+    forward=_exp_forward,
+    save=lambda inputs, out: (inputs[0], out),
+    backward=_exp_backward,
+    jvp=_exp_jvp,
+)
+
+
+def _exp(xi: Tensor) -> Tensor:
+    return _ExpFn(xi)
 
 
 def _log_forward(T: Tensor) -> Tensor:
     phi = so3._log(_rot(T))
-    rho = so3._jl_inv_apply(phi, _trans(T))
-    return torch.cat((rho, phi), dim=-1)
+    rho = so3._jl_inv_apply_values(phi, _trans(T))
+    return torch.cat((torch.stack(rho, dim=-1), phi), dim=-1)
 
 
 def _log_backward(saved, g: Tensor):
@@ -338,7 +505,7 @@ def compose(T1: Float[Tensor, "*b1 4 4"], T2: Float[Tensor, "*b2 4 4"]) -> Float
         True
     """
     a, b, dtype, _ = _pair("compose", T1, T2, "T1", "T2")
-    return _checks.out(_compose(a, b), dtype)
+    return _checks.out(_ComposeFn(a, b), dtype)
 
 
 def inverse(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 4 4"]:
@@ -350,7 +517,7 @@ def inverse(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 4 4"]:
         True
     """
     x, dtype = _checks.tensor(T, _NAME + "inverse", "T", (4, 4))
-    return _checks.out(_inverse(x), dtype)
+    return _checks.out(_InverseFn(x), dtype)
 
 
 def act(T: Float[Tensor, "*b1 4 4"], points: Float[Tensor, "*b2 3"]) -> Float[Tensor, "*b 3"]:
@@ -362,7 +529,7 @@ def act(T: Float[Tensor, "*b1 4 4"], points: Float[Tensor, "*b2 3"]) -> Float[Te
         tensor([0., 2., 3.])
     """
     x, p, dtype, _ = _pair("act", T, points, "T", "points", tb=(3,))
-    return _checks.out(_mv(_rot(x), p) + _trans(x), dtype)
+    return _checks.out(_ActFn(x, p), dtype)
 
 
 def adjoint(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 6 6"]:

@@ -114,24 +114,33 @@ def _jl_inv_apply(w: Tensor, v: Tensor, sign: float = 1.0) -> Tensor:
     return v - sign * 0.5 * wxv + d * wxwxv
 
 
-def _exp(w: Tensor) -> Tensor:
-    """Forward of :func:`exp` (runs without autograd: forward-only coefficients)."""
-    a, b, c = (v.to(w.dtype) for v in _coeffs.exp_values(w))
-    x, y, z = _quat._planes(w, 3)
+def _rodrigues(w: Tensor) -> tuple[tuple[Tensor, ...], tuple[Tensor, ...]]:
+    """Planes ``(x, y, z)`` of ``w`` and ``(a, b, c, d)`` of :func:`_coeffs.rodrigues_values`
+    in ``w``'s dtype (forward-only)."""
+    return _quat._planes(w, 3), tuple(v.to(w.dtype) for v in _coeffs.rodrigues_values(w))
+
+
+def _exp_entries(xyz: tuple[Tensor, ...], a: Tensor, b: Tensor, d: Tensor) -> list[Tensor]:
+    """The 9 entries (row by row) of ``d I + a hat(w) + b w w^T`` from components."""
+    x, y, z = xyz
     bx, by, bz = b * x, b * y, b * z
     ax, ay, az = a * x, a * y, a * z
     bxy, bxz, byz = bx * y, bx * z, by * z
-    return torch.stack(
-        (
-            torch.addcmul(c, bx, x), bxy - az, bxz + ay,
-            bxy + az, torch.addcmul(c, by, y), byz - ax,
-            bxz - ay, byz + ax, torch.addcmul(c, bz, z),
-        ),
-        dim=-1,
-    ).unflatten(-1, (3, 3))  # fmt: skip
+    return [
+        torch.addcmul(d, bx, x), bxy - az, bxz + ay,
+        bxy + az, torch.addcmul(d, by, y), byz - ax,
+        bxz - ay, byz + ax, torch.addcmul(d, bz, z),
+    ]  # fmt: skip
+
+
+def _exp(w: Tensor) -> Tensor:
+    """Forward of :func:`exp` (runs without autograd: forward-only coefficients)."""
+    xyz, (a, b, _, d) = _rodrigues(w)
+    return torch.stack(_exp_entries(xyz, a, b, d), dim=-1).unflatten(-1, (3, 3))
 
 
 def _log(R: Tensor) -> Tensor:
+    """Forward of :func:`log` (runs without autograd)."""
     return _quat._log_of_matrix(R)
 
 
@@ -159,17 +168,15 @@ def _rt_g_vee(R: Tensor, G: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     return out[0], out[1], out[2]
 
 
-def _jl_apply_values(w: Tensor, v: tuple[Tensor, Tensor, Tensor], sign: float = 1.0) -> Tensor:
-    """``Jl(w) v`` (``sign=1``) or ``Jr(w) v`` (``sign=-1``) from components; forward-only.
-
-    ``Jl(w) v = a v + b (w x v) + c (w . v) w`` with the coefficients of
-    :func:`torchlie._coeffs.jl_values` (not differentiable: backward passes without
-    ``create_graph`` only).
-    """
-    a, b, c = (t.to(w.dtype) for t in _coeffs.jl_values(w))
-    if sign < 0:
-        b = -b
-    x, y, z = _quat._planes(w, 3)
+def _jl_components(
+    xyz: tuple[Tensor, ...],
+    v: tuple[Tensor, ...],
+    a: Tensor,
+    b: Tensor,
+    c: Tensor,
+) -> list[Tensor]:
+    """Components of ``a v + b (w x v) + c (w . v) w`` (``w = xyz``, ``v`` by components)."""
+    x, y, z = xyz
     p, q, r = v
     cwv = c * torch.addcmul(torch.addcmul(x * p, y, q), z, r)
     out = []
@@ -180,7 +187,17 @@ def _jl_apply_values(w: Tensor, v: tuple[Tensor, Tensor, Tensor], sign: float = 
     ):
         cross = torch.addcmul(w1 * v2, w2, v1, value=-1.0)
         out.append(torch.addcmul(torch.addcmul(a * vi, b, cross), cwv, wi))
-    return torch.stack(out, dim=-1)
+    return out
+
+
+def _jl_apply_values(w: Tensor, v: tuple[Tensor, ...], sign: float = 1.0) -> Tensor:
+    """``Jl(w) v`` (``sign=1``) or ``Jr(w) v`` (``sign=-1``) from components; forward-only.
+
+    ``Jl(w) v = a v + b (w x v) + c (w . v) w`` with :func:`torchlie._coeffs.rodrigues_values`
+    (not differentiable: backward passes without ``create_graph`` only).
+    """
+    xyz, (a, b, c, _) = _rodrigues(w)
+    return torch.stack(_jl_components(xyz, v, a, b if sign > 0 else -b, c), dim=-1)
 
 
 def _exp_backward(saved, g: Tensor):
@@ -209,17 +226,7 @@ _ExpFn = custom_function(
 def _jl_inv_apply_values(w: Tensor, v: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """Components of ``Jl(w)^-1 v = e v - (w x v)/2 + D (w . v) w``; forward-only."""
     e, d = (t.to(w.dtype) for t in _coeffs.jl_inv_values(w))
-    x, y, z = _quat._planes(w, 3)
-    p, q, r = _quat._planes(v, 3)
-    dwv = d * torch.addcmul(torch.addcmul(x * p, y, q), z, r)
-    out = []
-    for vi, wi, (w1, v2), (w2, v1) in (
-        (p, x, (y, r), (z, q)),
-        (q, y, (z, p), (x, r)),
-        (r, z, (x, q), (y, p)),
-    ):
-        cross = torch.addcmul(w1 * v2, w2, v1, value=-1.0)
-        out.append(torch.addcmul(torch.add(e * vi, cross, alpha=-0.5), dwv, wi))
+    out = _jl_components(_quat._planes(w, 3), _quat._planes(v, 3), e, e.new_full((), -0.5), d)
     return out[0], out[1], out[2]
 
 
