@@ -390,7 +390,12 @@ def test_exp_log_round_trips(dtype):
     assert rel_err(Q.exp(Q.log(q)), q).max() <= 8 * eps(dtype)
     p = Q.log(q)
     p = p[p[:, 1:].norm(dim=-1) < 3.0]  # log o exp is the identity for |p_v| < pi
-    assert rel_err(Q.log(Q.exp(p)), p).max() <= 16 * eps(dtype)
+    r = Q.log(Q.exp(p))
+    # The scalar part ln|q| is conditioned absolutely (exp rounds |q| to a few eps relative,
+    # whatever the size of p), the vector part relatively: the error model of test_log_accuracy.
+    s_err = (r[:, 0].double() - p[:, 0].double()).abs() / p[:, 0].double().abs().clamp_min(1.0)
+    assert s_err.max() <= 4 * eps(dtype)
+    assert rel_err(r[:, 1:], p[:, 1:]).max() <= 16 * eps(dtype)
     # for unit q with w >= 0, 2 log(q) is the rotation vector
     u = Q.canonicalize(haar(100, 9, dtype))
     assert rel_err(2.0 * Q.log(u)[:, 1:], Q.to_rotvec(u)).max() <= 4 * eps(dtype)

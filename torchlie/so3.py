@@ -514,10 +514,13 @@ def _project_forward(M: Tensor) -> Tensor:
     finite = torch.isfinite(M).all(dim=-1).all(dim=-1)[..., None, None]
     eye = torch.eye(3, dtype=M.dtype, device=M.device)
     U, S, Vh = torch.linalg.svd(torch.where(finite, M, eye))
-    d = torch.sign(torch.linalg.det(U @ Vh))
+    d = torch.sign(torch.linalg.det(U) * torch.linalg.det(Vh))
     d = torch.where(d == 0, torch.ones_like(d), d)
     Vh = torch.cat((Vh[..., :2, :], Vh[..., 2:, :] * d[..., None, None]), dim=-2)
-    return torch.where(finite, U @ Vh, torch.full_like(M, float("nan")))
+    # U @ Vh as products and a sum over k: the same bits for an element whatever the batch
+    # around it (a batched 3 x 3 matmul need not round like the unbatched one).
+    R = (U.unsqueeze(-1) * Vh.unsqueeze(-3)).sum(-2)
+    return torch.where(finite, R, torch.full_like(M, float("nan")))
 
 
 def _polar_frame(M: Tensor, R: Tensor):

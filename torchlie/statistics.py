@@ -485,14 +485,16 @@ def align(
         q_bar = _wsum(w, q, 1)
         p = p - p_bar.unsqueeze(-2)
         q = q - q_bar.unsqueeze(-2)
-    H = (q * w.unsqueeze(-1)).mT @ p
+    # H = (w q)^T p and R p_bar as products and sums (not matmul): an element's result has the
+    # same bits whatever the batch around it.
+    H = ((q * w.unsqueeze(-1)).unsqueeze(-1) * p.unsqueeze(-2)).sum(-3)
     R = so3.project(H)
     if scale:
         s = (R * H).sum((-1, -2)) / (w * (p * p).sum(-1)).sum(-1)
     else:
         s = torch.ones(batch, dtype=p.dtype, device=p.device)
     if translation:
-        t = q_bar - s.unsqueeze(-1) * (R @ p_bar.unsqueeze(-1)).squeeze(-1)
+        t = q_bar - s.unsqueeze(-1) * (R * p_bar.unsqueeze(-2)).sum(-1)
     else:
         t = torch.zeros((*batch, 3), dtype=p.dtype, device=p.device)
     return Alignment(_checks.out(R, dtype), _checks.out(t, dtype), _checks.out(s, dtype))
