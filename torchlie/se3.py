@@ -315,9 +315,13 @@ _ActFn = custom_function(
 
 def _exp_forward(xi: Tensor) -> Tensor:
     """``[[Exp(phi), Jl(phi) rho], [0, 1]]`` from components, one set of coefficients for both
-    blocks (runs without autograd: forward-only coefficients)."""
+    blocks (runs without autograd: forward-only coefficients); in float64 the rotation block is
+    :func:`torchlie.so3.exp`'s compensated one."""
     xyz, (a, b, c, d) = so3._rodrigues(xi[..., 3:])
-    R = so3._exp_entries(xyz, a, b, d)
+    if xi.dtype == torch.float64:  # the rotation block of so3.exp, bit for bit
+        R = so3._exp(xi[..., 3:]).flatten(-2).unbind(-1)
+    else:
+        R = so3._exp_entries(xyz, a, b, d)
     t = so3._jl_components(xyz, _quat._planes(xi[..., :3], 3), a, b, c)
     zero, one = torch.zeros_like(a), torch.ones_like(a)
     entries = (*R[0:3], t[0], *R[3:6], t[1], *R[6:9], t[2], zero, zero, zero, one)
@@ -441,9 +445,11 @@ def vee(Xi: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 6"]:
 def exp(xi: Float[Tensor, "*b 6"]) -> Float[Tensor, "*b 4 4"]:
     """Pose of the twist ``xi = (rho, phi)``: ``[[so3.exp(phi), so3.jac_left(phi) rho], [0, 1]]``.
 
-    Exact to a few ulp at every angle (so3's series near 0, no cancellation near pi).  The
-    rotation block has so3's closed-form backward; the translation is differentiated through
-    the series-safe coefficients, so every derivative is finite, at 0 and pi included.
+    Exact to a few ulp at every angle (one set of half-angle coefficients for both blocks, no
+    cancellation at 0 or near pi).  The backward pass is closed-form, ``g_rho = Jr(phi) g_t``
+    and ``g_phi = Jl(phi) vee(R^T G_R - G_R^T R) + Jr(phi)(t x g_t) + Q(-rho, -phi) g_t``, with
+    series-safe coefficients, so every derivative is finite, at 0 and pi included; double
+    backward and forward mode are supported.
 
     Example:
         >>> T = exp(torch.tensor([1.0, 0.0, 0.0, 0.0, 0.0, torch.pi / 2]))
