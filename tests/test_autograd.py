@@ -328,3 +328,69 @@ def test_same_dtype():
         ),
     ):
         _checks.same_dtype("m.f", a=a, b=b)
+
+
+# ----------------------------------------------------------------------------------------------
+# Blocked forward passes over large batches
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def small_blocks(monkeypatch):
+    """Blocks of 16 rows: every batch of 32 or more elements is evaluated block by block."""
+    monkeypatch.setattr(_autograd, "BLOCK", 16)
+
+
+def _blocked_cases(dtype):
+    g = torch.Generator().manual_seed(40)
+    w = torch.randn(5, 23, 3, generator=g, dtype=dtype) * 2
+    xi = torch.randn(5, 23, 6, generator=g, dtype=dtype)
+    R, T = so3.exp(w), se3.exp(xi)
+    p = torch.randn(5, 23, 3, generator=g, dtype=dtype)
+    return [
+        (so3.exp, (w,)),
+        (so3.log, (R,)),
+        (so3.project, (R + 0.01,)),
+        (se3.exp, (xi,)),
+        (se3.log, (T,)),
+        (se3.compose, (T, T.flip(0))),
+        (se3.inverse, (T,)),
+        (se3.act, (T, p)),
+        (se3.act, (T[:, :1], p)),  # broadcast: not blocked
+    ]
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_blocked_forward_equals_unblocked(dtype, monkeypatch):
+    want = [fn(*args) for fn, args in _blocked_cases(dtype)]
+    monkeypatch.setattr(_autograd, "BLOCK", 16)
+    got = [fn(*args) for fn, args in _blocked_cases(dtype)]
+    eps = torch.finfo(dtype).eps
+    for a, b in zip(got, want, strict=True):
+        assert a.shape == b.shape
+        # the same per-element formulas; only a SIMD tail may round differently
+        torch.testing.assert_close(a, b, rtol=4 * eps, atol=4 * eps)
+
+
+def test_blocked_splits_large_batches_only():
+    calls = []
+
+    def fwd(a, b):
+        calls.append(a.shape[0])
+        return a.sum(-1) + b
+
+    run = _autograd._blocked(fwd, (1, 0))
+    a, b = torch.randn(2 * _autograd.BLOCK + 5, 3), torch.randn(2 * _autograd.BLOCK + 5)
+    torch.testing.assert_close(run(a, b), fwd(a, b))
+    assert calls[:3] == [_autograd.BLOCK, _autograd.BLOCK, 5]
+    calls.clear()
+    run(a[:100], b[:100])  # small batch
+    run(a, b[:1])  # broadcast batch
+    assert calls == [100, 2 * _autograd.BLOCK + 5]
+
+
+def test_blocked_forward_with_grad_and_under_vmap(small_blocks):
+    w = (0.5 * torch.randn(4, 20, 3, dtype=torch.float64)).requires_grad_()  # |w| < pi
+    (g,) = torch.autograd.grad(so3.log(so3.exp(w)).sum(), w)
+    torch.testing.assert_close(g, torch.ones_like(w), rtol=0, atol=1e-12)
+    torch.testing.assert_close(torch.func.vmap(so3.exp)(w.detach()), so3.exp(w.detach()))

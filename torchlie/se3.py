@@ -235,6 +235,7 @@ _ComposeFn = custom_function(
     save=lambda inputs, out: (inputs[0], inputs[1]),
     backward=_compose_bwd,
     jvp=_compose_jvp,
+    event_dims=(2, 2),
 )
 
 
@@ -266,6 +267,7 @@ _InverseFn = custom_function(
     save=lambda inputs, out: (inputs[0],),
     backward=_inverse_bwd,
     jvp=_inverse_jvp,
+    event_dims=(2,),
 )
 
 
@@ -305,6 +307,7 @@ _ActFn = custom_function(
     save=lambda inputs, out: (inputs[0], inputs[1]),
     backward=_act_bwd,
     jvp=_act_jvp,
+    event_dims=(2, 1),
 )
 
 
@@ -371,6 +374,7 @@ _ExpFn = custom_function(
     save=lambda inputs, out: (inputs[0], out),
     backward=_exp_backward,
     jvp=_exp_jvp,
+    event_dims=(1,),
 )
 
 
@@ -412,6 +416,7 @@ _LogFn = custom_function(
     save=lambda inputs, out: (inputs[0], out),
     backward=_log_backward,
     jvp=_log_jvp,
+    event_dims=(2,),
 )
 
 

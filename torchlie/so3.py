@@ -225,6 +225,7 @@ _ExpFn = custom_function(
     save=lambda inputs, out: (inputs[0], out),
     backward=_exp_backward,
     jvp=_exp_jvp,
+    event_dims=(1,),
 )
 
 
@@ -267,6 +268,7 @@ _LogFn = custom_function(
     save=lambda inputs, out: (inputs[0], out),
     backward=_log_backward,
     jvp=_log_jvp,
+    event_dims=(2,),
 )
 
 
@@ -571,6 +573,7 @@ _ProjectFn = custom_function(
     save=lambda inputs, out: (inputs[0], out),
     backward=_project_backward,
     jvp=_project_jvp,
+    event_dims=(2,),
 )
 
 
