@@ -8,6 +8,7 @@ forward-mode AD, ``torch.func`` transforms, double backward and ``torch.compile`
 
 from __future__ import annotations
 
+import math
 import re
 
 import pytest
@@ -219,22 +220,29 @@ def test_gradcheck_forward_and_double_backward(case):
 
 @pytest.mark.compile
 def test_compiled_fullgraph_with_backward():
-    """One compile: so3.exp / so3.log (custom Functions) and a broadcasting compose, backward."""
+    """One compile: so3.exp / so3.log (custom Functions), a broadcasting compose and distance,
+    backward, at generic rotation vectors and at 0, 1e-9 and pi."""
     g = torch.Generator().manual_seed(3)
     R0 = so3.exp(_rotvecs(g, 2)).reshape(2, 1, 3, 3)
-    w0 = _rotvecs(g, 3)
+    w0 = _rotvecs(g, 6)
+    w0[0] = 0.0
+    w0[1] = torch.tensor([math.pi, 0.0, 0.0], dtype=F64)
+    w0[2] = torch.tensor([1e-9, 0.0, 0.0], dtype=F64)
 
     def f(R, w):
-        return so3.log(so3.compose(R, so3.exp(w)))  # batch (2, 1) with (3,) -> (2, 3)
+        S = so3.compose(R, so3.exp(w))  # batch (2, 1) with (6,) -> (2, 6)
+        return so3.log(S), so3.distance(S, R)
 
     w1, w2 = w0.clone().requires_grad_(), w0.clone().requires_grad_()
     y1 = f(R0, w1)
     y2 = torch.compile(f, fullgraph=True)(R0, w2)
-    assert y2.shape == (2, 3, 3)
-    torch.testing.assert_close(y2, y1, rtol=1e-12, atol=1e-12)
-    c = torch.randn(y1.shape, generator=g, dtype=F64)
+    assert y2[0].shape == (2, 6, 3) and y2[1].shape == (2, 6)
+    c = [torch.randn(y.shape, generator=g, dtype=F64) for y in y1]
+    for a, b in zip(y2, y1, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-12)
     (d1,) = torch.autograd.grad(y1, w1, c)
     (d2,) = torch.autograd.grad(y2, w2, c)
+    assert bool(torch.isfinite(d2).all())
     torch.testing.assert_close(d2, d1, rtol=1e-10, atol=1e-12)
 
 

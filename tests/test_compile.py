@@ -85,19 +85,3 @@ def test_quaternion_core_compile_fullgraph():
     compiled = torch.compile(_quaternion_core, fullgraph=True)(q, w)
     for a, b in zip(eager, compiled, strict=True):
         torch.testing.assert_close(b, a, rtol=1e-5, atol=1e-5)
-
-
-def test_backward_through_compiled_exp_log():
-    """Custom autograd Functions (exp, log) inside a compiled graph, with backward."""
-    w, _, _, _ = _inputs(torch.float64)
-
-    def loss(w):
-        R = so3.exp(w)
-        return (so3.log(R @ R.flip(0)) ** 2).sum() + so3.distance(R, R.flip(0)).sum()
-
-    w1 = w.clone().requires_grad_()
-    w2 = w.clone().requires_grad_()
-    loss(w1).backward()
-    torch.compile(loss, fullgraph=True)(w2).backward()
-    assert bool(torch.isfinite(w2.grad).all())
-    torch.testing.assert_close(w2.grad, w1.grad, rtol=1e-10, atol=1e-10)
