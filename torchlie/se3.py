@@ -116,27 +116,61 @@ def _hat(xi: Tensor) -> Tensor:
     return torch.cat((top, torch.zeros_like(top[..., :1, :])), dim=-2)
 
 
-def _q_apply(rho: Tensor, phi: Tensor, v: Tensor) -> Tensor:
-    """``Q(rho, phi) v`` (the top-right block of the left Jacobian), with cross products only.
+def _cross(a: tuple[Tensor, ...], b: tuple[Tensor, ...]) -> tuple[Tensor, Tensor, Tensor]:
+    """``a x b`` from components."""
+    ax, ay, az = a
+    bx, by, bz = b
+    return (
+        torch.addcmul(ay * bz, az, by, value=-1.0),
+        torch.addcmul(az * bx, ax, bz, value=-1.0),
+        torch.addcmul(ax * by, ay, bx, value=-1.0),
+    )
+
+
+def _q_coeffs(phi: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """``(c1, c2, c3)`` of :func:`_q_components`: ``(t - sin t)/t^3``, ``(t^2/2 + cos t - 1)/t^4``
+    and ``(c2 - 3 (t - sin t - t^3/6)/t^5)/2`` (series near 0), in ``phi``'s dtype."""
+    t2 = _coeffs.theta2(phi)
+    c2 = _coeffs.cosc4(t2)
+    c3 = (0.5 * (c2 - 3.0 * _coeffs.sinc5(t2))).to(phi.dtype)
+    return _coeffs.sinc3(t2).to(phi.dtype), c2.to(phi.dtype), c3
+
+
+def _q_components(
+    rho: tuple[Tensor, ...],
+    phi: tuple[Tensor, ...],
+    v: tuple[Tensor, ...],
+    c1: Tensor,
+    c2: Tensor,
+    c3: Tensor,
+) -> list[Tensor]:
+    """Components of ``Q(rho, phi) v`` (the top-right block of the left Jacobian), from
+    components, with cross products only.
 
     With ``a = phi^ v``, ``b = phi^ a`` and ``r(x) = rho^ x``, the eight terms of ``Q v`` group as
     ``r(v)/2 + c1 r(a) + c2 r(b) + phi^ (c1 r(v) + (c1 - 3 c2) r(a) + c3 r(b)
     + phi^ (c2 r(v) + c3 r(a)))``.
     """
-    t2 = _coeffs.theta2(phi, keepdim=True)
-    c2 = _coeffs.cosc4(t2)
-    c1 = _coeffs.sinc3(t2).to(phi.dtype)
-    c3 = (0.5 * (c2 - 3.0 * _coeffs.sinc5(t2))).to(phi.dtype)
-    c2 = c2.to(phi.dtype)
-    cross = torch.linalg.cross
-    a = cross(phi, v, dim=-1)
-    b = cross(phi, a, dim=-1)
-    rv = cross(rho, v, dim=-1)
-    ra = cross(rho, a, dim=-1)
-    rb = cross(rho, b, dim=-1)
-    inner = cross(phi, c2 * rv + c3 * ra, dim=-1)
-    outer = cross(phi, c1 * rv + (c1 - 3.0 * c2) * ra + c3 * rb + inner, dim=-1)
-    return 0.5 * rv + c1 * ra + c2 * rb + outer
+    a = _cross(phi, v)
+    b = _cross(phi, a)
+    rv, ra, rb = _cross(rho, v), _cross(rho, a), _cross(rho, b)
+    c13 = c1 - 3.0 * c2
+    inner = _cross(phi, [torch.addcmul(c2 * x, c3, y) for x, y in zip(rv, ra, strict=True)])
+    mid = [
+        torch.addcmul(torch.addcmul(torch.addcmul(i, c1, x), c13, y), c3, z)
+        for x, y, z, i in zip(rv, ra, rb, inner, strict=True)
+    ]
+    outer = _cross(phi, mid)
+    return [
+        torch.addcmul(torch.addcmul(o.add(x, alpha=0.5), c1, y), c2, z)
+        for x, y, z, o in zip(rv, ra, rb, outer, strict=True)
+    ]
+
+
+def _q_apply(rho: Tensor, phi: Tensor, v: Tensor) -> Tensor:
+    """``Q(rho, phi) v`` (batch shapes broadcast): :func:`_q_components` on planar copies."""
+    P = _quat._planes
+    return torch.stack(_q_components(P(rho, 3), P(phi, 3), P(v, 3), *_q_coeffs(phi)), dim=-1)
 
 
 def _q_matrix(rho: Tensor, phi: Tensor) -> Tensor:
@@ -337,24 +371,32 @@ def _exp_backward(saved, G: Tensor):
     #     g_rho = Jr(phi) g_t,
     #     g_phi = Jl(phi) vee(R^T G_R - G_R^T R) + Jr(phi) (t x g_t) + Q(-rho, -phi) g_t.
     xi, T = saved
-    rho, phi = xi[..., :3], xi[..., 3:]
+    if not torch.is_grad_enabled():
+        return (_exp_backward_values(xi, T, G),)
+    rho, phi = xi[..., :3], xi[..., 3:]  # create_graph: differentiable ops
     R, t = _rot(T), _trans(T)
     g_R, g_t = _rot(G), _trans(G)
-    q_term = _q_apply(-rho, -phi, g_t)
-    t_x_g = torch.linalg.cross(t, g_t, dim=-1)
-    if torch.is_grad_enabled():  # create_graph: differentiable ops
-        g_rho = so3._jl_apply(phi, g_t, sign=-1.0)
-        g_phi = so3._jl_apply(phi, 2.0 * so3._vee(R.transpose(-1, -2) @ g_R))
-        g_phi = g_phi + so3._jl_apply(phi, t_x_g, sign=-1.0)
-    else:
-        xyz, (a, b, c, _) = so3._rodrigues(phi)
-        g_rho = torch.stack(so3._jl_components(xyz, _quat._planes(g_t, 3), a, -b, c), dim=-1)
-        u = so3._rt_g_vee(R, g_R)
-        g_phi = torch.stack(so3._jl_components(xyz, u, a, b, c), dim=-1)
-        g_phi = g_phi + torch.stack(
-            so3._jl_components(xyz, _quat._planes(t_x_g, 3), a, -b, c), dim=-1
-        )
-    return (torch.cat((g_rho, g_phi + q_term), dim=-1),)
+    g_rho = so3._jl_apply(phi, g_t, sign=-1.0)
+    g_phi = so3._jl_apply(phi, 2.0 * so3._vee(R.transpose(-1, -2) @ g_R))
+    g_phi = g_phi + so3._jl_apply(phi, torch.linalg.cross(t, g_t, dim=-1), sign=-1.0)
+    return (torch.cat((g_rho, g_phi + _q_apply(-rho, -phi, g_t)), dim=-1),)
+
+
+def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor) -> Tensor:
+    """:func:`_exp_backward` from components, forward-only coefficients (plain backward)."""
+    x = _quat._planes(xi, 6)
+    xyz = x[3:]
+    a, b, c, _ = (v.to(xi.dtype) for v in _coeffs.rodrigues_values(xi[..., 3:]))
+    t = _quat._planes(_trans(T), 3)
+    g_t = _quat._planes(_trans(G), 3)
+    g_rho = so3._jl_components(xyz, g_t, a, -b, c)
+    u = so3._rt_g_vee(_rot(T), _rot(G))
+    g_phi = so3._jl_components(xyz, u, a, b, c)
+    g_tx = so3._jl_components(xyz, _cross(t, g_t), a, -b, c)
+    neg = [-v for v in x]
+    q = _q_components(neg[:3], neg[3:], g_t, *_q_coeffs(xi[..., 3:]))
+    g_phi = [(p + r).add_(s) for p, r, s in zip(g_phi, g_tx, q, strict=True)]
+    return torch.stack((*g_rho, *g_phi), dim=-1)
 
 
 def _exp_jvp(saved, dxi: Tensor) -> Tensor:
@@ -394,13 +436,39 @@ def _log_backward(saved, g: Tensor):
     #     Jr(xi)^-T = [[A^-1, 0], [-A^-1 Q A^-1, A^-1]]   (Q = Q(rho, phi) = Q(-rho, -phi)^T),
     # so G_t = R h_rho and G_R = R hat(h_phi) / 2.
     T, xi = saved
-    R = _rot(T)
+    if not torch.is_grad_enabled():
+        return (_log_backward_values(T, xi, g),)
+    R = _rot(T)  # create_graph: differentiable ops
     rho, phi = xi[..., :3], xi[..., 3:]
     h_rho = so3._jl_inv_apply(phi, g[..., :3])
     h_phi = so3._jl_inv_apply(phi, g[..., 3:] - _q_apply(rho, phi, h_rho))
     G_R = 0.5 * (R @ so3._hat(h_phi))
     top = torch.cat((G_R, _mv(R, h_rho).unsqueeze(-1)), dim=-1)
     return (torch.cat((top, torch.zeros_like(top[..., :1, :])), dim=-2),)
+
+
+def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
+    """:func:`_log_backward` from components, forward-only coefficients (plain backward)."""
+    phi = xi[..., 3:]
+    x = _quat._planes(xi, 6)
+    gs = _quat._planes(g, 6)
+    e, d = (v.to(xi.dtype) for v in _coeffs.jl_inv_values(phi))
+    half = e.new_full((), -0.5)
+    h_rho = so3._jl_components(x[3:], gs[:3], e, half, d)
+    q = _q_components(x[:3], x[3:], h_rho, *_q_coeffs(phi))
+    v = [(gi - qi).mul_(0.5) for gi, qi in zip(gs[3:], q, strict=True)]
+    u = so3._jl_components(x[3:], v, e, half, d)  # h_phi / 2
+    r = _quat._planes(_rot(T), 9)
+    G_R = _cross(r[0:3], u), _cross(r[3:6], u), _cross(r[6:9], u)  # rows of R hat(u)
+    G_t = [
+        torch.addcmul(torch.addcmul(r[i] * h_rho[0], r[i + 1], h_rho[1]), r[i + 2], h_rho[2])
+        for i in (0, 3, 6)
+    ]
+    zero = torch.zeros_like(e)
+    rows = [(*G_R[i], G_t[i]) for i in range(3)]
+    return torch.stack((*rows[0], *rows[1], *rows[2], zero, zero, zero, zero), dim=-1).unflatten(
+        -1, (4, 4)
+    )
 
 
 def _log_jvp(saved, dT: Tensor) -> Tensor:
