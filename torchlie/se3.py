@@ -28,6 +28,8 @@ argument or result (a point, a twist) is perturbed by plain addition.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
 from torch import Tensor
 
@@ -116,7 +118,7 @@ def _hat(xi: Tensor) -> Tensor:
     return torch.cat((top, torch.zeros_like(top[..., :1, :])), dim=-2)
 
 
-def _cross(a: tuple[Tensor, ...], b: tuple[Tensor, ...]) -> tuple[Tensor, Tensor, Tensor]:
+def _cross(a: Sequence[Tensor], b: Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
     """``a x b`` from components."""
     ax, ay, az = a
     bx, by, bz = b
@@ -137,9 +139,9 @@ def _q_coeffs(phi: Tensor) -> tuple[Tensor, Tensor, Tensor]:
 
 
 def _q_components(
-    rho: tuple[Tensor, ...],
-    phi: tuple[Tensor, ...],
-    v: tuple[Tensor, ...],
+    rho: Sequence[Tensor],
+    phi: Sequence[Tensor],
+    v: Sequence[Tensor],
     c1: Tensor,
     c2: Tensor,
     c3: Tensor,

@@ -16,6 +16,8 @@ Jacobians (``Jr(w)`` = ``jac_right``, ``Jl(w)`` = ``jac_left``)::
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
 from torch import Tensor
 
@@ -174,8 +176,8 @@ def _rt_g_vee(R: Tensor, G: Tensor) -> tuple[Tensor, Tensor, Tensor]:
 
 
 def _jl_components(
-    xyz: tuple[Tensor, ...],
-    v: tuple[Tensor, ...],
+    xyz: Sequence[Tensor],
+    v: Sequence[Tensor],
     a: Tensor,
     b: Tensor,
     c: Tensor,
