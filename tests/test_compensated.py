@@ -27,14 +27,30 @@ def _hard_doubles(n: int, seed: int) -> torch.Tensor:
     return sign * mant * torch.exp2(expo)
 
 
-def test_error_free_transforms_are_exact():
+def _fused_or_fallback(fused: bool, x: torch.Tensor) -> bool:
+    """For the fused cases: on a CPU whose addcmul is not fused, the kernel must not use it."""
+    if fused and not C.FUSED_CPU:
+        assert not C._fused(x)
+        return False
+    return True
+
+
+@pytest.mark.parametrize("fused", [False, True], ids=["split", "fused"])
+def test_error_free_transforms_are_exact(fused):
     a, b = _hard_doubles(2000, 1), _hard_doubles(2000, 2)
+    if not _fused_or_fallback(fused, a):
+        return
     hi, lo = C._split(a)
     assert all(h + l == x for h, l, x in zip(_exact(hi), _exact(lo), _exact(a), strict=True))
-    p, e = C._two_prod(a, b)
+    p, e = C._two_prod(a, b, fused=fused)
     want = [x * y for x, y in zip(_exact(a), _exact(b), strict=True)]
     assert [x + y for x, y in zip(_exact(p), _exact(e), strict=True)] == want
-    p, e = C._two_sqr(a)
+    # strided operands (a transposed view)
+    at, bt = a.reshape(40, 50).t(), b.reshape(40, 50).t()
+    p, e = C._two_prod(at, bt, fused=fused)
+    want = [x * y for x, y in zip(_exact(at.flatten()), _exact(bt.flatten()), strict=True)]
+    assert [x + y for x, y in zip(_exact(p.flatten()), _exact(e.flatten()), strict=True)] == want
+    p, e = C._two_sqr(a, fused=fused)
     assert [x + y for x, y in zip(_exact(p), _exact(e), strict=True)] == [x * x for x in _exact(a)]
     s, e = C._two_sum(a, b)
     want = [x + y for x, y in zip(_exact(a), _exact(b), strict=True)]
@@ -54,6 +70,16 @@ def test_exp_identity_exact_at_zero_and_matches_plain_formula():
     w, _ = rotvecs(ANGLES, n_random=20, dtype=F64)
     plain = so3._exp(w.float()).double()  # float32 path: independent formula
     torch.testing.assert_close(C.exp(w), plain, rtol=0, atol=4e-7)
+
+
+def test_fused_and_split_kernels_give_the_same_bits():
+    w, _ = rotvecs(ANGLES, n_random=50, dtype=F64)
+    w = torch.cat((w, w[:200] * 1e3, w[:200] * 1e-9, w[:100] * 1e20))
+    assert C._fused(w) == C.FUSED_CPU  # eager CPU takes the fused products where they are exact
+    if not _fused_or_fallback(True, w):
+        return
+    assert torch.equal(C.exp(w, fused=True), C.exp(w, fused=False))
+    assert torch.equal(so3.exp(w), C.exp(w, fused=False))
 
 
 def test_exp_nan_stays_in_its_element_and_batches():

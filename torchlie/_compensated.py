@@ -15,17 +15,21 @@ a sum near 2.  :func:`exp` removes both:
   its own size (``so3.log`` reads small angles from them).
 
 Measured over the test sweep (13 angles x 218 axes, 60-digit references): 2.4e-16 norm-wise
-relative error against 6.8e-16 for the plain formula, at about 1.7x its time.  No series: at
-``w = 0`` the result is exactly the identity.
+relative error against 6.8e-16 for the plain formula.  The price is the number of kernels:
+about 140 element-wise operations with fused products (244 with split ones) against 47 for the
+plain formula, which decides the time at small batches.  No series: at ``w = 0`` the result
+is exactly the identity.
 
 Values only: these run in the forward pass of the custom autograd Function (and never under
 autograd).  In-place operations act on fresh temporaries, on the operand that depends on every
-input (valid under ``torch.func.vmap``).  torch has no fused multiply-add that holds on every
-backend (``torch.addcmul`` is fused by the eager CPU kernels, not by Inductor's), so products
-are split (Veltkamp, ``2**27 + 1``); the splits assume no floating-point contraction, which
-holds for the eager kernels and Inductor's C++ backend (compiled with ``-ffp-contract=off``).
-Where a backend contracts (Triton fuses multiply-adds), the transforms lose their low parts and
-the result falls back to about the plain formula's accuracy.  Range: ``|w|`` up to ~1e150 (the
+input (valid under ``torch.func.vmap``).  The exact error of a product comes from a fused
+multiply-add where one is known to round once: ``torch.addcmul`` on the CPU in eager mode, if a
+probe at import finds it fused (:data:`FUSED_CPU`; contiguous and strided operands).  Elsewhere
+(compiled code, other devices) products are split (Veltkamp, ``2**27 + 1``), which assumes no
+floating-point contraction: true for the eager kernels and Inductor's C++ backend (compiled with
+``-ffp-contract=off``).  Both give the exact error, so the results are the same bits; where a
+backend contracts (Triton fuses multiply-adds), the transforms lose their low parts and the
+result falls back to about the plain formula's accuracy.  Range: ``|w|`` up to ~1e150 (the
 squares overflow above, as in the plain formula).
 """
 
@@ -40,6 +44,31 @@ _SPLITTER = 134217729.0  # 2**27 + 1
 _T_COMPENSATED = 1e4
 
 
+def _probe_fused_cpu() -> bool:
+    """Whether ``torch.addcmul`` on float64 CPU tensors rounds ``c + a b`` once."""
+    a = torch.full((67,), 1.0 + 2.0**-30, dtype=torch.float64)
+    b = torch.full((67,), 1.0 - 2.0**-30, dtype=torch.float64)
+    p = a * b  # 1 - 2^-60 rounds to 1
+    want = torch.full((67,), -(2.0**-60), dtype=torch.float64)
+    views = (slice(None), slice(None, None, 2), slice(0, 1))
+    got = [torch.addcmul(-p[v], a[v], b[v]) for v in views]
+    at = a.reshape(1, 67).expand(3, 67).t()  # non-contiguous 2-D operand
+    got.append(torch.addcmul(-(at * at), at, at))
+    want_sq = torch.full((67, 3), 2.0**-60, dtype=torch.float64)  # (1 + 2^-30)^2 - fl(.)
+    return all(torch.equal(g, want[v]) for g, v in zip(got, views, strict=False)) and bool(
+        torch.equal(got[-1], want_sq)
+    )
+
+
+#: ``torch.addcmul`` is a fused multiply-add on this CPU (probed at import).
+FUSED_CPU = _probe_fused_cpu()
+
+
+def _fused(x: Tensor) -> bool:
+    """Take exact product errors from ``torch.addcmul`` for ``x``'s device (eager CPU only)."""
+    return FUSED_CPU and x.device.type == "cpu" and not torch.compiler.is_compiling()
+
+
 def _split(a: Tensor) -> tuple[Tensor, Tensor]:
     """``a = hi + lo`` exactly, each with at most 26 significant bits."""
     c = a * _SPLITTER
@@ -47,18 +76,22 @@ def _split(a: Tensor) -> tuple[Tensor, Tensor]:
     return hi, a - hi
 
 
-def _two_prod(a: Tensor, b: Tensor, sa=None, sb=None) -> tuple[Tensor, Tensor]:
-    """``a * b = p + e`` exactly; ``sa``/``sb`` are splits already computed."""
+def _two_prod(a: Tensor, b: Tensor, sa=None, sb=None, fused: bool = False):
+    """``a * b = p + e`` exactly; ``sa``/``sb`` are splits already computed (split path)."""
     p = a * b
+    if fused:
+        return p, torch.addcmul(p.neg(), a, b)
     ah, al = _split(a) if sa is None else sa
     bh, bl = _split(b) if sb is None else sb
     e = (ah * bh).sub_(p).add_(ah * bl).add_(al * bh).add_(al * bl)
     return p, e
 
 
-def _two_sqr(a: Tensor, sa=None) -> tuple[Tensor, Tensor]:
+def _two_sqr(a: Tensor, sa=None, fused: bool = False) -> tuple[Tensor, Tensor]:
     """``a * a = p + e`` exactly."""
     p = a * a
+    if fused:
+        return p, torch.addcmul(p.neg(), a, a)
     ah, al = _split(a) if sa is None else sa
     e = (ah * ah).sub_(p).add_((ah * al).mul_(2.0)).add_(al * al)
     return p, e
@@ -72,30 +105,30 @@ def _two_sum(a: Tensor, b: Tensor) -> tuple[Tensor, Tensor]:
     return s, e
 
 
-def _sqr_round(a: Tensor, a_lo: Tensor, sa=None) -> Tensor:
+def _sqr_round(a: Tensor, a_lo: Tensor, sa=None, fused: bool = False) -> Tensor:
     """``(a + a_lo)^2`` rounded once (first order in ``a_lo``)."""
-    p, e = _two_sqr(a, sa)
+    p, e = _two_sqr(a, sa, fused)
     return p.add_(e.add_((2.0 * a).mul_(a_lo)))
 
 
-def _mul_lo(a: Tensor, a_lo: Tensor, v: Tensor, sa=None) -> tuple[Tensor, Tensor]:
+def _mul_lo(a: Tensor, a_lo: Tensor, v: Tensor, sa=None, fused: bool = False):
     """``(a + a_lo) v = p + lo``: ``p = fl(a v)``, ``lo`` its exact error plus ``a_lo v``."""
-    p, e = _two_prod(a, v, sa)
+    p, e = _two_prod(a, v, sa, None, fused)
     return p, e.add_(a_lo * v)
 
 
-def _theta2(x: Tensor, y: Tensor, z: Tensor):
+def _theta2(x: Tensor, y: Tensor, z: Tensor, fused: bool = False):
     """Rounded squares and ``theta^2 = S + S_lo`` (exact to ~eps^2)."""
-    xx, exx = _two_sqr(x)
-    yy, eyy = _two_sqr(y)
-    zz, ezz = _two_sqr(z)
+    xx, exx = _two_sqr(x, None, fused)
+    yy, eyy = _two_sqr(y, None, fused)
+    zz, ezz = _two_sqr(z, None, fused)
     s1, e1 = _two_sum(xx, yy)
     S, e2 = _two_sum(s1, zz)
     S_lo = e1.add_(e2).add_(exx.add_(eyy).add_(ezz))
     return xx, yy, zz, S, S_lo
 
 
-def _half(S: Tensor, S_lo: Tensor):
+def _half(S: Tensor, S_lo: Tensor, fused: bool = False):
     """``(Ss, g, g_lo, ch, ch_lo)`` for ``theta^2 = S + S_lo``.
 
     ``Ss`` = ``S`` (1 at ``theta = 0``), ``g + g_lo = sin(theta/2)/theta`` (1/2 at 0),
@@ -104,8 +137,8 @@ def _half(S: Tensor, S_lo: Tensor):
     pos = (S > 0).to(S.dtype)  # NaN -> 0; Ss stays NaN
     Ss = (1.0 - pos).add_(S)
     t = Ss.sqrt()
-    st = _split(t)
-    P, E = _two_sqr(t, st)
+    st = None if fused else _split(t)
+    P, E = _two_sqr(t, st, fused)
     tlo = (Ss - P).sub_(E).add_(S_lo).div_(2.0 * t)
     del P, E
     # The first-order corrections below need |tlo| << 1.  Beyond theta ~ 1e4 the angle modulo
@@ -119,13 +152,13 @@ def _half(S: Tensor, S_lo: Tensor):
     ch_lo = (sh * hlo).neg_()
     del hlo
     g = sh / t
-    p, e = _two_prod(g, t, None, st)
+    p, e = _two_prod(g, t, None, st, fused)
     g_lo = (sh - p).sub_(e).add_(sh_lo.sub_(g * tlo)).div_(t)
     g.add_(pos.neg_().add_(1.0).mul_(0.5))
     return Ss, g, g_lo, ch, ch_lo
 
 
-def exp(w: Tensor) -> Tensor:
+def exp(w: Tensor, fused: bool | None = None) -> Tensor:
     """Rotation matrix of the rotation vector ``w``: ``(..., 3)`` -> ``(..., 3, 3)``, float64.
 
     ``R_ii = cos^2(h) + (B/2)(w_i^2 - w_j^2 - w_k^2)``, ``R_ij = B w_i w_j -+ A w_k`` with
@@ -133,17 +166,22 @@ def exp(w: Tensor) -> Tensor:
     ``g = sin(h)/theta``.  ``A`` is a double-double and ``A w_k`` exact (TwoProduct), so each
     off-diagonal entry is rounded about once relative to its own size: ``so3.log`` of the result
     reads ``theta`` from them, and at small angles its relative error is theirs.
+
+    ``fused``: exact product errors from ``torch.addcmul`` (default: :func:`_fused`) or from
+    Veltkamp splits; the result is the same either way.
     """
+    if fused is None:
+        fused = _fused(w)
     x, y, z = _quat._planes(w, 3)
-    xx, yy, zz, S, S_lo = _theta2(x, y, z)
-    _, g, g_lo, ch, ch_lo = _half(S, S_lo)
+    xx, yy, zz, S, S_lo = _theta2(x, y, z, fused)
+    _, g, g_lo, ch, ch_lo = _half(S, S_lo, fused)
     del S, S_lo
-    sg, sc = _split(g), _split(ch)
-    bh = _sqr_round(g, g_lo, sg)  # B/2
-    p, e = _two_prod(g, ch, sg, sc)  # A/2 = g cos h = p + e + ...
+    sg, sc = (None, None) if fused else (_split(g), _split(ch))
+    bh = _sqr_round(g, g_lo, sg, fused)  # B/2
+    p, e = _two_prod(g, ch, sg, sc, fused)  # A/2 = g cos h = p + e + ...
     a_lo = e.add_((g_lo * ch).add_(g * ch_lo)).mul_(2.0)
     a = p.mul_(2.0)
-    c2 = _sqr_round(ch, ch_lo, sc)  # cos^2 h
+    c2 = _sqr_round(ch, ch_lo, sc, fused)  # cos^2 h
     del g, g_lo, ch, ch_lo, sg, sc, e
     b = 2.0 * bh
     bx = b * x
@@ -151,11 +189,10 @@ def exp(w: Tensor) -> Tensor:
     bxy = bx * y
     bxz = bx.mul_(z)
     byz = by.mul_(z)
-    sa = _split(a)
-
-    ax, ax_lo = _mul_lo(a, a_lo, x, sa)
-    ay, ay_lo = _mul_lo(a, a_lo, y, sa)
-    az, az_lo = _mul_lo(a, a_lo, z, sa)
+    sa = None if fused else _split(a)
+    ax, ax_lo = _mul_lo(a, a_lo, x, sa, fused)
+    ay, ay_lo = _mul_lo(a, a_lo, y, sa, fused)
+    az, az_lo = _mul_lo(a, a_lo, z, sa, fused)
     del a, a_lo, sa
     r01 = (bxy - az).sub_(az_lo)
     r10 = bxy.add_(az).add_(az_lo)
