@@ -118,17 +118,6 @@ def _hat(xi: Tensor) -> Tensor:
     return torch.cat((top, torch.zeros_like(top[..., :1, :])), dim=-2)
 
 
-def _cross(a: Sequence[Tensor], b: Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
-    """``a x b`` from components."""
-    ax, ay, az = a
-    bx, by, bz = b
-    return (
-        torch.addcmul(ay * bz, az, by, value=-1.0),
-        torch.addcmul(az * bx, ax, bz, value=-1.0),
-        torch.addcmul(ax * by, ay, bx, value=-1.0),
-    )
-
-
 def _q_coeffs(phi: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """``(c1, c2, c3)`` of :func:`_q_components`: ``(t - sin t)/t^3``, ``(t^2/2 + cos t - 1)/t^4``
     and ``(c2 - 3 (t - sin t - t^3/6)/t^5)/2`` (series near 0), in ``phi``'s dtype."""
@@ -153,16 +142,16 @@ def _q_components(
     ``r(v)/2 + c1 r(a) + c2 r(b) + phi^ (c1 r(v) + (c1 - 3 c2) r(a) + c3 r(b)
     + phi^ (c2 r(v) + c3 r(a)))``.
     """
-    a = _cross(phi, v)
-    b = _cross(phi, a)
-    rv, ra, rb = _cross(rho, v), _cross(rho, a), _cross(rho, b)
+    a = so3._cross(phi, v)
+    b = so3._cross(phi, a)
+    rv, ra, rb = so3._cross(rho, v), so3._cross(rho, a), so3._cross(rho, b)
     c13 = c1 - 3.0 * c2
-    inner = _cross(phi, [torch.addcmul(c2 * x, c3, y) for x, y in zip(rv, ra, strict=True)])
+    inner = so3._cross(phi, [torch.addcmul(c2 * x, c3, y) for x, y in zip(rv, ra, strict=True)])
     mid = [
         torch.addcmul(torch.addcmul(torch.addcmul(i, c1, x), c13, y), c3, z)
         for x, y, z, i in zip(rv, ra, rb, inner, strict=True)
     ]
-    outer = _cross(phi, mid)
+    outer = so3._cross(phi, mid)
     return [
         torch.addcmul(torch.addcmul(o.add(x, alpha=0.5), c1, y), c2, z)
         for x, y, z, o in zip(rv, ra, rb, outer, strict=True)
@@ -394,7 +383,7 @@ def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor) -> Tensor:
     g_rho = so3._jl_components(xyz, g_t, a, -b, c)
     u = so3._rt_g_vee(_rot(T), _rot(G))
     g_phi = so3._jl_components(xyz, u, a, b, c)
-    g_tx = so3._jl_components(xyz, _cross(t, g_t), a, -b, c)
+    g_tx = so3._jl_components(xyz, so3._cross(t, g_t), a, -b, c)
     neg = [-v for v in x]
     q = _q_components(neg[:3], neg[3:], g_t, *_q_coeffs(xi[..., 3:]))
     g_phi = [(p + r).add_(s) for p, r, s in zip(g_phi, g_tx, q, strict=True)]
@@ -461,7 +450,7 @@ def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
     v = [(gi - qi).mul_(0.5) for gi, qi in zip(gs[3:], q, strict=True)]
     u = so3._jl_components(x[3:], v, e, half, d)  # h_phi / 2
     r = _quat._planes(_rot(T), 9)
-    G_R = _cross(r[0:3], u), _cross(r[3:6], u), _cross(r[6:9], u)  # rows of R hat(u)
+    G_R = so3._cross(r[0:3], u), so3._cross(r[3:6], u), so3._cross(r[6:9], u)  # rows of R hat(u)
     G_t = [
         torch.addcmul(torch.addcmul(r[i] * h_rho[0], r[i + 1], h_rho[1]), r[i + 2], h_rho[2])
         for i in (0, 3, 6)
