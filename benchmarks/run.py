@@ -14,8 +14,10 @@ What is measured, for every op, mode (``fwd``; ``fwd+bwd`` = forward then
   ``fwd+bwd``, whose backward reads the output gradient and writes the input gradients).  A
   clone reads and writes each of those bytes once: the time of touching the op's data, with
   no arithmetic and one dispatch per tensor.
-* ``torchlie``: the eager function; ``compiled``: ``torch.compile(fn, fullgraph=True)`` (mode
-  default), with the first call's time (compilation included) recorded per N; the compile cache
+* ``torchlie``: the eager function; ``compiled``: the function of ``torchlie.compiled``, i.e.
+  ``torch.compile(fn, fullgraph=True, options=torchlie.compiled.inductor_options(...))`` (mode
+  default; the options vectorise Inductor's CPU loops), with the first call's time
+  (compilation included) recorded per N; the compile cache
   is reset per (op, dtype, mode), so N = 1 compiles a static graph and the next N recompiles
   with a dynamic batch size that the larger N reuse.
 * every installed peer through the adapters of ``benchmarks/peers.py``; each adapter's output is
@@ -102,6 +104,7 @@ import torch.utils.benchmark as tbench  # noqa: E402
 
 from benchmarks import ops as _ops  # noqa: E402
 from benchmarks import peers as _peers  # noqa: E402
+from torchlie.compiled import inductor_options  # noqa: E402
 
 DTYPES = {"float32": torch.float32, "float64": torch.float64}
 MODES = ("fwd", "fwd+bwd")
@@ -412,7 +415,9 @@ def run(args: argparse.Namespace, log=print, checkpoint=None) -> dict:
                 compiled, compile_error = None, None
                 if tl is not None and args.compile:
                     torch._dynamo.reset()
-                    compiled = torch.compile(tl, fullgraph=True)
+                    module, _, fn_name = op.target.rpartition(".")
+                    options = inductor_options(module, fn_name)
+                    compiled = torch.compile(tl, fullgraph=True, options=options)
                 for n in args.sizes:
                     cell = _Cell(records, args, op=name, dtype=dname, mode=mode, n=n)
                     xs = op.inputs(n, dtype, torch.Generator().manual_seed(n))
@@ -424,7 +429,7 @@ def run(args: argparse.Namespace, log=print, checkpoint=None) -> dict:
                         lx = _leaves(xs, grad)
                         cell.time("torchlie", "torchlie." + op.target, make_step(tl, lx, mode))
                         if compiled is not None and compile_error is None:
-                            call = f"torch.compile(torchlie.{op.target}, fullgraph=True)"
+                            call = f"torchlie.compiled.{op.target}"
                             try:
                                 t0 = time.perf_counter()
                                 step = make_step(compiled, lx, mode)
@@ -561,10 +566,11 @@ def markdown(result: dict) -> str:
         "the peer's time over torchlie's (> 1: torchlie is faster). `floor` = `clone()` of "
         "one buffer per input and output of the op, N x (input + output numbers) in all (twice "
         "that for fwd+bwd): every byte of the op read and written once, no arithmetic. "
-        "`compiled` = "
-        "`torch.compile(fn, fullgraph=True)`. fwd+bwd = forward, then `torch.autograd.grad` of "
-        "all inputs. Peers get the same elements in their own conventions (converted before "
-        "timing; object construction from tensors is timed).",
+        "`compiled` = `torchlie.compiled.<op>` (`torch.compile(fn, fullgraph=True)` with "
+        "Inductor's CPU loops vectorised, see `torchlie.compiled.inductor_options`). "
+        "fwd+bwd = forward, then `torch.autograd.grad` of all inputs. Peers get the same "
+        "elements in their own conventions (converted before timing; object construction from "
+        "tensors is timed).",
         "",
     ]
     if result["check_failures"]:

@@ -99,7 +99,10 @@ def test_exp_under_vmap_equals_batched():
 
 @pytest.mark.compile
 def test_exp_compiled_keeps_the_error_free_transforms():
-    """Inductor's C++ code must not contract the split products into fused multiply-adds."""
+    """Inductor's C++ code must not contract the split products into fused multiply-adds.
+
+    Here the scalar loop that ``torch.compile`` builds by default; ``tests/test_compiled.py``
+    checks the vectorised loop that :mod:`torchlie.compiled` builds the same way."""
     w, _ = rotvecs(ANGLES, n_random=20, dtype=F64)
     compiled = torch.compile(C.exp, fullgraph=True)(w)
     torch.testing.assert_close(compiled, C.exp(w), rtol=0, atol=2.5e-16)
