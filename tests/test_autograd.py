@@ -39,6 +39,7 @@ CASES = {
         lambda g: so3.exp(_rotvecs(g)) + 0.2 * torch.randn(5, 3, 3, generator=g, dtype=F64),
     ),
     "se3.log": (se3.log, lambda g: se3.exp(_twists(g))),
+    "quaternion.from_matrix": (quaternion.from_matrix, lambda g: so3.exp(_rotvecs(g))),
 }
 
 

@@ -18,10 +18,13 @@ silent identity).  Other layouts and conventions convert at the boundary: :func:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
 from torch import Tensor
 
 from . import _checks, _coeffs
+from ._autograd import custom_function
 from ._typing import Bool, Float, Shaped
 
 __all__ = [
@@ -278,12 +281,76 @@ def _from_matrix_parts(R: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, Tenso
     return cw, pick(s21, d1, a01, a02), pick(s02, a01, d2, a12), pick(s10, a02, a12, d3), sign
 
 
-def _from_matrix(R: Tensor) -> Tensor:
+def _from_matrix_forward(R: Tensor) -> Tensor:
     cw, cx, cy, cz, sign = _from_matrix_parts(R)
     # |c| = 4 q_p >= 2 for a rotation: the division is safe, and a NaN element stays in its row.
     n2 = torch.addcmul(torch.addcmul(torch.addcmul(cw * cw, cx, cx), cy, cy), cz, cz)
     scale = torch.rsqrt(n2) * sign
     return torch.stack((cw * scale, cx * scale, cy * scale, cz * scale), dim=-1)
+
+
+def _cross_planes(a: Sequence[Tensor], b: Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
+    """``a x b`` from components (planes; :func:`_cross` takes ``(..., 3)`` tensors)."""
+    ax, ay, az = a
+    bx, by, bz = b
+    return (
+        torch.addcmul(ay * bz, az, by, value=-1.0),
+        torch.addcmul(az * bx, ax, bz, value=-1.0),
+        torch.addcmul(ax * by, ay, bx, value=-1.0),
+    )
+
+
+def _r_hat_values(R: Tensor, u: Sequence[Tensor]) -> Tensor:
+    """``R hat(u)`` from components: row ``i`` is ``cross(R_i, u)``."""
+    r = _planes(R, 9)
+    out = [c for i in (0, 3, 6) for c in _cross_planes(r[i : i + 3], u)]
+    return torch.stack(out, dim=-1).unflatten(-1, (3, 3))
+
+
+def _from_matrix_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:
+    # Along a tangent direction R hat(d) the canonical quaternion moves by dq = q (0, d) / 2;
+    # along the normal directions R S (S symmetric) it does not move (the orthogonalisation
+    # step).  So dL/dd = u = vec(conj(q) g) / 2 and G = R hat(u) / 2, the gradient that
+    # autograd gives through the step and Shepperd's formula at a rotation.
+    R, q = saved
+    if torch.is_grad_enabled():  # create_graph: differentiable ops
+        w, v = q[..., :1], q[..., 1:]
+        u = torch.addcmul(w * g[..., 1:], g[..., :1], v, value=-1.0)
+        u = 0.25 * (u - torch.linalg.cross(v, g[..., 1:], dim=-1))
+        return (torch.linalg.cross(R, u.unsqueeze(-2).expand_as(R), dim=-1),)
+    w, x, y, z = _planes(q, 4)
+    gw, gx, gy, gz = _planes(g, 4)
+    c = _cross_planes((x, y, z), (gx, gy, gz))
+    u = [
+        torch.addcmul(w * gi, gw, vi, value=-1.0).sub_(ci).mul_(0.25)
+        for gi, vi, ci in zip((gx, gy, gz), (x, y, z), c, strict=True)
+    ]
+    return (_r_hat_values(R, u),)
+
+
+def _from_matrix_jvp(saved: tuple[Tensor, ...], dR: Tensor) -> Tensor:
+    # dq = q (0, d) / 2 with d = vee of the skew part of R^T dR (its symmetric part: no effect).
+    R, q = saved
+    M = R.transpose(-1, -2) @ dR
+    d = torch.stack(
+        (M[..., 2, 1] - M[..., 1, 2], M[..., 0, 2] - M[..., 2, 0], M[..., 1, 0] - M[..., 0, 1]),
+        dim=-1,
+    )
+    return _multiply(q, torch.nn.functional.pad(0.25 * d, (1, 0)))
+
+
+_FromMatrixFn = custom_function(
+    "QuaternionFromMatrix",
+    forward=_from_matrix_forward,
+    save=lambda inputs, out: (inputs[0], out),
+    backward=_from_matrix_backward,
+    jvp=_from_matrix_jvp,
+    event_dims=(2,),
+)
+
+
+def _from_matrix(R: Tensor) -> Tensor:
+    return _FromMatrixFn(R)
 
 
 def _log_of_matrix(R: Tensor) -> Tensor:

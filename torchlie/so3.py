@@ -238,22 +238,8 @@ def _jl_inv_apply_values(w: Tensor, v: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     return out[0], out[1], out[2]
 
 
-def _cross(a: Sequence[Tensor], b: Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
-    """``a x b`` from components."""
-    ax, ay, az = a
-    bx, by, bz = b
-    return (
-        torch.addcmul(ay * bz, az, by, value=-1.0),
-        torch.addcmul(az * bx, ax, bz, value=-1.0),
-        torch.addcmul(ax * by, ay, bx, value=-1.0),
-    )
-
-
-def _r_hat_values(R: Tensor, u: tuple[Tensor, Tensor, Tensor]) -> Tensor:
-    """``R hat(u)`` from components: row ``i`` is ``cross(R_i, u)``."""
-    r = _quat._planes(R, 9)
-    out = [c for i in (0, 3, 6) for c in _cross(r[i : i + 3], u)]
-    return torch.stack(out, dim=-1).unflatten(-1, (3, 3))
+_cross = _quat._cross_planes
+_r_hat_values = _quat._r_hat_values
 
 
 def _log_backward(saved, g: Tensor):
