@@ -40,6 +40,10 @@ CASES = {
     ),
     "se3.log": (se3.log, lambda g: se3.exp(_twists(g))),
     "quaternion.from_matrix": (quaternion.from_matrix, lambda g: so3.exp(_rotvecs(g))),
+    "quaternion.to_matrix": (
+        quaternion.to_matrix,
+        lambda g: 1.3 * quaternion.from_rotvec(_rotvecs(g)),
+    ),
 }
 
 

@@ -185,7 +185,7 @@ def to_matrix(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 3 3"]:
     return _checks.out(_to_matrix(x), dtype)
 
 
-def _to_matrix(q: Tensor) -> Tensor:
+def _to_matrix_forward(q: Tensor) -> Tensor:
     w, x, y, z = _planes(q, 4)
     ww, xx, yy, zz = w * w, x * x, y * y, z * z
     s = 2.0 / (ww + xx + yy + zz)
@@ -203,6 +203,73 @@ def _to_matrix(q: Tensor) -> Tensor:
         ),
         dim=-1,
     ).unflatten(-1, (3, 3))  # fmt: skip
+
+
+def _skew_vee(M: Tensor) -> Tensor:
+    """``vee(M - M^T)`` (twice the vee of the skew part of ``M``), differentiable."""
+    return torch.stack(
+        (M[..., 2, 1] - M[..., 1, 2], M[..., 0, 2] - M[..., 2, 0], M[..., 1, 0] - M[..., 0, 1]),
+        dim=-1,
+    )
+
+
+def _rt_g_vee(R: Tensor, G: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Components of ``vee(R^T G - G^T R)`` (the full vee: twice that of the skew part).
+
+    ``= sum_k cross(G_k, R_k)`` over the rows, from components (no batched 3x3 product).
+    """
+    r = _planes(R, 9)
+    g = _planes(G, 9)
+    out = []
+    for i, j in ((1, 2), (2, 0), (0, 1)):
+        acc = g[i] * r[j]
+        for k in (3, 6):
+            acc = torch.addcmul(acc, g[k + i], r[k + j])
+        for k in (0, 3, 6):
+            acc = torch.addcmul(acc, g[k + j], r[k + i], value=-1.0)
+        out.append(acc)
+    return out[0], out[1], out[2]
+
+
+def _to_matrix_backward(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor]:
+    # With u = q/|q|, a change dq turns R into R Exp(d), d = 2 vec(conj(q) dq) / |q|^2, so
+    # <G, R hat(d)> = a . d with a = vee(R^T G - G^T R), and dL/dq = 2 (q (0, a)) / |q|^2
+    # (orthogonal to q: to_matrix does not see the scale of q).
+    q, R = saved
+    if torch.is_grad_enabled():  # create_graph: differentiable ops
+        a = _skew_vee(R.transpose(-1, -2) @ G)
+        k = 2.0 / (q * q).sum(-1, keepdim=True)
+        return (k * _multiply(q, torch.nn.functional.pad(a, (1, 0))),)
+    w, x, y, z = _planes(q, 4)
+    a1, a2, a3 = _rt_g_vee(R, G)
+    k = 2.0 / torch.addcmul(torch.addcmul(torch.addcmul(w * w, x, x), y, y), z, z)
+    gw = torch.addcmul(torch.addcmul(x * a1, y, a2), z, a3).mul_(-k)
+    c = _cross_planes((x, y, z), (a1, a2, a3))
+    gv = [torch.addcmul(ci, w, ai).mul_(k) for ai, ci in zip((a1, a2, a3), c, strict=True)]
+    return (torch.stack((gw, *gv), dim=-1),)
+
+
+def _to_matrix_jvp(saved: tuple[Tensor, ...], dq: Tensor) -> Tensor:
+    # dR = R hat(d), d = 2 vec(conj(q) dq) / |q|^2 (row i of R hat(d) is R_i x d).
+    q, R = saved
+    w, v = q[..., :1], q[..., 1:]
+    d = torch.addcmul(w * dq[..., 1:], dq[..., :1], v, value=-1.0)
+    d = (d - torch.linalg.cross(v, dq[..., 1:], dim=-1)) * (2.0 / (q * q).sum(-1, keepdim=True))
+    return torch.linalg.cross(R, d.unsqueeze(-2).expand_as(R), dim=-1)
+
+
+_ToMatrixFn = custom_function(
+    "QuaternionToMatrix",
+    forward=_to_matrix_forward,
+    save=lambda inputs, out: (inputs[0], out),
+    backward=_to_matrix_backward,
+    jvp=_to_matrix_jvp,
+    event_dims=(1,),
+)
+
+
+def _to_matrix(q: Tensor) -> Tensor:
+    return _ToMatrixFn(q)
 
 
 def from_matrix(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 4"]:
@@ -331,11 +398,7 @@ def _from_matrix_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]
 def _from_matrix_jvp(saved: tuple[Tensor, ...], dR: Tensor) -> Tensor:
     # dq = q (0, d) / 2 with d = vee of the skew part of R^T dR (its symmetric part: no effect).
     R, q = saved
-    M = R.transpose(-1, -2) @ dR
-    d = torch.stack(
-        (M[..., 2, 1] - M[..., 1, 2], M[..., 0, 2] - M[..., 2, 0], M[..., 1, 0] - M[..., 0, 1]),
-        dim=-1,
-    )
+    d = _skew_vee(R.transpose(-1, -2) @ dR)
     return _multiply(q, torch.nn.functional.pad(0.25 * d, (1, 0)))
 
 

@@ -157,22 +157,7 @@ def _log(R: Tensor) -> Tensor:
 # ----------------------------------------------------------------------------------------------
 
 
-def _rt_g_vee(R: Tensor, G: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """Components of ``vee(R^T G - G^T R)`` (the full vee: twice that of the skew part).
-
-    ``= sum_k cross(G_k, R_k)`` over the rows, from components (no batched 3x3 product).
-    """
-    r = _quat._planes(R, 9)
-    g = _quat._planes(G, 9)
-    out = []
-    for i, j in ((1, 2), (2, 0), (0, 1)):
-        acc = g[i] * r[j]
-        for k in (3, 6):
-            acc = torch.addcmul(acc, g[k + i], r[k + j])
-        for k in (0, 3, 6):
-            acc = torch.addcmul(acc, g[k + j], r[k + i], value=-1.0)
-        out.append(acc)
-    return out[0], out[1], out[2]
+_rt_g_vee = _quat._rt_g_vee
 
 
 def _jl_components(
