@@ -370,6 +370,8 @@ def _blocked_cases(dtype):
         (se3.inverse, (T,)),
         (se3.act, (T, p)),
         (se3.act, (T[:, :1], p)),  # broadcast: not blocked
+        (quaternion.to_matrix, (quaternion.from_rotvec(w),)),
+        (quaternion.from_matrix, (R,)),
     ]
 
 
@@ -400,6 +402,17 @@ def test_blocked_splits_large_batches_only():
     run(a[:100], b[:100])  # small batch
     run(a, b[:1])  # broadcast batch
     assert calls == [100, 2 * _autograd.BLOCK + 5]
+
+
+def test_blocked_plain_backward_equals_unblocked(monkeypatch):
+    g = torch.Generator().manual_seed(41)
+    q = (1.3 * torch.randn(5, 23, 4, generator=g, dtype=F64)).requires_grad_()
+    G = torch.randn(5, 23, 3, 3, generator=g, dtype=F64)
+    (want,) = torch.autograd.grad(quaternion.to_matrix(q), q, G)
+    monkeypatch.setattr(_autograd, "BLOCK", 16)
+    (got,) = torch.autograd.grad(quaternion.to_matrix(q), q, G)
+    eps = torch.finfo(F64).eps
+    torch.testing.assert_close(got, want, rtol=4 * eps, atol=4 * eps)
 
 
 def test_blocked_forward_with_grad_and_under_vmap(small_blocks):

@@ -24,7 +24,7 @@ import torch
 from torch import Tensor
 
 from . import _checks, _coeffs
-from ._autograd import custom_function
+from ._autograd import _blocked, custom_function
 from ._typing import Bool, Float, Shaped
 
 __all__ = [
@@ -240,13 +240,21 @@ def _to_matrix_backward(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor]:
         a = _skew_vee(R.transpose(-1, -2) @ G)
         k = 2.0 / (q * q).sum(-1, keepdim=True)
         return (k * _multiply(q, torch.nn.functional.pad(a, (1, 0))),)
+    return (_to_matrix_grad_values(q, R, G),)
+
+
+def _to_matrix_grad_values_block(q: Tensor, R: Tensor, G: Tensor) -> Tensor:
+    """The plain backward of :func:`to_matrix` from components (one block of rows)."""
     w, x, y, z = _planes(q, 4)
     a1, a2, a3 = _rt_g_vee(R, G)
     k = 2.0 / torch.addcmul(torch.addcmul(torch.addcmul(w * w, x, x), y, y), z, z)
     gw = torch.addcmul(torch.addcmul(x * a1, y, a2), z, a3).mul_(-k)
     c = _cross_planes((x, y, z), (a1, a2, a3))
     gv = [torch.addcmul(ci, w, ai).mul_(k) for ai, ci in zip((a1, a2, a3), c, strict=True)]
-    return (torch.stack((gw, *gv), dim=-1),)
+    return torch.stack((gw, *gv), dim=-1)
+
+
+_to_matrix_grad_values = _blocked(_to_matrix_grad_values_block, (1, 2, 2))
 
 
 def _to_matrix_jvp(saved: tuple[Tensor, ...], dq: Tensor) -> Tensor:
