@@ -213,6 +213,13 @@ def _skew_vee(M: Tensor) -> Tensor:
     )
 
 
+def _conj_product_vec(q: Tensor, p: Tensor) -> Tensor:
+    """Vector part of ``conj(q) p``: ``w p_v - p_w v - v x p_v`` (differentiable)."""
+    w, v = q[..., :1], q[..., 1:]
+    u = torch.addcmul(w * p[..., 1:], p[..., :1], v, value=-1.0)
+    return u - torch.linalg.cross(v, p[..., 1:], dim=-1)
+
+
 def _rt_g_vee(R: Tensor, G: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """Components of ``vee(R^T G - G^T R)`` (the full vee: twice that of the skew part).
 
@@ -260,9 +267,7 @@ _to_matrix_grad_values = _blocked(_to_matrix_grad_values_block, (1, 2, 2))
 def _to_matrix_jvp(saved: tuple[Tensor, ...], dq: Tensor) -> Tensor:
     # dR = R hat(d), d = 2 vec(conj(q) dq) / |q|^2 (row i of R hat(d) is R_i x d).
     q, R = saved
-    w, v = q[..., :1], q[..., 1:]
-    d = torch.addcmul(w * dq[..., 1:], dq[..., :1], v, value=-1.0)
-    d = (d - torch.linalg.cross(v, dq[..., 1:], dim=-1)) * (2.0 / (q * q).sum(-1, keepdim=True))
+    d = _conj_product_vec(q, dq) * (2.0 / (q * q).sum(-1, keepdim=True))
     return torch.linalg.cross(R, d.unsqueeze(-2).expand_as(R), dim=-1)
 
 
@@ -389,9 +394,7 @@ def _from_matrix_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]
     # autograd gives through the step and Shepperd's formula at a rotation.
     R, q = saved
     if torch.is_grad_enabled():  # create_graph: differentiable ops
-        w, v = q[..., :1], q[..., 1:]
-        u = torch.addcmul(w * g[..., 1:], g[..., :1], v, value=-1.0)
-        u = 0.25 * (u - torch.linalg.cross(v, g[..., 1:], dim=-1))
+        u = 0.25 * _conj_product_vec(q, g)
         return (torch.linalg.cross(R, u.unsqueeze(-2).expand_as(R), dim=-1),)
     w, x, y, z = _planes(q, 4)
     gw, gx, gy, gz = _planes(g, 4)

@@ -76,10 +76,7 @@ def _hat(w: Tensor) -> Tensor:
 
 def _vee(M: Tensor) -> Tensor:
     """vee of the skew-symmetric part, ``((M - M^T)/2)^v``."""
-    return 0.5 * torch.stack(
-        (M[..., 2, 1] - M[..., 1, 2], M[..., 0, 2] - M[..., 2, 0], M[..., 1, 0] - M[..., 0, 1]),
-        dim=-1,
-    )
+    return 0.5 * _quat._skew_vee(M)
 
 
 def _abc_matrix(a: Tensor, b: Tensor, c: Tensor, w: Tensor) -> Tensor:
