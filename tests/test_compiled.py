@@ -51,14 +51,70 @@ def test_compiled_gradients_and_errors():
 
 
 def test_inductor_options():
-    vectorised = {"cpp.enable_tiling_heuristics": False}
+    vectorised = {**compiled.FUSION, "cpp.enable_tiling_heuristics": False}
+    assert compiled.FUSION["aggressive_fusion"] is True
+    assert compiled.FUSION["score_fusion_memory_threshold"] == 0
     assert compiled.inductor_options("so3", "exp") == vectorised
     assert compiled.inductor_options("se3", "log") == vectorised
     assert compiled.inductor_options("conversions", "matrix_to_euler") == vectorised
     for module, names in compiled.KEEP_HEURISTIC.items():
         for name in names:
-            assert compiled.inductor_options(module, name) == {}
+            assert compiled.inductor_options(module, name) == compiled.FUSION
     with pytest.raises(ValueError, match=r"inductor_options: expected module to be one of"):
         compiled.inductor_options("so2", "exp")
     with pytest.raises(ValueError, match=r"torchlie\.so3 has no public function '_exp'"):
         compiled.inductor_options("so3", "_exp")
+
+
+def _batch_loops(fn, *args, options):
+    """The outputs of ``fn`` compiled with ``options`` and the number of loops over the batch in
+    the C++ code Inductor generated for it (each a pass over the result's memory)."""
+    import re
+
+    from torch._inductor.utils import run_and_get_code
+
+    torch._dynamo.reset()
+    out, code = run_and_get_code(torch.compile(fn, fullgraph=True, options=options), *args)
+    return out, sum(len(re.findall(r"for\s*\(\s*int64_t x0\s*=", c)) for c in code), code
+
+
+@pytest.mark.parametrize(
+    "name, make",
+    [
+        ("exp", lambda g: (torch.randn(37, 6, generator=g),)),
+        ("compose", lambda g: (se3.random(37, generator=g), se3.random(37, generator=g))),
+        ("inverse", lambda g: (se3.random(37, generator=g),)),
+    ],
+)
+def test_compiled_pose_ops_are_one_loop(name, make):
+    # The (0, 0, 0, 1) row shares the loop that computes the rest (FUSION), compose and inverse
+    # are written entry by entry there (no batched matmul): one pass over the result.
+    args = make(torch.Generator().manual_seed(40))
+    fn = getattr(se3, name)
+    out, loops, code = _batch_loops(fn, *args, options=compiled.inductor_options("se3", name))
+    assert loops == 1, f"{loops} loops"
+    assert not any("extern_kernels." in c for c in code)  # no library call (bmm)
+    torch.testing.assert_close(out, fn(*args), rtol=0, atol=2e-6)
+    # without FUSION, the constant entries take loops of their own
+    _, default_loops, _ = _batch_loops(fn, *args, options={})
+    assert default_loops > 1
+
+
+def test_compiled_compose_inverse_entries_ignore_bottom_rows_and_broadcast():
+    g = torch.Generator().manual_seed(41)
+    A = se3.random(2, 1, generator=g, dtype=torch.float64)
+    B = se3.random(3, generator=g, dtype=torch.float64)
+    bad_A, bad_B = A.clone(), B.clone()
+    bad_A[..., 3, :] = torch.nan
+    bad_B[..., 3, :] = torch.tensor([1.0, -2.0, 3.0, 7.0], dtype=torch.float64)
+    got = compiled.se3.compose(bad_A, bad_B)
+    assert got.shape == (2, 3, 4, 4)
+    torch.testing.assert_close(got, se3.compose(A, B), rtol=0, atol=1e-15)
+    assert bool((got[..., 3, :] == torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=got.dtype)).all())
+    torch.testing.assert_close(compiled.se3.inverse(bad_A), se3.inverse(A), rtol=0, atol=1e-15)
+    # gradients through the compiled forward (entry by entry) and the custom backward
+    Ag = bad_A.clone().requires_grad_()
+    W = torch.randn(2, 3, 4, 4, generator=g, dtype=torch.float64)
+    (gc,) = torch.autograd.grad((compiled.se3.compose(Ag, bad_B) * W).sum(), Ag)
+    (ge,) = torch.autograd.grad((se3.compose(Ag, bad_B) * W).sum(), Ag)
+    torch.testing.assert_close(gc, ge, rtol=0, atol=1e-14)

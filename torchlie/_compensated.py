@@ -158,6 +158,14 @@ def _half(S: Tensor, S_lo: Tensor, fused: bool = False):
 def exp(w: Tensor, fused: bool | None = None) -> Tensor:
     """Rotation matrix of the rotation vector ``w``: ``(..., 3)`` -> ``(..., 3, 3)``, float64.
 
+    The entries of :func:`exp_entries`, stacked.
+    """
+    return torch.stack(exp_entries(w, fused), dim=-1).unflatten(-1, (3, 3))
+
+
+def exp_entries(w: Tensor, fused: bool | None = None) -> list[Tensor]:
+    """The 9 entries (row by row) of the rotation matrix of ``w`` (float64, compensated).
+
     ``R_ii = cos^2(h) + (B/2)(w_i^2 - w_j^2 - w_k^2)``, ``R_ij = B w_i w_j -+ A w_k`` with
     ``h = theta/2``, ``A = sin(theta)/theta = 2 g cos h``, ``B = (1 - cos theta)/theta^2 = 2 g^2``,
     ``g = sin(h)/theta``.  ``A`` is a double-double and ``A w_k`` exact (TwoProduct), so each
@@ -201,4 +209,4 @@ def exp(w: Tensor, fused: bool | None = None) -> Tensor:
     d0 = (xx - yy).sub_(zz).mul_(bh).add_(c2)
     d1 = (yy - xx).sub_(zz).mul_(bh).add_(c2)
     d2 = zz.sub_(xx).sub_(yy).mul_(bh).add_(c2)
-    return torch.stack((d0, r01, r02, r10, d1, r12, r20, r21, d2), dim=-1).unflatten(-1, (3, 3))
+    return [d0, r01, r02, r10, d1, r12, r20, r21, d2]

@@ -25,6 +25,12 @@ measured at N = 10^6, one thread, float32: ``so3.exp`` 46 -> 14 ns per element, 
 than without and keep Inductor's default (:data:`KEEP_HEURISTIC`).  ``torch.compile`` of one's own
 code that calls torchlie can pass the same options: ``torch.compile(fn,
 options={"cpp.enable_tiling_heuristics": False})``.  GPU code generation does not read them.
+
+One loop per op.  Inductor fuses two element-wise computations into one loop only when they
+read a common buffer, and the constant entries of a result (the ``(0, 0, 0, 1)`` row of a pose)
+read none: each was written by a loop of its own, one more pass over the whole result for each of
+them (float64 ``se3.exp``: six passes over its 128 bytes per element).  Every function here is
+compiled with :data:`FUSION` as well, which lets such computations share the op's loop.
 """
 
 from __future__ import annotations
@@ -40,7 +46,15 @@ from . import quaternion as _quaternion
 from . import se3 as _se3
 from . import so3 as _so3
 
-__all__ = ["so3", "se3", "quaternion", "conversions", "inductor_options", "KEEP_HEURISTIC"]
+__all__ = [
+    "so3",
+    "se3",
+    "quaternion",
+    "conversions",
+    "inductor_options",
+    "KEEP_HEURISTIC",
+    "FUSION",
+]
 
 _EAGER_ONLY = frozenset({"identity", "random"})
 
@@ -48,26 +62,35 @@ _EAGER_ONLY = frozenset({"identity", "random"})
 #: it: a few multiply-adds or copies per element, no transcendental functions).
 KEEP_HEURISTIC: dict[str, frozenset[str]] = {
     "so3": frozenset({"act", "jac_compose"}),
-    "se3": frozenset({"act", "jac_compose", "hat"}),
+    "se3": frozenset({"act", "jac_compose", "hat", "compose", "inverse"}),
     "quaternion": frozenset({"apply", "to_matrix", "log"}),
     "conversions": frozenset(),
 }
 
 
+#: Inductor options of every function here: computations that share no buffer (constant entries
+#: of a result among them) are fused into one loop too, and the C++ backend's limit of 16 such
+#: computations per loop is raised to 64.
+FUSION: dict[str, bool | int] = {
+    "aggressive_fusion": True,
+    "score_fusion_memory_threshold": 0,
+    "cpp.max_horizontal_fusion_size": 64,
+}
+
 _MODULES = {"so3": _so3, "se3": _se3, "quaternion": _quaternion, "conversions": _conversions}
 
 
-def inductor_options(module: str, name: str) -> dict[str, bool]:
+def inductor_options(module: str, name: str) -> dict[str, bool | int]:
     """The Inductor options :mod:`torchlie.compiled` compiles ``torchlie.<module>.<name>`` with.
 
-    ``{"cpp.enable_tiling_heuristics": False}`` (vectorised CPU loops, see the module docstring)
-    unless the function is in :data:`KEEP_HEURISTIC`, else ``{}``.
+    :data:`FUSION` and ``{"cpp.enable_tiling_heuristics": False}`` (vectorised CPU loops, see the
+    module docstring), the latter left out for the functions in :data:`KEEP_HEURISTIC`.
 
     Example:
-        >>> inductor_options("so3", "exp")
-        {'cpp.enable_tiling_heuristics': False}
-        >>> inductor_options("so3", "act")
-        {}
+        >>> inductor_options("so3", "exp")["cpp.enable_tiling_heuristics"]
+        False
+        >>> "cpp.enable_tiling_heuristics" in inductor_options("so3", "act")
+        False
     """
     fn = "torchlie.compiled.inductor_options"
     if module not in _MODULES:
@@ -75,11 +98,11 @@ def inductor_options(module: str, name: str) -> dict[str, bool]:
     if name not in _MODULES[module].__all__:
         raise ValueError(f"{fn}: torchlie.{module} has no public function {name!r}")
     if name in KEEP_HEURISTIC[module]:
-        return {}
-    return {"cpp.enable_tiling_heuristics": False}
+        return dict(FUSION)
+    return {**FUSION, "cpp.enable_tiling_heuristics": False}
 
 
-def _compile(fn: Callable, options: dict[str, bool]) -> Callable:
+def _compile(fn: Callable, options: dict[str, bool | int]) -> Callable:
     compiled = torch.compile(fn, fullgraph=True, options=options)
 
     @functools.wraps(fn)

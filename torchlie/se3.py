@@ -33,7 +33,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, so3
+from . import _checks, _coeffs, _compensated, so3
 from . import quaternion as _quat
 from ._autograd import custom_function
 from ._typing import Bool, Float
@@ -231,7 +231,49 @@ def _with_last_row(top: Tensor) -> Tensor:
     return out
 
 
+def _top_entries(T: Tensor) -> list[list[Tensor]]:
+    """The entries of the top 3x4 block of ``T``, row by row (strided views, no copy)."""
+    return [[T[..., i, j] for j in range(4)] for i in range(3)]
+
+
+def _stack_top(rows: list[list[Tensor]]) -> Tensor:
+    """``[[rows], [0, 0, 0, 1]]``: a 4x4 matrix stacked from the 12 entries of its top block."""
+    zero = torch.zeros_like(rows[0][0])
+    one = torch.ones_like(zero)
+    return torch.stack((*rows[0], *rows[1], *rows[2], zero, zero, zero, one), dim=-1).unflatten(
+        -1, (4, 4)
+    )
+
+
+def _compose_entries(A: Tensor, B: Tensor) -> Tensor:
+    """:func:`_compose_fwd` entry by entry: one fused loop when compiled, where the batched
+    matmul is a library call of its own with a copy on each side."""
+    a, b = _top_entries(A), _top_entries(B)
+    rows = []
+    for ai in a:
+        row = [
+            torch.addcmul(torch.addcmul(ai[0] * b[0][j], ai[1], b[1][j]), ai[2], b[2][j])
+            for j in range(4)
+        ]
+        row[3] = row[3] + ai[3]
+        rows.append(row)
+    return _stack_top(rows)
+
+
+def _inverse_entries(T: Tensor) -> Tensor:
+    """:func:`_inverse_fwd` entry by entry (for the compiled path, as :func:`_compose_entries`)."""
+    r = _top_entries(T)
+    rows = []
+    for i in range(3):
+        col = [r[0][i], r[1][i], r[2][i]]
+        t = torch.addcmul(torch.addcmul(col[0] * r[0][3], col[1], r[1][3]), col[2], r[2][3])
+        rows.append([*col, -t])
+    return _stack_top(rows)
+
+
 def _compose_fwd(A: Tensor, B: Tensor) -> Tensor:
+    if torch.compiler.is_compiling():
+        return _compose_entries(A, B)
     top = torch.matmul(A[..., :3, :3], B[..., :3, :])  # [R1 R2, R1 t2]
     top.select(-1, 3).add_(A[..., :3, 3])
     return _with_last_row(top)
@@ -265,6 +307,8 @@ _ComposeFn = custom_function(
 
 
 def _inverse_fwd(T: Tensor) -> Tensor:
+    if torch.compiler.is_compiling():
+        return _inverse_entries(T)
     Rt = T[..., :3, :3].transpose(-1, -2)
     return _with_last_row(torch.cat((Rt, torch.matmul(Rt, T[..., :3, 3:]).neg_()), dim=-1))
 
@@ -347,7 +391,7 @@ def _exp_forward(xi: Tensor) -> Tensor:
     :func:`torchlie.so3.exp`'s compensated one."""
     xyz, (a, b, c, d) = so3._rodrigues(xi[..., 3:])
     if xi.dtype == torch.float64:  # the rotation block of so3.exp, bit for bit
-        R = so3._exp(xi[..., 3:]).flatten(-2).unbind(-1)
+        R = _compensated.exp_entries(xi[..., 3:])
     else:
         R = so3._exp_entries(xyz, a, b, d)
     t = so3._jl_components(xyz, _quat._planes(xi[..., :3], 3), a, b, c)
