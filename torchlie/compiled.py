@@ -30,7 +30,14 @@ One loop per op.  Inductor fuses two element-wise computations into one loop onl
 read a common buffer, and the constant entries of a result (the ``(0, 0, 0, 1)`` row of a pose)
 read none: each was written by a loop of its own, one more pass over the whole result for each of
 them (float64 ``se3.exp``: six passes over its 128 bytes per element).  Every function here is
-compiled with :data:`FUSION` as well, which lets such computations share the op's loop.
+compiled with :data:`FUSION` as well, which lets such computations share the op's loop.  A few
+ops take another formula while compiling, with the same values: ``se3.compose`` and
+``se3.inverse`` (forward and backward) and ``quaternion.apply`` entry by entry instead of a
+batched matmul (a library call of its own) or ``linalg.cross`` (lowered to modular gathers), and
+components are read in place instead of through a transposing copy (which AOTAutograd would
+otherwise keep for the backward).  Measured at N = 10^6, one thread, float32, forward (forward
+and backward): ``se3.exp`` 62 -> 28 ns per element, ``se3.compose`` 134 -> 23 (~400 -> 50),
+``se3.inverse`` 53 -> 18, ``quaternion.apply`` (175 -> 18).
 """
 
 from __future__ import annotations
@@ -63,7 +70,7 @@ _EAGER_ONLY = frozenset({"identity", "random"})
 KEEP_HEURISTIC: dict[str, frozenset[str]] = {
     "so3": frozenset({"act", "jac_compose"}),
     "se3": frozenset({"act", "jac_compose", "hat", "compose", "inverse"}),
-    "quaternion": frozenset({"apply", "to_matrix", "log"}),
+    "quaternion": frozenset({"to_matrix", "log"}),
     "conversions": frozenset(),
 }
 

@@ -62,8 +62,14 @@ def _planes(M: Tensor, n: int) -> tuple[Tensor, ...]:
     flattened row by row for ``n = 9``) as contiguous planes.
 
     One transposing copy: every later component-wise operation then reads contiguous memory
-    instead of a strided view that pulls the whole matrix through the cache again.
+    instead of a strided view that pulls the whole matrix through the cache again.  While
+    compiling, strided views instead: the fused loop reads each entry where it is, and the copy
+    would be one more buffer for AOTAutograd to save for the backward.
     """
+    if torch.compiler.is_compiling():
+        if n == 9:
+            return tuple(M[..., i, j] for i in range(3) for j in range(3))
+        return M.unbind(-1)
     if n == 9:  # one copy even when M is a strided block (the rotation block of a pose)
         return M.movedim((-2, -1), (0, 1)).contiguous().flatten(0, 1).unbind(0)
     return M.movedim(-1, 0).contiguous().unbind(0)
@@ -584,6 +590,8 @@ def apply(q: Float[Tensor, "*b1 4"], points: Float[Tensor, "*b2 3"]) -> Float[Te
 
 
 def _apply(q: Tensor, p: Tensor) -> Tensor:
+    if torch.compiler.is_compiling():
+        return _apply_entries(q, p)
     w = q[..., :1]
     v = q[..., 1:]
     if v.dim() != p.dim():  # linalg.cross broadcasts sizes, not numbers of dimensions
@@ -591,6 +599,19 @@ def _apply(q: Tensor, p: Tensor) -> Tensor:
     s = 2.0 / (q * q).sum(-1, keepdim=True)
     t = s * torch.linalg.cross(v, p, dim=-1)
     return torch.addcmul(p, w, t) + torch.linalg.cross(v, t, dim=-1)
+
+
+def _apply_entries(q: Tensor, p: Tensor) -> Tensor:
+    """:func:`_apply` from components (strided views): one fused loop when compiled, forward and
+    backward, where ``linalg.cross`` is lowered to modular gathers over the last dimension."""
+    w, *v = q.unbind(-1)
+    pc = p.unbind(-1)
+    s = 2.0 / torch.addcmul(torch.addcmul(w * w, v[0], v[0]).addcmul(v[1], v[1]), v[2], v[2])
+    t = [s * c for c in _cross_planes(v, pc)]
+    vt = _cross_planes(v, t)
+    return torch.stack(
+        [torch.addcmul(pi, w, ti) + ci for pi, ti, ci in zip(pc, t, vt, strict=True)], -1
+    )
 
 
 def exp(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:

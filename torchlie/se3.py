@@ -236,13 +236,18 @@ def _top_entries(T: Tensor) -> list[list[Tensor]]:
     return [[T[..., i, j] for j in range(4)] for i in range(3)]
 
 
-def _stack_top(rows: list[list[Tensor]]) -> Tensor:
-    """``[[rows], [0, 0, 0, 1]]``: a 4x4 matrix stacked from the 12 entries of its top block."""
-    zero = torch.zeros_like(rows[0][0])
-    one = torch.ones_like(zero)
-    return torch.stack((*rows[0], *rows[1], *rows[2], zero, zero, zero, one), dim=-1).unflatten(
-        -1, (4, 4)
-    )
+def _stack_top(rows: list[list[Tensor]], corner: float = 1.0) -> Tensor:
+    """``[[rows], [0, 0, 0, corner]]``: a 4x4 matrix from the 12 entries of its top block."""
+    shape = torch.broadcast_shapes(*(e.shape for row in rows for e in row))
+    zero = rows[0][0].new_zeros(shape)
+    last = zero if corner == 0.0 else torch.full_like(zero, corner)
+    entries = [e.expand(shape) for row in rows for e in row]
+    return torch.stack((*entries, zero, zero, zero, last), dim=-1).unflatten(-1, (4, 4))
+
+
+def _stack_rows(rows: list[list[Tensor]]) -> Tensor:
+    """:func:`_stack_top` with a zero last row (a gradient: the bottom row is not read)."""
+    return _stack_top(rows, corner=0.0)
 
 
 def _compose_entries(A: Tensor, B: Tensor) -> Tensor:
@@ -281,11 +286,38 @@ def _compose_fwd(A: Tensor, B: Tensor) -> Tensor:
 
 def _compose_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor, Tensor]:
     A, B = saved
+    if torch.compiler.is_compiling():
+        dA, dB = _compose_bwd_entries(A, B, G)
+        return dA.sum_to_size(A.shape), dB.sum_to_size(B.shape)
     G3 = G[..., :3, :]
     dR1 = torch.matmul(G3, B[..., :3, :].transpose(-1, -2))  # G_R R2^T + g t2^T
     dA = _pad_row(torch.cat((dR1, G3[..., 3:]), dim=-1))
     dB = _pad_row(torch.matmul(A[..., :3, :3].transpose(-1, -2), G3))
     return dA.sum_to_size(A.shape), dB.sum_to_size(B.shape)
+
+
+def _compose_bwd_entries(A: Tensor, B: Tensor, G: Tensor) -> tuple[Tensor, Tensor]:
+    """:func:`_compose_bwd` entry by entry (for the compiled path, as :func:`_compose_entries`):
+    ``dA_ij = sum_k G_ik B_jk`` (``j < 3``), ``dA_i3 = G_i3``, ``dB_kj = sum_i A_ik G_ij``."""
+    a, b, g = _top_entries(A), _top_entries(B), _top_entries(G)
+    da = [
+        [
+            torch.addcmul(torch.addcmul(gi[0] * b[j][0], gi[1], b[j][1]), gi[2], b[j][2]).addcmul(
+                gi[3], b[j][3]
+            )
+            for j in range(3)
+        ]
+        + [gi[3]]
+        for gi in g
+    ]
+    db = [
+        [
+            torch.addcmul(torch.addcmul(a[0][k] * g[0][j], a[1][k], g[1][j]), a[2][k], g[2][j])
+            for j in range(4)
+        ]
+        for k in range(3)
+    ]
+    return _stack_rows(da), _stack_rows(db)
 
 
 def _compose_jvp(saved: tuple[Tensor, ...], dA: Tensor, dB: Tensor) -> Tensor:
@@ -462,6 +494,8 @@ def _exp(xi: Tensor) -> Tensor:
 def _log_forward(T: Tensor) -> Tensor:
     phi = so3._log(_rot(T))
     rho = so3._jl_inv_apply_values(phi, _trans(T))
+    if torch.compiler.is_compiling():  # entries straight into the result: the loop writes it once
+        return torch.stack((*rho, *phi.unbind(-1)), dim=-1)
     return torch.cat((torch.stack(rho, dim=-1), phi), dim=-1)
 
 
