@@ -211,6 +211,11 @@ def _to_matrix_forward(q: Tensor) -> Tensor:
     ).unflatten(-1, (3, 3))  # fmt: skip
 
 
+def _norm2(w: Tensor, x: Tensor, y: Tensor, z: Tensor) -> Tensor:
+    """``w^2 + x^2 + y^2 + z^2`` from components (multiply-adds, left to right)."""
+    return torch.addcmul(torch.addcmul(torch.addcmul(w * w, x, x), y, y), z, z)
+
+
 def _skew_vee(M: Tensor) -> Tensor:
     """``vee(M - M^T)`` (twice the vee of the skew part of ``M``), differentiable."""
     return torch.stack(
@@ -260,7 +265,7 @@ def _to_matrix_grad_values_block(q: Tensor, R: Tensor, G: Tensor) -> Tensor:
     """The plain backward of :func:`to_matrix` from components (one block of rows)."""
     w, x, y, z = _planes(q, 4)
     a1, a2, a3 = _rt_g_vee(R, G)
-    k = 2.0 / torch.addcmul(torch.addcmul(torch.addcmul(w * w, x, x), y, y), z, z)
+    k = 2.0 / _norm2(w, x, y, z)
     gw = torch.addcmul(torch.addcmul(x * a1, y, a2), z, a3).mul_(-k)
     c = _cross_planes((x, y, z), (a1, a2, a3))
     gv = [torch.addcmul(ci, w, ai).mul_(k) for ai, ci in zip((a1, a2, a3), c, strict=True)]
@@ -370,7 +375,7 @@ def _from_matrix_parts(R: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, Tenso
 def _from_matrix_forward(R: Tensor) -> Tensor:
     cw, cx, cy, cz, sign = _from_matrix_parts(R)
     # |c| = 4 q_p >= 2 for a rotation: the division is safe, and a NaN element stays in its row.
-    n2 = torch.addcmul(torch.addcmul(torch.addcmul(cw * cw, cx, cx), cy, cy), cz, cz)
+    n2 = _norm2(cw, cx, cy, cz)
     scale = torch.rsqrt(n2) * sign
     return torch.stack((cw * scale, cx * scale, cy * scale, cz * scale), dim=-1)
 
@@ -606,7 +611,7 @@ def _apply_entries(q: Tensor, p: Tensor) -> Tensor:
     backward, where ``linalg.cross`` is lowered to modular gathers over the last dimension."""
     w, *v = q.unbind(-1)
     pc = p.unbind(-1)
-    s = 2.0 / torch.addcmul(torch.addcmul(w * w, v[0], v[0]).addcmul(v[1], v[1]), v[2], v[2])
+    s = 2.0 / _norm2(w, *v)
     t = [s * c for c in _cross_planes(v, pc)]
     vt = _cross_planes(v, t)
     return torch.stack(

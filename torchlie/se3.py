@@ -236,16 +236,16 @@ def _top_entries(T: Tensor) -> list[list[Tensor]]:
     return [[T[..., i, j] for j in range(4)] for i in range(3)]
 
 
-def _stack_top(rows: list[list[Tensor]], corner: float = 1.0) -> Tensor:
-    """``[[rows], [0, 0, 0, corner]]``: a 4x4 matrix from the 12 entries of its top block."""
-    shape = torch.broadcast_shapes(*(e.shape for row in rows for e in row))
-    zero = rows[0][0].new_zeros(shape)
+def _stack_top(rows: Sequence[Sequence[Tensor]], corner: float = 1.0) -> Tensor:
+    """``[[rows], [0, 0, 0, corner]]``: a 4x4 matrix from the 12 entries of its top block (row by
+    row, all of one shape)."""
+    zero = torch.zeros_like(rows[0][0])
     last = zero if corner == 0.0 else torch.full_like(zero, corner)
-    entries = [e.expand(shape) for row in rows for e in row]
-    return torch.stack((*entries, zero, zero, zero, last), dim=-1).unflatten(-1, (4, 4))
+    entries = (*rows[0], *rows[1], *rows[2], zero, zero, zero, last)
+    return torch.stack(entries, dim=-1).unflatten(-1, (4, 4))
 
 
-def _stack_rows(rows: list[list[Tensor]]) -> Tensor:
+def _stack_rows(rows: Sequence[Sequence[Tensor]]) -> Tensor:
     """:func:`_stack_top` with a zero last row (a gradient: the bottom row is not read)."""
     return _stack_top(rows, corner=0.0)
 
@@ -427,9 +427,7 @@ def _exp_forward(xi: Tensor) -> Tensor:
     else:
         R = so3._exp_entries(xyz, a, b, d)
     t = so3._jl_components(xyz, _quat._planes(xi[..., :3], 3), a, b, c)
-    zero, one = torch.zeros_like(a), torch.ones_like(a)
-    entries = (*R[0:3], t[0], *R[3:6], t[1], *R[6:9], t[2], zero, zero, zero, one)
-    return torch.stack(entries, dim=-1).unflatten(-1, (4, 4))
+    return _stack_top([(*R[0:3], t[0]), (*R[3:6], t[1]), (*R[6:9], t[2])])
 
 
 def _exp_backward(saved, G: Tensor):
@@ -533,11 +531,7 @@ def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
         torch.addcmul(torch.addcmul(r[i] * h_rho[0], r[i + 1], h_rho[1]), r[i + 2], h_rho[2])
         for i in (0, 3, 6)
     ]
-    zero = torch.zeros_like(e)
-    rows = [(*G_R[i], G_t[i]) for i in range(3)]
-    return torch.stack((*rows[0], *rows[1], *rows[2], zero, zero, zero, zero), dim=-1).unflatten(
-        -1, (4, 4)
-    )
+    return _stack_rows([(*G_R[i], G_t[i]) for i in range(3)])
 
 
 def _log_jvp(saved, dT: Tensor) -> Tensor:
