@@ -292,7 +292,22 @@ def machine(args: argparse.Namespace) -> dict:
 CLOCKS = {"cpu": time.thread_time, "wall": time.perf_counter}
 
 
+def warm_up(fn, seconds: float, max_calls: int = 12) -> int:
+    """Call ``fn`` until ``seconds`` have passed or ``max_calls`` calls were made (at least one).
+
+    The first few calls that touch a fresh large output (new inputs, a just-compiled kernel) run
+    at page-fault speed on some machines (several times slower for 5-10 calls); timing starts
+    after them.
+    """
+    calls, t0 = 0, time.perf_counter()
+    while calls < max_calls and (calls == 0 or time.perf_counter() - t0 < seconds):
+        fn()
+        calls += 1
+    return calls
+
+
 def timeit(fn, seconds: float, threads: int, clock: str = "wall") -> dict:
+    warm_up(fn, seconds)
     t = tbench.Timer(stmt="fn()", globals={"fn": fn}, num_threads=threads, timer=CLOCKS[clock])
     m = t.blocked_autorange(min_run_time=seconds)
     return {"median_s": m.median, "iqr_s": m.iqr, "runs": len(m.times)}

@@ -16,6 +16,7 @@ import json
 import math
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -95,6 +96,16 @@ def test_floor_sizes_follow_the_op() -> None:
     assert brun.floor_shapes(op, xs, grad=True) == [(8, 3), (8, 9)] * 2
     outs = brun.floor_step([(8, 3), (8, 9)], torch.float32)()
     assert [o.shape for o in outs] == [(8, 3), (8, 9)]
+
+
+def test_warm_up_stops_at_calls_or_time() -> None:
+    calls = []
+    assert brun.warm_up(lambda: calls.append(1), seconds=60.0, max_calls=5) == 5
+    assert len(calls) == 5
+    # One call at least, even with no time to spend; time ends it before the call cap.
+    assert brun.warm_up(lambda: None, seconds=0.0, max_calls=5) == 1
+    n = brun.warm_up(lambda: time.sleep(0.02), seconds=0.05, max_calls=100)
+    assert 2 <= n <= 4
 
 
 def _synthetic(tl: float, peer: float, compiled: float, floor: float) -> dict:
