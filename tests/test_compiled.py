@@ -127,6 +127,7 @@ def test_compiled_compose_inverse_entries_ignore_bottom_rows_and_broadcast():
     "module, name, make",
     [
         ("se3", "compose", lambda g: (se3.random(37, generator=g), se3.random(37, generator=g))),
+        ("se3", "inverse", lambda g: (se3.random(37, generator=g),)),
         ("quaternion", "apply", lambda g: (torch.randn(37, 4, generator=g), torch.randn(37, 3))),
         ("so3", "log", lambda g: (so3.random(37, generator=g),)),
     ],

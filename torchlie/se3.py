@@ -348,10 +348,24 @@ def _inverse_fwd(T: Tensor) -> Tensor:
 def _inverse_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor]:
     # out = [R^T, -R^T t]: dR = G_R^T - t g^T and dt = -R g (g = the translation column of G).
     (T,) = saved
+    if torch.compiler.is_compiling():
+        return (_inverse_bwd_entries(T, G),)
     h = -G[..., :3, 3:]
     dR = torch.addcmul(G[..., :3, :3].transpose(-1, -2), T[..., :3, 3:], h.transpose(-1, -2))
     dt = torch.matmul(T[..., :3, :3], h)
     return (_pad_row(torch.cat((dR, dt), dim=-1)),)
+
+
+def _inverse_bwd_entries(T: Tensor, G: Tensor) -> Tensor:
+    """:func:`_inverse_bwd` entry by entry (for the compiled path, as :func:`_compose_entries`):
+    ``dR_ij = G_ji - t_i G_j3``, ``dt_i = -sum_j R_ij G_j3``."""
+    r, g = _top_entries(T), _top_entries(G)
+    rows = []
+    for i in range(3):
+        dR = [torch.addcmul(g[j][i], r[i][3], g[j][3], value=-1.0) for j in range(3)]
+        dt = torch.addcmul(torch.addcmul(r[i][0] * g[0][3], r[i][1], g[1][3]), r[i][2], g[2][3])
+        rows.append([*dR, -dt])
+    return _stack_rows(rows)
 
 
 def _inverse_jvp(saved: tuple[Tensor, ...], dT: Tensor) -> Tensor:
