@@ -226,13 +226,17 @@ def test_gradcheck_forward_and_double_backward(case):
 @pytest.mark.compile
 def test_compiled_fullgraph_with_backward():
     """One compile: so3.exp / so3.log (custom Functions), a broadcasting compose and distance,
-    backward, at generic rotation vectors and at 0, 1e-9 and pi."""
+    backward, at generic rotation vectors and at 0, 1e-9 and pi.
+
+    float32: in float64 the graph would hold the compensated exp kernel, whose code generation
+    takes 1-2 minutes (tests/test_compiled.py compiles that kernel on its own)."""
+    F32 = torch.float32
     g = torch.Generator().manual_seed(3)
-    R0 = so3.exp(_rotvecs(g, 2)).reshape(2, 1, 3, 3)
-    w0 = _rotvecs(g, 6)
+    R0 = so3.exp(_rotvecs(g, 2).to(F32)).reshape(2, 1, 3, 3)
+    w0 = _rotvecs(g, 6).to(F32)
     w0[0] = 0.0
-    w0[1] = torch.tensor([math.pi, 0.0, 0.0], dtype=F64)
-    w0[2] = torch.tensor([1e-9, 0.0, 0.0], dtype=F64)
+    w0[1] = torch.tensor([math.pi, 0.0, 0.0], dtype=F32)
+    w0[2] = torch.tensor([1e-9, 0.0, 0.0], dtype=F32)
 
     def f(R, w):
         S = so3.compose(R, so3.exp(w))  # batch (2, 1) with (6,) -> (2, 6)
@@ -242,13 +246,13 @@ def test_compiled_fullgraph_with_backward():
     y1 = f(R0, w1)
     y2 = torch.compile(f, fullgraph=True)(R0, w2)
     assert y2[0].shape == (2, 6, 3) and y2[1].shape == (2, 6)
-    c = [torch.randn(y.shape, generator=g, dtype=F64) for y in y1]
+    c = [torch.randn(y.shape, generator=g, dtype=F32) for y in y1]
     for a, b in zip(y2, y1, strict=True):
-        torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-12)
+        torch.testing.assert_close(a, b)
     (d1,) = torch.autograd.grad(y1, w1, c)
     (d2,) = torch.autograd.grad(y2, w2, c)
     assert bool(torch.isfinite(d2).all())
-    torch.testing.assert_close(d2, d1, rtol=1e-10, atol=1e-12)
+    torch.testing.assert_close(d2, d1)
 
 
 # ----------------------------------------------------------------------------------------------
