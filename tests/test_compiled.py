@@ -131,12 +131,13 @@ def test_compiled_compose_inverse_entries_ignore_bottom_rows_and_broadcast():
         ("se3", "inverse", lambda g: (se3.random(37, generator=g),)),
         ("quaternion", "apply", lambda g: (torch.randn(37, 4, generator=g), torch.randn(37, 3))),
         ("so3", "log", lambda g: (so3.random(37, generator=g),)),
+        ("se3", "log", lambda g: (se3.random(37, generator=g),)),
     ],
 )
 def test_compiled_forward_and_backward_are_one_loop_each(module, name, make):
     # Entry by entry while compiling (no batched matmul, no linalg.cross gathers, no transposed
-    # copies of the components for AOTAutograd to save): one loop for the forward, one for the
-    # backward; the gradients are eager's.
+    # copies of the components for AOTAutograd to save, no stacked intermediate read again by
+    # components): one loop for the forward, one for the backward; the gradients are eager's.
     import re
 
     from torch._inductor.utils import run_and_get_code

@@ -30,6 +30,7 @@ half angle replaces the series and its ``where`` (``sin(h)/h`` is exact to round
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import torch
 from torch import Tensor
@@ -248,13 +249,14 @@ def rodrigues_values(w: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     return a, s.mul_(s).mul_(0.5), c, d
 
 
-def jl_inv_values(w: Tensor) -> tuple[Tensor, Tensor]:
+def jl_inv_values(w: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor]:
     """``((t/2) cot(t/2), (1 - (t/2) cot(t/2))/t^2)`` of ``t = |w|`` in ``[0, pi]``:
     ``Jl^-1 = e I - hat(w)/2 + D w w^T``.
 
     Forward-only (module docstring).  ``e = cos(h) / (sin(h)/h)`` with ``h = t/2``; ``D`` has,
     like ``c`` of :func:`rodrigues_values`, an absolute error of about ``eps / t^2`` and is
-    meant only for the product ``D w w^T``.
+    meant only for the product ``D w w^T``.  ``w`` as a ``(..., 3)`` tensor or its three
+    components (as :func:`theta2`).
     """
     t2 = theta2(w)
     h = t2.sqrt().mul_(0.5).clamp_min_(_H_MIN[t2.dtype])
@@ -262,17 +264,18 @@ def jl_inv_values(w: Tensor) -> tuple[Tensor, Tensor]:
     return e, (1.0 - e).div_(t2.clamp_min(_H_MIN[t2.dtype]))
 
 
-def theta2(w: Tensor, keepdim: bool = False) -> Tensor:
+def theta2(w: Tensor | Sequence[Tensor], keepdim: bool = False) -> Tensor:
     """|w|^2 over the last dimension, in the dtype the coefficients are evaluated in.
 
     For float32 input the angle and the series coefficients are evaluated in float64 (a few
     per-element operations): the rounding of theta^2 otherwise dominates the error of every
     result, which then reaches 3 ulp; with it, results are within about 1 ulp.  Callers cast
-    the coefficients back with ``.to(w.dtype)``.
+    the coefficients back with ``.to(w.dtype)``.  ``w`` as a ``(..., 3)`` tensor or as its three
+    components (tensors of one shape).
     """
-    if w.dtype == torch.float32:
-        w = w.double()
     # Component-wise: a reduction over a trailing dimension of 3 costs several times more.
-    x, y, z = w.unbind(-1)
+    x, y, z = w.unbind(-1) if isinstance(w, Tensor) else w
+    if x.dtype == torch.float32:
+        x, y, z = x.double(), y.double(), z.double()
     t2 = torch.addcmul(torch.addcmul(x * x, y, y), z, z)
     return t2.unsqueeze(-1) if keepdim else t2

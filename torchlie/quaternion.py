@@ -445,11 +445,16 @@ def _log_of_matrix(R: Tensor) -> Tensor:
     from the unnormalised Shepperd candidate ``c`` (atan2 is scale-invariant).  At ``c_v = 0``
     (the identity) the quotient's denominator is clamped, which gives exactly 0.
     """
+    return torch.stack(_log_of_matrix_components(R), dim=-1)
+
+
+def _log_of_matrix_components(R: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """The three components of :func:`_log_of_matrix` (not stacked)."""
     cw, cx, cy, cz, sign = _from_matrix_parts(R)
     nv = torch.addcmul(torch.addcmul(cx * cx, cy, cy), cz, cz).sqrt_()
     f = torch.atan2(nv, cw.abs()).mul_(2.0).div_(nv.clamp_min(torch.finfo(nv.dtype).tiny))
     f = f.mul_(sign)
-    return torch.stack((f * cx, f * cy, f * cz), dim=-1)
+    return f * cx, f * cy, f * cz
 
 
 # ----------------------------------------------------------------------------------------------
