@@ -516,9 +516,7 @@ def _log_entries(T: Tensor) -> Tensor:
     intermediate is per element, so the whole map is one loop over the batch (a stacked
     rotation vector read again by components would be a loop of its own)."""
     phi = _quat._log_of_matrix_components(_rot(T))
-    e, d = (v.to(T.dtype) for v in _coeffs.jl_inv_values(phi))
-    rho = so3._jl_components(phi, [T[..., i, 3] for i in range(3)], e, e.new_full((), -0.5), d)
-    return torch.stack((*rho, *phi), dim=-1)
+    return torch.stack((*so3._jl_inv_apply_values(phi, _trans(T)), *phi), dim=-1)
 
 
 def _log_backward(saved, g: Tensor):
