@@ -34,12 +34,12 @@ compiled with :data:`FUSION` as well, which lets such computations share the op'
 ops take another formula while compiling, with the same values: ``se3.compose`` and
 ``se3.inverse`` (forward and backward) and ``quaternion.apply`` entry by entry instead of a
 batched matmul (a library call of its own) or ``linalg.cross`` (lowered to modular gathers),
-``se3.log`` from the components of its rotation vector (stacked, it was read again by a loop of
-its own), and components are read in place instead of through a transposing copy (which
+and components are read in place instead of through a transposing copy (which
 AOTAutograd would otherwise keep for the backward).  Measured at N = 10^6, one thread,
 float32, forward (forward and backward): ``se3.exp`` 62 -> 28 ns per element, ``se3.compose``
-134 -> 23 (~400 -> 50), ``se3.inverse`` 53 -> 18, ``quaternion.apply`` (175 -> 18), ``se3.log``
-33 -> 28.
+134 -> 23 (~400 -> 50), ``se3.inverse`` 53 -> 18, ``quaternion.apply`` (175 -> 18).  ``se3.log``
+is computed from the components of its rotation vector, stacked once (stacked first, that vector
+was read again by a loop of its own): 33 -> 28.
 """
 
 from __future__ import annotations

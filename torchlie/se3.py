@@ -504,17 +504,9 @@ def _exp(xi: Tensor) -> Tensor:
 
 
 def _log_forward(T: Tensor) -> Tensor:
-    if torch.compiler.is_compiling():
-        return _log_entries(T)
-    phi = so3._log(_rot(T))
-    rho = so3._jl_inv_apply_values(phi, _trans(T))
-    return torch.cat((torch.stack(rho, dim=-1), phi), dim=-1)
-
-
-def _log_entries(T: Tensor) -> Tensor:
-    """:func:`_log_forward` from components, stacked once (for the compiled path): every
-    intermediate is per element, so the whole map is one loop over the batch (a stacked
-    rotation vector read again by components would be a loop of its own)."""
+    """From components, stacked once: compiled, every intermediate is per element and the whole
+    map is one loop over the batch (a stacked rotation vector read again by components would be
+    a loop of its own); eager, one stack fewer."""
     phi = _quat._log_of_matrix_components(_rot(T))
     return torch.stack((*so3._jl_inv_apply_values(phi, _trans(T)), *phi), dim=-1)
 
