@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import re
+
 import pytest
 import torch
 from samplers import ANGLES, rotvecs
+from torch._inductor.utils import run_and_get_code
 
 from torchlie import compiled, conversions, quaternion, se3, so3
 
@@ -73,13 +76,14 @@ def test_inductor_options():
 def _batch_loops(fn, *args, options):
     """The outputs of ``fn`` compiled with ``options`` and the number of loops over the batch in
     the C++ code Inductor generated for it (each a pass over the result's memory)."""
-    import re
-
-    from torch._inductor.utils import run_and_get_code
-
     torch._dynamo.reset()
     out, code = run_and_get_code(torch.compile(fn, fullgraph=True, options=options), *args)
-    return out, sum(len(re.findall(r"for\s*\(\s*int64_t x0\s*=", c)) for c in code), code
+    return out, sum(_loops(c) for c in code), code
+
+
+def _loops(code: str) -> int:
+    """Loops over the batch (the outermost index ``x0``) in one generated C++ module."""
+    return len(re.findall(r"for\s*\(\s*int64_t x0\s*=", code))
 
 
 @pytest.mark.parametrize(
@@ -138,10 +142,6 @@ def test_compiled_forward_and_backward_are_one_loop_each(module, name, make):
     # Entry by entry while compiling (no batched matmul, no linalg.cross gathers, no transposed
     # copies of the components for AOTAutograd to save, no stacked intermediate read again by
     # components): one loop for the forward, one for the backward; the gradients are eager's.
-    import re
-
-    from torch._inductor.utils import run_and_get_code
-
     args = [x.requires_grad_() for x in make(torch.Generator().manual_seed(42))]
     fn = getattr({"so3": so3, "se3": se3, "quaternion": quaternion}[module], name)
     torch._dynamo.reset()
@@ -150,7 +150,7 @@ def test_compiled_forward_and_backward_are_one_loop_each(module, name, make):
     got, code = run_and_get_code(lambda: torch.autograd.grad(cfn(*args), args, G))
     assert len(code) == 2  # forward, backward
     for c in code:
-        assert len(re.findall(r"for\s*\(\s*int64_t x0\s*=", c)) == 1
+        assert _loops(c) == 1
         assert "extern_kernels." not in c
     want = torch.autograd.grad(fn(*args), args, G)
     for a, b in zip(got, want, strict=True):
