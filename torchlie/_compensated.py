@@ -38,6 +38,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from . import _layout
 from . import quaternion as _quat
 
 _SPLITTER = 134217729.0  # 2**27 + 1
@@ -160,7 +161,7 @@ def exp(w: Tensor, fused: bool | None = None) -> Tensor:
 
     The entries of :func:`exp_entries`, stacked.
     """
-    return torch.stack(exp_entries(w, fused), dim=-1).unflatten(-1, (3, 3))
+    return _layout.interleave(exp_entries(w, fused)).unflatten(-1, (3, 3))
 
 
 def exp_entries(w: Tensor, fused: bool | None = None) -> list[Tensor]:

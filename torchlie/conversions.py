@@ -50,7 +50,7 @@ import math
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs
+from . import _checks, _coeffs, _layout
 from . import quaternion as _quat
 from . import so3 as _so3
 from ._typing import Float
@@ -127,7 +127,7 @@ def _euler_to_quaternion(angles: Tensor, plan: tuple[int, int, int, bool]) -> Te
     qv[u] = c3 * pv[u] - s3 * pv[v]
     qv[v] = c3 * pv[v] + s3 * pv[u]
     qw = c3 * pw - s3 * pv[k]
-    return torch.stack((qw, qv[0], qv[1], qv[2]), dim=-1)
+    return _layout.interleave((qw, qv[0], qv[1], qv[2]))
 
 
 def _quaternion_to_euler(q: Tensor, plan: tuple[int, int, int, bool]) -> Tensor:
@@ -175,7 +175,7 @@ def _quaternion_to_euler(q: Tensor, plan: tuple[int, int, int, bool]) -> Tensor:
     # atan2 gives (-pi, pi]; fold pi (which also arises from -0 vs +0) to -pi: range [-pi, pi).
     first = torch.where(first >= math.pi, first - 2.0 * math.pi, first)
     third = torch.where(third >= math.pi, third - 2.0 * math.pi, third)
-    return torch.stack((first, middle, third), dim=-1)
+    return _layout.interleave((first, middle, third))
 
 
 def euler_to_quaternion(angles: Float[Tensor, "*b 3"], seq: str) -> Float[Tensor, "*b 4"]:
@@ -389,7 +389,7 @@ def _rot6d_to_matrix(x: Tensor) -> Tensor:
     b2 = _unit(r - (b1 * r).sum(-1, keepdim=True) * b1)
     b3 = torch.linalg.cross(b1, b2, dim=-1)
     b1 = b1 + 0.0 * b2  # a degenerate a2 makes the whole matrix NaN, not only two columns
-    return torch.stack((b1, b2, b3), dim=-1)
+    return _layout.interleave((b1, b2, b3))
 
 
 def matrix_to_rot6d(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 6"]:

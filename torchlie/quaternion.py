@@ -23,7 +23,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs
+from . import _checks, _coeffs, _layout
 from ._autograd import _blocked, custom_function
 from ._typing import Bool, Float, Shaped
 
@@ -58,21 +58,8 @@ __all__ = [
 
 
 def _planes(M: Tensor, n: int) -> tuple[Tensor, ...]:
-    """The ``n`` trailing entries of ``M`` (the last dimension of size ``n``, or a 3x3 matrix
-    flattened row by row for ``n = 9``) as contiguous planes.
-
-    One transposing copy: every later component-wise operation then reads contiguous memory
-    instead of a strided view that pulls the whole matrix through the cache again.  While
-    compiling, strided views instead: the fused loop reads each entry where it is, and the copy
-    would be one more buffer for AOTAutograd to save for the backward.
-    """
-    if torch.compiler.is_compiling():
-        if n == 9:
-            return tuple(M[..., i, j] for i in range(3) for j in range(3))
-        return M.unbind(-1)
-    if n == 9:  # one copy even when M is a strided block (the rotation block of a pose)
-        return M.movedim((-2, -1), (0, 1)).contiguous().flatten(0, 1).unbind(0)
-    return M.movedim(-1, 0).contiguous().unbind(0)
+    """The ``n`` trailing entries of ``M`` as contiguous planes (see :func:`_layout.planes`)."""
+    return _layout.planes(M, n)
 
 
 def multiply(q1: Float[Tensor, "*b1 4"], q2: Float[Tensor, "*b2 4"]) -> Float[Tensor, "*b 4"]:
@@ -101,14 +88,13 @@ def _multiply(a: Tensor, b: Tensor) -> Tensor:
             out = torch.addcmul(out, m, n, value=sign)
         return out
 
-    return torch.stack(
+    return _layout.interleave(
         (
             dot4(aw, bw, (ax, bx, -1.0), (ay, by, -1.0), (az, bz, -1.0)),
             dot4(aw, bx, (ax, bw, 1.0), (ay, bz, 1.0), (az, by, -1.0)),
             dot4(aw, by, (ax, bz, -1.0), (ay, bw, 1.0), (az, bx, 1.0)),
             dot4(aw, bz, (ax, by, 1.0), (ay, bx, -1.0), (az, bw, 1.0)),
         ),
-        dim=-1,
     )
 
 
@@ -201,13 +187,12 @@ def _to_matrix_forward(q: Tensor) -> Tensor:
     # Diagonal as (w^2 + x^2 - y^2 - z^2) / |q|^2: two terms bounded by |q|^2, where
     # 1 - (yy + zz) s rounds a sum near 2 close to pi (3.1e-16 instead of 5.0e-16 in float64).
     hs = 0.5 * s
-    return torch.stack(
+    return _layout.interleave(
         (
             ((ww + xx) - (yy + zz)) * hs, xy - wz, xz + wy,
             xy + wz, ((ww + yy) - (xx + zz)) * hs, yz - wx,
             xz - wy, yz + wx, ((ww + zz) - (xx + yy)) * hs,
         ),
-        dim=-1,
     ).unflatten(-1, (3, 3))  # fmt: skip
 
 
@@ -218,9 +203,8 @@ def _norm2(w: Tensor, x: Tensor, y: Tensor, z: Tensor) -> Tensor:
 
 def _skew_vee(M: Tensor) -> Tensor:
     """``vee(M - M^T)`` (twice the vee of the skew part of ``M``), differentiable."""
-    return torch.stack(
+    return _layout.interleave(
         (M[..., 2, 1] - M[..., 1, 2], M[..., 0, 2] - M[..., 2, 0], M[..., 1, 0] - M[..., 0, 1]),
-        dim=-1,
     )
 
 
@@ -269,7 +253,7 @@ def _to_matrix_grad_values_block(q: Tensor, R: Tensor, G: Tensor) -> Tensor:
     gw = torch.addcmul(torch.addcmul(x * a1, y, a2), z, a3).mul_(-k)
     c = _cross_planes((x, y, z), (a1, a2, a3))
     gv = [torch.addcmul(ci, w, ai).mul_(k) for ai, ci in zip((a1, a2, a3), c, strict=True)]
-    return torch.stack((gw, *gv), dim=-1)
+    return _layout.interleave((gw, *gv))
 
 
 _to_matrix_grad_values = _blocked(_to_matrix_grad_values_block, (1, 2, 2))
@@ -377,7 +361,7 @@ def _from_matrix_forward(R: Tensor) -> Tensor:
     # |c| = 4 q_p >= 2 for a rotation: the division is safe, and a NaN element stays in its row.
     n2 = _norm2(cw, cx, cy, cz)
     scale = torch.rsqrt(n2) * sign
-    return torch.stack((cw * scale, cx * scale, cy * scale, cz * scale), dim=-1)
+    return _layout.interleave((cw * scale, cx * scale, cy * scale, cz * scale))
 
 
 def _cross_planes(a: Sequence[Tensor], b: Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
@@ -395,7 +379,7 @@ def _r_hat_values(R: Tensor, u: Sequence[Tensor]) -> Tensor:
     """``R hat(u)`` from components: row ``i`` is ``cross(R_i, u)``."""
     r = _planes(R, 9)
     out = [c for i in (0, 3, 6) for c in _cross_planes(r[i : i + 3], u)]
-    return torch.stack(out, dim=-1).unflatten(-1, (3, 3))
+    return _layout.interleave(out).unflatten(-1, (3, 3))
 
 
 def _from_matrix_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:
@@ -445,7 +429,7 @@ def _log_of_matrix(R: Tensor) -> Tensor:
     from the unnormalised Shepperd candidate ``c`` (atan2 is scale-invariant).  At ``c_v = 0``
     (the identity) the quotient's denominator is clamped, which gives exactly 0.
     """
-    return torch.stack(_log_of_matrix_components(R), dim=-1)
+    return _layout.interleave(_log_of_matrix_components(R))
 
 
 def _log_of_matrix_components(R: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -524,7 +508,7 @@ def _cross(a: Tensor, b: Tensor) -> Tensor:
     """``a x b`` from components (batch shapes broadcast)."""
     ax, ay, az = a.unbind(-1)
     bx, by, bz = b.unbind(-1)
-    return torch.stack((ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx), dim=-1)
+    return _layout.interleave((ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx))
 
 
 def _pure(v: Tensor) -> Tensor:
@@ -861,14 +845,13 @@ def left_matrix(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4 4"]:
     """
     x, dtype = _checks.tensor(q, "torchlie.quaternion.left_matrix", "q", (4,))
     w, a, b, c = x.unbind(-1)
-    m = torch.stack(
+    m = _layout.interleave(
         (
             w, -a, -b, -c,
             a, w, -c, b,
             b, c, w, -a,
             c, -b, a, w,
         ),
-        dim=-1,
     ).unflatten(-1, (4, 4))  # fmt: skip
     return _checks.out(m, dtype)
 
@@ -885,14 +868,13 @@ def right_matrix(p: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4 4"]:
     """
     x, dtype = _checks.tensor(p, "torchlie.quaternion.right_matrix", "p", (4,))
     w, a, b, c = x.unbind(-1)
-    m = torch.stack(
+    m = _layout.interleave(
         (
             w, -a, -b, -c,
             a, w, c, -b,
             b, -c, w, a,
             c, b, -a, w,
         ),
-        dim=-1,
     ).unflatten(-1, (4, 4))  # fmt: skip
     return _checks.out(m, dtype)
 
@@ -919,8 +901,8 @@ def to_su2(q: Float[Tensor, "*b 4"]) -> Shaped[Tensor, "*b 2 2"]:
     """
     x, _ = _checks.tensor(q, "torchlie.quaternion.to_su2", "q", (4,))
     w, a, b, c = x.unbind(-1)
-    re = torch.stack((w, -b, b, w), dim=-1)
-    im = torch.stack((-c, -a, -a, c), dim=-1)
+    re = _layout.interleave((w, -b, b, w))
+    im = _layout.interleave((-c, -a, -a, c))
     return torch.complex(re, im).unflatten(-1, (2, 2))
 
 
@@ -956,7 +938,7 @@ def from_su2(U: Shaped[Tensor, "*b 2 2"]) -> Float[Tensor, "*b 4"]:
         U = U.to(torch.complex64)
     a = 0.5 * (U[..., 0, 0] + U[..., 1, 1].conj())
     b = 0.5 * (U[..., 1, 0] - U[..., 0, 1].conj())
-    q = torch.stack((a.real, -b.imag, b.real, -a.imag), dim=-1)
+    q = _layout.interleave((a.real, -b.imag, b.real, -a.imag))
     return _checks.out(q, out_dtype)
 
 

@@ -33,7 +33,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, _compensated, so3
+from . import _checks, _coeffs, _compensated, _layout, so3
 from . import quaternion as _quat
 from ._autograd import custom_function
 from ._typing import Bool, Float
@@ -161,7 +161,7 @@ def _q_components(
 def _q_apply(rho: Tensor, phi: Tensor, v: Tensor) -> Tensor:
     """``Q(rho, phi) v`` (batch shapes broadcast): :func:`_q_components` on planar copies."""
     P = _quat._planes
-    return torch.stack(_q_components(P(rho, 3), P(phi, 3), P(v, 3), *_q_coeffs(phi)), dim=-1)
+    return _layout.interleave(_q_components(P(rho, 3), P(phi, 3), P(v, 3), *_q_coeffs(phi)))
 
 
 def _q_matrix(rho: Tensor, phi: Tensor) -> Tensor:
@@ -242,7 +242,7 @@ def _stack_top(rows: Sequence[Sequence[Tensor]], corner: float = 1.0) -> Tensor:
     zero = torch.zeros_like(rows[0][0])
     last = zero if corner == 0.0 else torch.full_like(zero, corner)
     entries = (*rows[0], *rows[1], *rows[2], zero, zero, zero, last)
-    return torch.stack(entries, dim=-1).unflatten(-1, (4, 4))
+    return _layout.interleave(entries).unflatten(-1, (4, 4))
 
 
 def _stack_rows(rows: Sequence[Sequence[Tensor]]) -> Tensor:
@@ -475,7 +475,7 @@ def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor) -> Tensor:
     neg = [-v for v in x]
     q = _q_components(neg[:3], neg[3:], g_t, *_q_coeffs(xi[..., 3:]))
     g_phi = [(p + r).add_(s) for p, r, s in zip(g_phi, g_tx, q, strict=True)]
-    return torch.stack((*g_rho, *g_phi), dim=-1)
+    return _layout.interleave((*g_rho, *g_phi))
 
 
 def _exp_jvp(saved, dxi: Tensor) -> Tensor:
@@ -508,7 +508,7 @@ def _log_forward(T: Tensor) -> Tensor:
     map is one loop over the batch (a stacked rotation vector read again by components would be
     a loop of its own); eager, one stack fewer."""
     phi = _quat._log_of_matrix_components(_rot(T))
-    return torch.stack((*so3._jl_inv_apply_values(phi, _trans(T)), *phi), dim=-1)
+    return _layout.interleave((*so3._jl_inv_apply_values(phi, _trans(T)), *phi))
 
 
 def _log_backward(saved, g: Tensor):

@@ -21,7 +21,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, _compensated
+from . import _checks, _coeffs, _compensated, _layout
 from . import quaternion as _quat
 from ._autograd import custom_function
 from ._typing import Bool, Float
@@ -71,7 +71,7 @@ _NAME = "torchlie.so3."
 def _hat(w: Tensor) -> Tensor:
     x, y, z = w.unbind(-1)
     o = torch.zeros_like(x)
-    return torch.stack((o, -z, y, z, o, -x, -y, x, o), dim=-1).unflatten(-1, (3, 3))
+    return _layout.interleave((o, -z, y, z, o, -x, -y, x, o)).unflatten(-1, (3, 3))
 
 
 def _vee(M: Tensor) -> Tensor:
@@ -85,13 +85,12 @@ def _abc_matrix(a: Tensor, b: Tensor, c: Tensor, w: Tensor) -> Tensor:
     cx, cy, cz = c * x, c * y, c * z
     bx, by, bz = b * x, b * y, b * z
     cxy, cxz, cyz = cx * y, cx * z, cy * z
-    return torch.stack(
+    return _layout.interleave(
         (
             a + cx * x, cxy - bz, cxz + by,
             cxy + bz, a + cy * y, cyz - bx,
             cxz - by, cyz + bx, a + cz * z,
         ),
-        dim=-1,
     ).unflatten(-1, (3, 3))  # fmt: skip
 
 
@@ -141,7 +140,7 @@ def _exp(w: Tensor) -> Tensor:
     if w.dtype == torch.float64:
         return _compensated.exp(w)
     xyz, (a, b, _, d) = _rodrigues(w)
-    return torch.stack(_exp_entries(xyz, a, b, d), dim=-1).unflatten(-1, (3, 3))
+    return _layout.interleave(_exp_entries(xyz, a, b, d)).unflatten(-1, (3, 3))
 
 
 def _log(R: Tensor) -> Tensor:
@@ -186,7 +185,7 @@ def _jl_apply_values(w: Tensor, v: tuple[Tensor, ...], sign: float = 1.0) -> Ten
     (not differentiable: backward passes without ``create_graph`` only).
     """
     xyz, (a, b, c, _) = _rodrigues(w)
-    return torch.stack(_jl_components(xyz, v, a, b if sign > 0 else -b, c), dim=-1)
+    return _layout.interleave(_jl_components(xyz, v, a, b if sign > 0 else -b, c))
 
 
 def _exp_backward(saved, g: Tensor):

@@ -1,0 +1,104 @@
+"""The eager kernels' layout changes: planes and interleaving by matrix product equal the copies."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from samplers import rotvecs
+
+from torchlie import _layout, conversions, quaternion, se3, so3
+
+DTYPES = [torch.float32, torch.float64]
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_planes_and_interleave_are_exact(dtype):
+    g = torch.Generator().manual_seed(3)
+    x = torch.randn(2, 700, 4, generator=g, dtype=dtype)
+    x[0, 5] = torch.tensor([1e-40 if dtype == torch.float64 else 1e-42, 3e38, -2.5, 0.0])
+    parts = _layout.planes(x, 4)
+    assert all(p.is_contiguous() and p.shape == (2, 700) for p in parts)
+    assert torch.equal(torch.stack(parts, -1), x)
+    out = _layout.interleave(parts)
+    assert out.shape == x.shape and torch.equal(out, x)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_planes_of_a_strided_rotation_block(dtype):
+    g = torch.Generator().manual_seed(4)
+    T = torch.randn(3, 300, 4, 4, generator=g, dtype=dtype)
+    for M in (T[..., :3, :3], T[..., 1:, 1:], T[..., :3, :3].transpose(-1, -2), T[:, ::2, :3, :3]):
+        parts = _layout.planes(M, 9)
+        want = M.flatten(-2).unbind(-1)
+        assert len(parts) == 9
+        assert all(torch.equal(a, b) for a, b in zip(parts, want, strict=True))
+
+
+def test_product_path_only_where_it_is_exact(monkeypatch):
+    x = torch.randn(1000, 4)
+    assert _layout._use_product(x, 1000)
+    assert not _layout._use_product(x, 10)  # small batch
+    assert not _layout._use_product(x.half(), 1000)
+    assert _layout._use_product(x.double(), 1000)
+    monkeypatch.setattr(torch, "get_float32_matmul_precision", lambda: "medium")
+    assert not _layout._use_product(x, 1000)  # reduced-precision float32 products
+    assert _layout._use_product(x.double(), 1000)
+    assert torch.equal(torch.stack(_layout.planes(x, 4), -1), x)
+
+
+def test_plain_copies_under_vmap():
+    x = torch.randn(3, 1000, 4, dtype=torch.float64)
+    got = torch.func.vmap(lambda y: _layout.interleave(_layout.planes(y, 4)))(x)
+    assert torch.equal(got, x)
+
+
+def _cases(dtype):
+    """Public ops over more than ``MIN_ROWS`` elements, singular angles included."""
+    w, _ = rotvecs(dtype=dtype)
+    n = w.shape[0]
+    g = torch.Generator().manual_seed(5)
+    p = torch.randn(n, 3, generator=g, dtype=dtype)
+    xi = torch.cat((torch.randn(n, 3, generator=g, dtype=dtype), w), -1)
+    R, T, q = so3.exp(w), se3.exp(xi), quaternion.from_rotvec(w)
+    return [
+        (so3.exp, (w,)),
+        (so3.log, (R,)),
+        (so3.jac_left, (w,)),
+        (so3.hat, (w,)),
+        (quaternion.to_matrix, (q,)),
+        (quaternion.from_matrix, (R,)),
+        (quaternion.multiply, (q, q.flip(0))),
+        (quaternion.apply, (q, p)),
+        (quaternion.log, (q,)),
+        (se3.exp, (xi,)),
+        (se3.log, (T,)),
+        (se3.compose, (T, T.flip(0))),
+        (se3.inverse, (T,)),
+        (conversions.matrix_to_euler, (R, "ZYX")),
+        (conversions.rot6d_to_matrix, (R[..., :2, :].flatten(-2),)),
+    ]
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_ops_equal_with_copies_only(dtype, monkeypatch):
+    """Values and gradients of the ops are bitwise those of the copying layout."""
+
+    def run():
+        out = []
+        for fn, args in _cases(dtype):
+            leaves = [a.clone().requires_grad_() if torch.is_tensor(a) else a for a in args]
+            y = fn(*leaves)
+            grads = torch.autograd.grad(
+                y, [a for a in leaves if torch.is_tensor(a)], torch.ones_like(y)
+            )
+            out.append((fn.__name__, y.detach(), grads))
+        return out
+
+    assert rotvecs()[0].shape[0] > _layout.MIN_ROWS
+    fast = run()
+    monkeypatch.setattr(_layout, "MIN_ROWS", 10**12)
+    slow = run()
+    for (name, y1, g1), (_, y2, g2) in zip(fast, slow, strict=True):
+        assert torch.equal(y1, y2), name
+        for a, b in zip(g1, g2, strict=True):
+            assert torch.equal(a, b), name
