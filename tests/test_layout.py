@@ -28,7 +28,7 @@ def test_planes_of_a_strided_rotation_block(dtype):
     g = torch.Generator().manual_seed(4)
     T = torch.randn(3, 300, 4, 4, generator=g, dtype=dtype)
     for M in (T[..., :3, :3], T[..., 1:, 1:], T[..., :3, :3].transpose(-1, -2), T[:, ::2, :3, :3]):
-        parts = _layout.planes(M, 9)
+        parts = _layout.planes(M, (3, 3))
         want = M.flatten(-2).unbind(-1)
         assert len(parts) == 9
         assert all(torch.equal(a, b) for a, b in zip(parts, want, strict=True))
@@ -52,6 +52,18 @@ def test_plain_copies_under_vmap():
     assert torch.equal(got, x)
 
 
+def _values_and_grads(cases):
+    out = []
+    for fn, args in cases:
+        leaves = [a.clone().requires_grad_() if torch.is_tensor(a) else a for a in args]
+        y = fn(*leaves)
+        grads = torch.autograd.grad(
+            y, [a for a in leaves if torch.is_tensor(a)], torch.ones_like(y)
+        )
+        out.append((fn.__name__, y.detach(), grads))
+    return out
+
+
 def _cases(dtype):
     """Public ops over more than ``MIN_ROWS`` elements, singular angles included."""
     w, _ = rotvecs(dtype=dtype)
@@ -65,15 +77,13 @@ def _cases(dtype):
         (so3.log, (R,)),
         (so3.jac_left, (w,)),
         (so3.hat, (w,)),
+        (so3.act, (R, p)),
         (quaternion.to_matrix, (q,)),
         (quaternion.from_matrix, (R,)),
         (quaternion.multiply, (q, q.flip(0))),
-        (quaternion.apply, (q, p)),
         (quaternion.log, (q,)),
         (se3.exp, (xi,)),
         (se3.log, (T,)),
-        (se3.compose, (T, T.flip(0))),
-        (se3.inverse, (T,)),
         (conversions.matrix_to_euler, (R, "ZYX")),
         (conversions.rot6d_to_matrix, (R[..., :2, :].flatten(-2),)),
     ]
@@ -83,22 +93,43 @@ def _cases(dtype):
 def test_ops_equal_with_copies_only(dtype, monkeypatch):
     """Values and gradients of the ops are bitwise those of the copying layout."""
 
-    def run():
-        out = []
-        for fn, args in _cases(dtype):
-            leaves = [a.clone().requires_grad_() if torch.is_tensor(a) else a for a in args]
-            y = fn(*leaves)
-            grads = torch.autograd.grad(
-                y, [a for a in leaves if torch.is_tensor(a)], torch.ones_like(y)
-            )
-            out.append((fn.__name__, y.detach(), grads))
-        return out
-
-    assert rotvecs()[0].shape[0] > _layout.MIN_ROWS
-    fast = run()
+    fast = _values_and_grads(_cases(dtype))
     monkeypatch.setattr(_layout, "MIN_ROWS", 10**12)
-    slow = run()
+    slow = _values_and_grads(_cases(dtype))
     for (name, y1, g1), (_, y2, g2) in zip(fast, slow, strict=True):
         assert torch.equal(y1, y2), name
         for a, b in zip(g1, g2, strict=True):
             assert torch.equal(a, b), name
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_entry_by_entry_kernels_equal_the_matmuls(dtype, monkeypatch):
+    """The ops that switch to entry-by-entry kernels on large CPU batches agree with their
+    batched-matmul (and cross-product) forms."""
+    g = torch.Generator().manual_seed(6)
+    xi = torch.randn(3, 400, 6, generator=g, dtype=dtype)
+    T, p = se3.exp(xi), torch.randn(3, 400, 3, generator=g, dtype=dtype)
+    q = quaternion.from_matrix(T[..., :3, :3])
+    cases = [
+        (se3.compose, (T, T.flip(1))),
+        (se3.compose, (T, T[0, 0])),
+        (se3.inverse, (T,)),
+        (se3.act, (T, p)),
+        (se3.act, (T[0, 0], p)),
+        (quaternion.apply, (q, p)),
+        (quaternion.apply, (q[0, 0], p)),
+    ]
+    assert se3._entry_by_entry(T)
+    entries = _values_and_grads(cases)
+    monkeypatch.setattr(_layout, "MIN_ROWS", 10**12)
+    assert not se3._entry_by_entry(T)
+    matmuls = _values_and_grads(cases)
+    eps = torch.finfo(dtype).eps
+    for (name, y1, g1), (_, y2, g2) in zip(entries, matmuls, strict=True):
+        # rounding differs: a few eps of the largest input scale (|p| up to ~4 here)
+        scale = 4 * eps * y2.abs().max()
+        torch.testing.assert_close(y1, y2, rtol=0, atol=scale, msg=name)
+        for a, b in zip(g1, g2, strict=True):
+            # a broadcast input's gradient is a sum over the batch: a few eps per summand
+            summed = T.shape[:-2].numel() // a.shape[:-2].numel()
+            torch.testing.assert_close(a, b, rtol=4 * eps, atol=4 * eps * summed, msg=name)

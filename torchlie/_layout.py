@@ -58,49 +58,55 @@ def _use_product(x: Tensor, rows: int) -> bool:
     return x.dtype == torch.float32 and _fp32_full_precision()
 
 
-def planes(M: Tensor, n: int) -> tuple[Tensor, ...]:
-    """The ``n`` trailing entries of ``M`` as contiguous planes of its batch shape.
+def by_product(x: Tensor, event_dims: int) -> bool:
+    """Whether :func:`planes` and :func:`interleave` transpose ``x`` (``event_dims`` trailing
+    dimensions of it are not batch) by matrix product: where a kernel written entry by entry
+    beats one that calls a batched matmul."""
+    return _use_product(x, x.shape[: x.dim() - event_dims].numel())
 
-    ``n`` is the size of the last dimension, or 9 for a 3x3 matrix read row by row (which may be
-    a strided block, such as the rotation block of a pose).  One transposition; while compiling,
-    strided views instead (the fused loop reads each entry where it is, and a copy would be one
-    more buffer for AOTAutograd to save for the backward).
+
+def planes(M: Tensor, n: int | tuple[int, int]) -> tuple[Tensor, ...]:
+    """The trailing entries of ``M`` as contiguous planes of its batch shape.
+
+    ``n`` is the size of the last dimension, or ``(rows, cols)`` for a matrix read row by row
+    (which may be a strided block, such as the rotation block of a pose).  One transposition;
+    while compiling, strided views instead (the fused loop reads each entry where it is, and a
+    copy would be one more buffer for AOTAutograd to save for the backward).
     """
+    matrix = isinstance(n, tuple)
     if _is_compiling():
-        if n == 9:
-            return tuple(M[..., i, j] for i in range(3) for j in range(3))
+        if matrix:
+            return tuple(M[..., i, j] for i in range(n[0]) for j in range(n[1]))
         return M.unbind(-1)
-    batch = M.shape[: M.dim() - (2 if n == 9 else 1)]
+    batch = M.shape[: M.dim() - (2 if matrix else 1)]
     rows = batch.numel()
+    count = n[0] * n[1] if matrix else n
     if _use_product(M, rows):
         flat = M.reshape((rows,) + M.shape[len(batch) :])
-        if n == 9:
-            flat = _rows_of_matrices(flat)
-            select = _eye(M.dtype, flat.shape[1])[_matrix_columns(flat.shape[1])]
+        if matrix:
+            flat, columns = _rows_of_matrices(flat)
+            select = _eye(M.dtype, flat.shape[1])[columns]
         else:
             select = _eye(M.dtype, n)
-        return torch.mm(select, flat.T).reshape((n,) + batch).unbind(0)
-    if n == 9:  # one copy even when M is a strided block
+        return torch.mm(select, flat.T).reshape((count,) + batch).unbind(0)
+    if matrix:  # one copy even when M is a strided block
         return M.movedim((-2, -1), (0, 1)).contiguous().flatten(0, 1).unbind(0)
     return M.movedim(-1, 0).contiguous().unbind(0)
 
 
-def _rows_of_matrices(flat: Tensor) -> Tensor:
-    """``(B, 3, 3)`` as a ``(B, k)`` view whose columns hold its 9 entries (and some between).
+def _rows_of_matrices(flat: Tensor) -> tuple[Tensor, list[int]]:
+    """``(B, r, c)`` as a ``(B, k)`` view holding its entries, and their columns in it, row by row.
 
-    A contiguous matrix is its 9 entries; a block with row stride ``s`` and unit column stride
-    is the span of ``2 s + 3`` entries from its first (the ones between the rows are skipped by
-    the selection).  Anything else is copied to contiguous first.
+    A contiguous matrix is its ``r c`` entries; a block with row stride ``s`` and unit column
+    stride is the span of ``(r - 1) s + c`` entries from its first (the ones between the rows
+    are skipped by the selection).  Anything else is copied to contiguous first.
     """
-    if flat.stride(-1) != 1 or flat.stride(-2) < 3:
+    r, c = flat.shape[1:]
+    if flat.stride(-1) != 1 or flat.stride(-2) < c:
         flat = flat.contiguous()
     s = flat.stride(-2)
-    return flat.as_strided((flat.shape[0], 2 * s + 3), (flat.stride(0), 1))
-
-
-def _matrix_columns(k: int) -> list[int]:
-    s = (k - 3) // 2
-    return [i * s + j for i in range(3) for j in range(3)]
+    view = flat.as_strided((flat.shape[0], (r - 1) * s + c), (flat.stride(0), 1))
+    return view, [i * s + j for i in range(r) for j in range(c)]
 
 
 def interleave(parts: Sequence[Tensor]) -> Tensor:

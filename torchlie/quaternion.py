@@ -58,8 +58,9 @@ __all__ = [
 
 
 def _planes(M: Tensor, n: int) -> tuple[Tensor, ...]:
-    """The ``n`` trailing entries of ``M`` as contiguous planes (see :func:`_layout.planes`)."""
-    return _layout.planes(M, n)
+    """The ``n`` trailing entries of ``M`` as contiguous planes (see :func:`_layout.planes`);
+    ``n = 9``: a 3x3 matrix read row by row."""
+    return _layout.planes(M, (3, 3) if n == 9 else n)
 
 
 def multiply(q1: Float[Tensor, "*b1 4"], q2: Float[Tensor, "*b2 4"]) -> Float[Tensor, "*b 4"]:
@@ -584,8 +585,8 @@ def apply(q: Float[Tensor, "*b1 4"], points: Float[Tensor, "*b2 3"]) -> Float[Te
 
 
 def _apply(q: Tensor, p: Tensor) -> Tensor:
-    if torch.compiler.is_compiling():
-        return _apply_entries(q, p)
+    if torch.compiler.is_compiling() or _layout.by_product(q, 1) or _layout.by_product(p, 1):
+        return _apply_entries_blocked(q, p)
     w = q[..., :1]
     v = q[..., 1:]
     if v.dim() != p.dim():  # linalg.cross broadcasts sizes, not numbers of dimensions
@@ -596,16 +597,20 @@ def _apply(q: Tensor, p: Tensor) -> Tensor:
 
 
 def _apply_entries(q: Tensor, p: Tensor) -> Tensor:
-    """:func:`_apply` from components (strided views): one fused loop when compiled, forward and
-    backward, where ``linalg.cross`` is lowered to modular gathers over the last dimension."""
-    w, *v = q.unbind(-1)
-    pc = p.unbind(-1)
+    """:func:`_apply` from components: one fused loop when compiled, forward and backward,
+    where ``linalg.cross`` is lowered to modular gathers over the last dimension; in eager mode
+    on large batches, whose planes are transposed by matrix product (see :mod:`._layout`)."""
+    w, *v = _planes(q, 4)
+    pc = _planes(p, 3)
     s = 2.0 / _norm2(w, *v)
     t = [s * c for c in _cross_planes(v, pc)]
     vt = _cross_planes(v, t)
-    return torch.stack(
-        [torch.addcmul(pi, w, ti) + ci for pi, ti, ci in zip(pc, t, vt, strict=True)], -1
+    return _layout.interleave(
+        [torch.addcmul(pi, w, ti) + ci for pi, ti, ci in zip(pc, t, vt, strict=True)]
     )
+
+
+_apply_entries_blocked = _blocked(_apply_entries, (1, 1))
 
 
 def exp(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
