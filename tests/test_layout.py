@@ -69,7 +69,6 @@ def _cases(dtype):
     w, _ = rotvecs(dtype=dtype)
     n = w.shape[0]
     g = torch.Generator().manual_seed(5)
-    p = torch.randn(n, 3, generator=g, dtype=dtype)
     xi = torch.cat((torch.randn(n, 3, generator=g, dtype=dtype), w), -1)
     R, T, q = so3.exp(w), se3.exp(xi), quaternion.from_rotvec(w)
     return [
@@ -77,7 +76,6 @@ def _cases(dtype):
         (so3.log, (R,)),
         (so3.jac_left, (w,)),
         (so3.hat, (w,)),
-        (so3.act, (R, p)),
         (quaternion.to_matrix, (q,)),
         (quaternion.from_matrix, (R,)),
         (quaternion.multiply, (q, q.flip(0))),
@@ -116,6 +114,8 @@ def test_entry_by_entry_kernels_equal_the_matmuls(dtype, monkeypatch):
         (se3.inverse, (T,)),
         (se3.act, (T, p)),
         (se3.act, (T[0, 0], p)),
+        (so3.act, (T[..., :3, :3], p)),
+        (so3.act, (T[..., :3, :3], p[0, 0])),
         (quaternion.apply, (q, p)),
         (quaternion.apply, (q[0, 0], p)),
     ]

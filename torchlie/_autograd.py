@@ -127,11 +127,13 @@ class CustomFunction:
         backward: Callable[..., tuple[Tensor | None, ...]],
         jvp: Callable[..., Tensor],
         event_dims: tuple[int, ...],
+        blocked: bool = True,
     ) -> None:
         n = len(inspect.signature(forward).parameters)
         if len(event_dims) != n:
             raise ValueError(f"custom_function {name}: one event_dims entry per input, {n} inputs")
-        forward = _blocked(forward, event_dims)
+        if blocked:
+            forward = _blocked(forward, event_dims)
         _forward = _positional(forward, n)
 
         def _setup_context(ctx, inputs, output) -> None:
@@ -182,10 +184,12 @@ def custom_function(
     backward: Callable[..., tuple[Tensor | None, ...]],
     jvp: Callable[..., Tensor],
     event_dims: tuple[int, ...],
+    blocked: bool = True,
 ) -> CustomFunction:
     """Build a :class:`CustomFunction` (see the module docstring for the four pieces).
 
     ``event_dims``: the number of trailing (non-batch) dimensions of each input, e.g. ``(1,)``
-    for a rotation vector, ``(2, 1)`` for a matrix and a point (for the blocked forward).
+    for a rotation vector, ``(2, 1)`` for a matrix and a point (for the blocked forward);
+    ``blocked=False`` for a forward of one batched matmul, which blocks only slow down.
     """
-    return CustomFunction(name, forward, save, backward, jvp, event_dims)
+    return CustomFunction(name, forward, save, backward, jvp, event_dims, blocked)
