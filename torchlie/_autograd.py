@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Callable, Sequence
+from typing import TypeVar
 
 import torch
 from torch import Tensor
@@ -51,12 +52,16 @@ _unwrap_if_dead = torch._C._functorch.unwrap_if_dead
 # dual level, ``torch.func.jvp``'s included, is entered through that module, which keeps it.
 
 
+_Out = TypeVar("_Out", Tensor, tuple[Tensor, ...])
+
 #: Rows per block of the blocked forward passes (see :func:`_blocked`).
 BLOCK = 65536
 
 
-def _blocked(forward: Callable[..., Tensor], event_dims: tuple[int, ...]) -> Callable[..., Tensor]:
+def _blocked(forward: Callable[..., _Out], event_dims: tuple[int, ...]) -> Callable[..., _Out]:
     """``forward`` evaluated block by block over the flattened batch when the batch is large.
+
+    ``forward`` returns a tensor or a tuple of tensors, each with the batch shape first.
 
     The forward passes are many small element-wise operations; over a batch of 10^6 each one
     streams its operands through main memory, over a block of :data:`BLOCK` rows they stay in
@@ -66,7 +71,7 @@ def _blocked(forward: Callable[..., Tensor], event_dims: tuple[int, ...]) -> Cal
     batch); the blocks are concatenated, so the result is the same tensor.
     """
 
-    def run(*inputs: Tensor) -> Tensor:
+    def run(*inputs: Tensor) -> _Out:
         first = inputs[0]
         batch = first.shape[: first.dim() - event_dims[0]]
         n = batch.numel()
@@ -77,10 +82,17 @@ def _blocked(forward: Callable[..., Tensor], event_dims: tuple[int, ...]) -> Cal
             if x.shape[: x.dim() - k] != batch:
                 return forward(*inputs)
             flat.append(x.reshape((n,) + x.shape[x.dim() - k :]).split(BLOCK))
-        out = torch.cat([forward(*block) for block in zip(*flat, strict=True)])
-        return out.reshape(batch + out.shape[1:])
+        outs = [forward(*block) for block in zip(*flat, strict=True)]
+        if isinstance(outs[0], tuple):  # several results, each concatenated
+            return tuple(_joined(parts, batch) for parts in zip(*outs, strict=True))
+        return _joined(outs, batch)
 
     return run
+
+
+def _joined(blocks: Sequence[Tensor], batch: torch.Size) -> Tensor:
+    out = torch.cat(blocks)
+    return out.reshape(batch + out.shape[1:])
 
 
 def _positional(forward: Callable[..., Tensor], n: int) -> Callable[..., Tensor]:
