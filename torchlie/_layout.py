@@ -30,6 +30,7 @@ MIN_ROWS = 512
 _is_compiling = torch.compiler.is_compiling
 _transforms_active = torch._C._are_functorch_transforms_active
 _EYES: dict[tuple[torch.dtype, int], Tensor] = {}
+_SELECTIONS: dict[tuple[int, tuple[int, ...], torch.dtype], Tensor] = {}
 
 
 def _fp32_full_precision() -> bool:
@@ -78,6 +79,12 @@ def planes(M: Tensor, n: int | tuple[int, int]) -> tuple[Tensor, ...]:
         if matrix:
             return tuple(M[..., i, j] for i in range(n[0]) for j in range(n[1]))
         return M.unbind(-1)
+    return _stacked(M, n).unbind(0)
+
+
+def _stacked(M: Tensor, n: int | tuple[int, int]) -> Tensor:
+    """:func:`planes` as one contiguous ``(count, *batch)`` tensor (eager mode)."""
+    matrix = isinstance(n, tuple)
     batch = M.shape[: M.dim() - (2 if matrix else 1)]
     rows = batch.numel()
     count = n[0] * n[1] if matrix else n
@@ -85,13 +92,22 @@ def planes(M: Tensor, n: int | tuple[int, int]) -> tuple[Tensor, ...]:
         flat = M.reshape((rows,) + M.shape[len(batch) :])
         if matrix:
             flat, columns = _rows_of_matrices(flat)
-            select = _eye(M.dtype, flat.shape[1])[columns]
+            select = _selection(M.dtype, flat.shape[1], tuple(columns))
         else:
             select = _eye(M.dtype, n)
-        return torch.mm(select, flat.T).reshape((count,) + batch).unbind(0)
+        return torch.mm(select, flat.T).reshape((count,) + batch)
     if matrix:  # one copy even when M is a strided block
-        return M.movedim((-2, -1), (0, 1)).contiguous().flatten(0, 1).unbind(0)
-    return M.movedim(-1, 0).contiguous().unbind(0)
+        return M.movedim((-2, -1), (0, 1)).contiguous().flatten(0, 1)
+    return M.movedim(-1, 0).contiguous()
+
+
+def _selection(dtype: torch.dtype, k: int, columns: tuple[int, ...]) -> Tensor:
+    """The rows ``columns`` of the ``k x k`` identity: picks those columns of a matrix."""
+    key = (k, columns, dtype)
+    out = _SELECTIONS.get(key)
+    if out is None:
+        out = _SELECTIONS[key] = _eye(dtype, k)[list(columns)]
+    return out
 
 
 def _rows_of_matrices(flat: Tensor) -> tuple[Tensor, list[int]]:
