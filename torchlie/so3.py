@@ -23,7 +23,7 @@ from torch import Tensor
 
 from . import _checks, _coeffs, _compensated, _layout
 from . import quaternion as _quat
-from ._autograd import custom_function
+from ._autograd import _blocked, custom_function
 from ._typing import Bool, Float
 
 __all__ = [
@@ -194,7 +194,14 @@ def _exp_backward(saved, g: Tensor):
     if torch.is_grad_enabled():  # create_graph: differentiable ops
         M = R.transpose(-1, -2) @ g
         return (_jl_apply(w, 2.0 * _vee(M)),)
-    return (_jl_apply_values(w, _rt_g_vee(R, g)),)
+    return (_exp_grad_values(w, R, g),)
+
+
+def _exp_grad_values_block(w: Tensor, R: Tensor, g: Tensor) -> Tensor:
+    return _jl_apply_values(w, _rt_g_vee(R, g))
+
+
+_exp_grad_values = _blocked(_exp_grad_values_block, (1, 2, 2))
 
 
 def _exp_jvp(saved, dw: Tensor) -> Tensor:
@@ -230,7 +237,14 @@ def _log_backward(saved, g: Tensor):
     # Gradient of log o polar: G = R hat(Jl^-1(w) g) / 2 (tangent part only).
     if torch.is_grad_enabled():  # create_graph: differentiable ops
         return (0.5 * (R @ _hat(_jl_inv_apply(w, g))),)
-    return (_r_hat_values(R, _jl_inv_apply_values(w, 0.5 * g)),)
+    return (_log_grad_values(R, w, g),)
+
+
+def _log_grad_values_block(R: Tensor, w: Tensor, g: Tensor) -> Tensor:
+    return _r_hat_values(R, _jl_inv_apply_values(w, 0.5 * g))
+
+
+_log_grad_values = _blocked(_log_grad_values_block, (2, 1, 1))
 
 
 def _log_jvp(saved, dR: Tensor) -> Tensor:
