@@ -35,7 +35,7 @@ from torch import Tensor
 
 from . import _checks, _coeffs, _compensated, _layout, so3
 from . import quaternion as _quat
-from ._autograd import custom_function
+from ._autograd import _blocked, custom_function
 from ._typing import Bool, Float
 
 __all__ = [
@@ -471,7 +471,7 @@ def _exp_backward(saved, G: Tensor):
     #     g_phi = Jl(phi) vee(R^T G_R - G_R^T R) + Jr(phi) (t x g_t) + Q(-rho, -phi) g_t.
     xi, T = saved
     if not torch.is_grad_enabled():
-        return (_exp_backward_values(xi, T, G),)
+        return (_exp_grad_values(xi, T, G),)
     rho, phi = xi[..., :3], xi[..., 3:]  # create_graph: differentiable ops
     R, t = _rot(T), _trans(T)
     g_R, g_t = _rot(G), _trans(G)
@@ -496,6 +496,9 @@ def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor) -> Tensor:
     q = _q_components(neg[:3], neg[3:], g_t, *_q_coeffs(xi[..., 3:]))
     g_phi = [(p + r).add_(s) for p, r, s in zip(g_phi, g_tx, q, strict=True)]
     return _layout.interleave((*g_rho, *g_phi))
+
+
+_exp_grad_values = _blocked(_exp_backward_values, (1, 2, 2))
 
 
 def _exp_jvp(saved, dxi: Tensor) -> Tensor:
@@ -538,7 +541,7 @@ def _log_backward(saved, g: Tensor):
     # so G_t = R h_rho and G_R = R hat(h_phi) / 2.
     T, xi = saved
     if not torch.is_grad_enabled():
-        return (_log_backward_values(T, xi, g),)
+        return (_log_grad_values(T, xi, g),)
     R = _rot(T)  # create_graph: differentiable ops
     rho, phi = xi[..., :3], xi[..., 3:]
     h_rho = so3._jl_inv_apply(phi, g[..., :3])
@@ -566,6 +569,9 @@ def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
         for i in (0, 3, 6)
     ]
     return _stack_rows([(*G_R[i], G_t[i]) for i in range(3)])
+
+
+_log_grad_values = _blocked(_log_backward_values, (2, 1, 1))
 
 
 def _log_jvp(saved, dT: Tensor) -> Tensor:
