@@ -408,6 +408,23 @@ def test_blocked_splits_large_batches_only():
     assert calls == [100, 2 * _autograd.BLOCK + 5]
 
 
+def test_blocks_hold_the_same_bytes_in_every_dtype():
+    calls = []
+
+    def fwd(a):
+        calls.append((a.dtype, a.shape[0]))
+        return a * 2.0, a.sum(-1)  # a tuple of results: each joined
+
+    run = _autograd._blocked(fwd, (1,))
+    n = 2 * _autograd.BLOCK + 5
+    for dtype, rows in ((torch.float32, _autograd.BLOCK), (torch.float64, _autograd.BLOCK // 2)):
+        a = torch.randn(n, 3, dtype=dtype)
+        calls.clear()
+        doubled, summed = run(a)
+        assert torch.equal(doubled, a * 2.0) and torch.equal(summed, a.sum(-1))
+        assert calls[0] == (dtype, rows) and sum(c[1] for c in calls) == n
+
+
 def test_blocked_plain_backward_equals_unblocked(monkeypatch):
     g = torch.Generator().manual_seed(41)
     q = (1.3 * torch.randn(5, 23, 4, generator=g, dtype=F64)).requires_grad_()
