@@ -9,6 +9,21 @@ from samplers import rotvecs
 from torchlie import _layout, conversions, quaternion, se3, so3
 
 DTYPES = [torch.float32, torch.float64]
+DEFAULT_MIN_ROWS = _layout.MIN_ROWS
+
+
+@pytest.fixture(autouse=True)
+def small_threshold(monkeypatch):
+    """Batches of 512 elements or more take the matrix products (the tests' batches are small)."""
+    monkeypatch.setattr(_layout, "MIN_ROWS", 512)
+
+
+def test_default_threshold(monkeypatch):
+    """Below a few thousand elements the copies are faster than the extra matrix products."""
+    monkeypatch.setattr(_layout, "MIN_ROWS", DEFAULT_MIN_ROWS)
+    x = torch.zeros(1)
+    assert not _layout._use_product(x, 1000)
+    assert _layout._use_product(x, 10_000)
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
