@@ -88,21 +88,32 @@ _HAMILTON = (
 )
 
 
+def _signed_terms(conj_a: bool, conj_b: bool) -> tuple[tuple[tuple[int, int, float], ...], ...]:
+    """:data:`_HAMILTON` for ``conj(a)`` and/or ``conj(b)``, a positive term first in each row."""
+    rows = []
+    for row in _HAMILTON:
+        terms = [
+            (j, k, float(s * (-1 if conj_a and j else 1) * (-1 if conj_b and k else 1)))
+            for j, k, s in row
+        ]
+        terms.sort(key=lambda term: -term[2])  # there always is a positive one
+        rows.append(tuple(terms))
+    return tuple(rows)
+
+
+_SIGNED_TERMS = {(ca, cb): _signed_terms(ca, cb) for ca in (False, True) for cb in (False, True)}
+
+
 def _hamilton(
     a: Sequence[Tensor], b: Sequence[Tensor], conj_a: bool = False, conj_b: bool = False
 ) -> list[Tensor]:
     """Components of ``a b`` (``conj(a)``, ``conj(b)`` if asked) from the components of each:
     one product and three multiply-adds per component."""
     out = []
-    for row in _HAMILTON:
-        terms = [
-            (j, k, s * (-1 if conj_a and j else 1) * (-1 if conj_b and k else 1)) for j, k, s in row
-        ]
-        terms.sort(key=lambda term: -term[2])  # a positive term first (there always is one)
-        j, k, _ = terms[0]
+    for (j, k, _), *rest in _SIGNED_TERMS[(conj_a, conj_b)]:
         acc = a[j] * b[k]
-        for j, k, s in terms[1:]:
-            acc = torch.addcmul(acc, a[j], b[k], value=float(s))
+        for j, k, s in rest:
+            acc = torch.addcmul(acc, a[j], b[k], value=s)
         out.append(acc)
     return out
 

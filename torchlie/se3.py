@@ -90,9 +90,7 @@ def _trans(T: Tensor) -> Tensor:
     return T[..., :3, 3]
 
 
-def _mv(M: Tensor, v: Tensor) -> Tensor:
-    """``M @ v`` for a batch of matrices and vectors (batch shapes broadcast)."""
-    return (M @ v.unsqueeze(-1)).squeeze(-1)
+_mv = so3._mv
 
 
 def _assemble(R: Tensor, t: Tensor) -> Tensor:
@@ -410,12 +408,10 @@ def _act_bwd(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]:
     # out = [R, t] (p, 1): d[R, t] = g (p, 1)^T and dp = R^T g.
     T, p = saved
     if _layout.by_product(g, 1):
-        r, pc, gc = _top_entries(T), _quat._planes(p, 3), _quat._planes(g, 3)
-        dT = _stack_rows([[gi * pj for pj in pc] + [gi] for gi in gc])
-        dp = [
-            torch.addcmul(torch.addcmul(r[0][j] * gc[0], r[1][j], gc[1]), r[2][j], gc[2])
-            for j in range(3)
-        ]
+        r, gc = _top_entries(T), _quat._planes(g, 3)
+        R9 = [r[i][j] for i in range(3) for j in range(3)]
+        dR9, dp = so3._act_grad_components(R9, _quat._planes(p, 3), gc)
+        dT = _stack_rows([(*dR9[3 * i : 3 * i + 3], gc[i]) for i in range(3)])
         return dT.sum_to_size(T.shape), _layout.interleave(dp).sum_to_size(p.shape)
     dT = _pad_row(g.unsqueeze(-1) * _homogeneous(p).unsqueeze(-2))
     dp = torch.matmul(T[..., :3, :3].transpose(-1, -2), g.unsqueeze(-1)).squeeze(-1)

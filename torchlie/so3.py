@@ -377,20 +377,21 @@ def act(R: Float[Tensor, "*b1 3 3"], points: Float[Tensor, "*b2 3"]) -> Float[Te
     return _checks.out(_ActFn(a, p), dtype)
 
 
-def _mv(R: Tensor, p: Tensor) -> Tensor:
-    return (R @ p.unsqueeze(-1)).squeeze(-1)
+def _mv(M: Tensor, v: Tensor) -> Tensor:
+    """``M @ v`` for a batch of matrices and vectors (batch shapes broadcast)."""
+    return (M @ v.unsqueeze(-1)).squeeze(-1)
 
 
-def _act_grads_entries(R: Tensor, p: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
-    """``(g p^T, R^T g)`` entry by entry (planes transposed by matrix product, see
-    :mod:`._layout`)."""
-    r, pc, gc = _quat._planes(R, 9), _quat._planes(p, 3), _quat._planes(g, 3)
-    dR = _layout.interleave([gi * pj for gi in gc for pj in pc]).unflatten(-1, (3, 3))
+def _act_grad_components(
+    r: Sequence[Tensor], p: Sequence[Tensor], g: Sequence[Tensor]
+) -> tuple[list[Tensor], list[Tensor]]:
+    """The 9 entries of ``g p^T`` (row by row) and the 3 components of ``R^T g``, from the
+    components of ``R`` (row by row), ``p`` and ``g``: the backward of ``R p``."""
+    dR = [gi * pj for gi in g for pj in p]
     dp = [
-        torch.addcmul(torch.addcmul(r[j] * gc[0], r[3 + j], gc[1]), r[6 + j], gc[2])
-        for j in range(3)
+        torch.addcmul(torch.addcmul(r[j] * g[0], r[3 + j], g[1]), r[6 + j], g[2]) for j in range(3)
     ]
-    return dR, _layout.interleave(dp)
+    return dR, dp
 
 
 def _act_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]:
@@ -398,8 +399,10 @@ def _act_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]
     one thread, forward+backward 100-140 ns per element with autograd's batched matmuls, 85-95
     entry by entry), batched products elsewhere."""
     R, p = saved
-    if _layout.by_product(g, 1):
-        dR, dp = _act_grads_entries(R, p, g)
+    if _layout.by_product(g, 1):  # planes transposed by matrix product, see _layout
+        planes = _quat._planes
+        dR9, dp3 = _act_grad_components(planes(R, 9), planes(p, 3), planes(g, 3))
+        dR, dp = _layout.interleave(dR9).unflatten(-1, (3, 3)), _layout.interleave(dp3)
     else:
         dR, dp = g.unsqueeze(-1) * p.unsqueeze(-2), _mv(R.transpose(-1, -2), g)
     return dR.sum_to_size(R.shape), dp.sum_to_size(p.shape)
