@@ -6,7 +6,7 @@ import pytest
 import torch
 from samplers import rotvecs
 
-from torchlie import _layout, conversions, quaternion, se3, so3
+from torchlie import _autograd, _layout, conversions, quaternion, se3, so3
 
 DTYPES = [torch.float32, torch.float64]
 DEFAULT_MIN_ROWS = _layout.MIN_ROWS
@@ -148,3 +148,67 @@ def test_entry_by_entry_kernels_equal_the_matmuls(dtype, monkeypatch):
             # a broadcast input's gradient is a sum over the batch: a few eps per summand
             summed = T.shape[:-2].numel() // a.shape[:-2].numel()
             torch.testing.assert_close(a, b, rtol=4 * eps, atol=4 * eps * summed, msg=name)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_interleave_reads_its_output_planes_and_writes_dest(dtype):
+    g = torch.Generator().manual_seed(7)
+    x = torch.randn(700, 4, generator=g, dtype=dtype)
+    cols = [c.contiguous() for c in x.unbind(-1)]
+    o = _layout.outputs(cols[0], 4)
+    assert all(p is not None and p.shape == (700,) for p in o)
+    parts = [torch.mul(c, 1.0, out=p) for c, p in zip(cols[:3], o, strict=False)]
+    parts.append(cols[3])  # not written to its plane: copied there
+    dest = torch.full((1000, 4), float("nan"), dtype=dtype)
+    got = _layout.interleave(parts, o, dest[100:800])
+    assert got.data_ptr() == dest[100].data_ptr()
+    assert torch.equal(dest[100:800], x) and dest[:100].isnan().all() and dest[800:].isnan().all()
+    # the copying layout writes dest as well
+    assert torch.equal(_layout.interleave(cols[:2], dest=dest[:700, :2].contiguous()), x[:, :2])
+
+
+def test_no_output_planes_where_autograd_records():
+    x = torch.randn(700)
+    assert _layout.outputs(x, 3, x) != (None,) * 3
+    y = x.clone().requires_grad_()
+    assert _layout.outputs(x, 3, y) == (None,) * 3
+    with torch.no_grad():
+        assert _layout.outputs(x, 3, y) != (None,) * 3
+    with torch.autograd.forward_ad.dual_level():
+        assert _layout.outputs(x, 3, x) == (None,) * 3
+    assert _layout.outputs(x[:10], 3) == (None,) * 3  # small batch: the copies
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_blocks_written_in_place_equal_one_pass(dtype, monkeypatch):
+    """Large batches, evaluated block by block with each block's result written in its rows
+    of the output (forward, and the plain backward), equal one pass over the whole batch."""
+    monkeypatch.setattr(_layout, "MIN_ROWS", 64)
+    cases = _cases(dtype)
+    w = cases[0][1][0]
+    T = se3.exp(torch.cat((w.flip(0), w), -1))
+    p = torch.randn(w.shape, generator=torch.Generator().manual_seed(8), dtype=dtype)
+    q = quaternion.from_rotvec(w)
+    cases += [
+        (se3.compose, (T, T.flip(0))),
+        (se3.inverse, (T,)),
+        (se3.act, (T, p)),
+        (quaternion.apply, (q, p)),
+    ]
+
+    def run():
+        with torch.no_grad():
+            plain = [fn(*args) for fn, args in cases]
+        return plain, _values_and_grads(cases)
+
+    whole = run()
+    monkeypatch.setattr(_autograd, "BLOCK", 256)  # float32 256 rows, float64 128
+    blocked = run()
+    eps = torch.finfo(dtype).eps
+    for a, b in zip(blocked[0], whole[0], strict=True):
+        # the same per-element formulas; only a SIMD tail may round differently
+        torch.testing.assert_close(a, b, rtol=4 * eps, atol=4 * eps)
+    for (name, y1, g1), (_, y2, g2) in zip(blocked[1], whole[1], strict=True):
+        torch.testing.assert_close(y1, y2, rtol=4 * eps, atol=4 * eps, msg=name)
+        for a, b in zip(g1, g2, strict=True):
+            torch.testing.assert_close(a, b, rtol=4 * eps, atol=4 * eps, msg=name)

@@ -41,6 +41,8 @@ from torch import Tensor
 from torch.autograd import Function
 from torch.autograd import forward_ad as _forward_ad
 
+from torchlie import _layout
+
 # What ``Function.apply`` calls once it has bound the arguments and found no functorch
 # transform: the C implementation, bound to a Function class with ``__get__``.
 _C_APPLY = torch._C._FunctionBase.__dict__["apply"]
@@ -70,23 +72,33 @@ def _blocked(forward: Callable[..., _Out], event_dims: tuple[int, ...]) -> Calla
     se3.log 171 -> 110; float64 blocks of 32 768 rows rather than 65 536: so3.log 195 -> 182,
     se3.log 250 -> 220, from_matrix 170 -> 146).  Only in eager mode outside ``torch.func``
     transforms, only when every input has the same batch shape (``event_dims[i]`` trailing
-    dimensions of input ``i`` are not batch); the blocks are concatenated, so the result is
-    the same tensor.
+    dimensions of input ``i`` are not batch), on CPU (a GPU's caches are not what this is
+    for, and each block is one more launch of every kernel); the result is the same tensor.
+
+    A ``forward`` with a keyword parameter ``dest`` is given, for each block after the first,
+    the rows of the result (a tensor, or a tuple of tensors for a tuple of results) that block
+    is for, and may write its result there (``out=`` of its last operation): no concatenation
+    of the blocks afterwards, which is a pass over the whole result in main memory.  A block
+    result that is not ``dest`` itself (or a view of it) is copied there.
     """
+    takes_dest = "dest" in inspect.signature(forward).parameters
 
     def run(*inputs: Tensor) -> _Out:
         first = inputs[0]
         batch = first.shape[: first.dim() - event_dims[0]]
         n = batch.numel()
         rows = BLOCK * 4 // first.element_size()  # the same bytes per plane in every dtype
-        if n < 2 * rows or _is_compiling() or _transforms_active():
+        if n < 2 * rows or first.device.type != "cpu" or _is_compiling() or _transforms_active():
             return forward(*inputs)
         flat = []
         for x, k in zip(inputs, event_dims, strict=True):
             if x.shape[: x.dim() - k] != batch:
                 return forward(*inputs)
             flat.append(x.reshape((n,) + x.shape[x.dim() - k :]).split(rows))
-        outs = [forward(*block) for block in zip(*flat, strict=True)]
+        blocks = list(zip(*flat, strict=True))
+        if takes_dest and not _layout.needs_graph(inputs):
+            return _written(forward, blocks, n, batch)
+        outs = [forward(*block) for block in blocks]
         if isinstance(outs[0], tuple):  # several results, each concatenated
             return tuple(_joined(parts, batch) for parts in zip(*outs, strict=True))
         return _joined(outs, batch)
@@ -97,6 +109,27 @@ def _blocked(forward: Callable[..., _Out], event_dims: tuple[int, ...]) -> Calla
 def _joined(blocks: Sequence[Tensor], batch: torch.Size) -> Tensor:
     out = torch.cat(blocks)
     return out.reshape(batch + out.shape[1:])
+
+
+def _written(forward: Callable[..., _Out], blocks: list, n: int, batch: torch.Size) -> _Out:
+    """The blocked ``forward`` with ``dest``: each block's result written in its rows."""
+    first = forward(*blocks[0])
+    single = not isinstance(first, tuple)
+    outs = (first,) if single else first
+    results = tuple(out.new_empty((n,) + out.shape[1:]) for out in outs)
+    start = 0
+    for i, block in enumerate(blocks):
+        stop = start + block[0].shape[0]
+        dest = tuple(r[start:stop] for r in results)
+        if i:
+            outs = forward(*block, dest=dest[0] if single else dest)
+            outs = (outs,) if single else outs
+        for out, d in zip(outs, dest, strict=True):
+            if out.data_ptr() != d.data_ptr() or out.stride() != d.stride():
+                d.copy_(out)
+        start = stop
+    joined = tuple(r.reshape(batch + r.shape[1:]) for r in results)
+    return joined[0] if single else joined
 
 
 def _positional(forward: Callable[..., Tensor], n: int) -> Callable[..., Tensor]:
@@ -145,7 +178,8 @@ class CustomFunction:
         event_dims: tuple[int, ...],
         blocked: bool = True,
     ) -> None:
-        n = len(inspect.signature(forward).parameters)
+        positional = (inspect.Parameter.POSITIONAL_ONLY, inspect.Parameter.POSITIONAL_OR_KEYWORD)
+        n = sum(p.kind in positional for p in inspect.signature(forward).parameters.values())
         if len(event_dims) != n:
             raise ValueError(f"custom_function {name}: one event_dims entry per input, {n} inputs")
         if blocked:

@@ -156,12 +156,12 @@ def _half(S: Tensor, S_lo: Tensor, fused: bool = False):
     return Ss, g, g_lo, ch, ch_lo
 
 
-def exp(w: Tensor, fused: bool | None = None) -> Tensor:
+def exp(w: Tensor, fused: bool | None = None, dest: Tensor | None = None) -> Tensor:
     """Rotation matrix of the rotation vector ``w``: ``(..., 3)`` -> ``(..., 3, 3)``, float64.
 
-    The entries of :func:`exp_entries`, stacked.
+    The entries of :func:`exp_entries`, stacked (into ``dest`` if given).
     """
-    return _layout.interleave(exp_entries(w, fused)).unflatten(-1, (3, 3))
+    return _layout.interleave(exp_entries(w, fused), dest=dest).unflatten(-1, (3, 3))
 
 
 def exp_entries(w: Tensor, fused: bool | None = None) -> list[Tensor]:

@@ -23,6 +23,7 @@ from collections.abc import Sequence
 
 import torch
 from torch import Tensor
+from torch.autograd import forward_ad as _forward_ad
 
 #: Smallest batch (number of elements) that takes the matrix-product transposition (float32,
 #: one thread, per call: at 1000 elements 6-15 % slower than the copies, twice as slow for the
@@ -127,12 +128,49 @@ def _rows_of_matrices(flat: Tensor) -> tuple[Tensor, list[int]]:
     return view, [i * s + j for i in range(r) for j in range(c)]
 
 
-def interleave(parts: Sequence[Tensor]) -> Tensor:
-    """``torch.stack(parts, dim=-1)`` (the parts have one shape)."""
+def outputs(like: Tensor, n: int, *inputs: Tensor) -> tuple[Tensor | None, ...]:
+    """Where a kernel writes the ``n`` parts it will :func:`interleave` (``out=`` of its last
+    operations): the planes of one ``(n, *like.shape)`` buffer where :func:`interleave`
+    transposes by matrix product, which then reads that buffer as it is instead of stacking
+    the parts into one first (a pass over the whole result); ``n`` Nones (new tensors)
+    elsewhere, and where autograd records the kernel (grad mode on and one of ``inputs``
+    requiring grad: ``out=`` is not differentiable)."""
+    if not _use_product(like, like.numel()) or needs_graph(inputs):
+        return (None,) * n
+    return torch.empty((n,) + like.shape, dtype=like.dtype, device=like.device).unbind(0)
+
+
+def needs_graph(inputs: Sequence[Tensor]) -> bool:
+    """Whether autograd may record operations on ``inputs``: grad mode on and one of them
+    requires grad, or a forward-mode level entered (an input may carry a tangent)."""
+    if _forward_ad._current_level >= 0:
+        return True
+    return torch.is_grad_enabled() and any(x.requires_grad for x in inputs)
+
+
+def interleave(
+    parts: Sequence[Tensor],
+    out: Sequence[Tensor | None] | None = None,
+    dest: Tensor | None = None,
+) -> Tensor:
+    """``torch.stack(parts, dim=-1)`` (the parts have one shape).
+
+    ``out``: the planes from :func:`outputs` the parts were written to (a part that is not its
+    plane is copied there).  ``dest``: a contiguous tensor of the result's size to write it in
+    (the rows of a larger result, see :func:`torchlie._autograd._blocked`; not differentiable).
+    """
     first = parts[0]
     rows = first.numel()
-    if not _use_product(first, rows):
-        return torch.stack(tuple(parts), dim=-1)
     n = len(parts)
-    stacked = torch.stack(tuple(parts)).reshape(n, rows)
-    return torch.mm(stacked.T, _eye(first.dtype, n)).reshape(first.shape + (n,))
+    shape = first.shape + (n,)
+    if not _use_product(first, rows):
+        return torch.stack(tuple(parts), dim=-1, out=None if dest is None else dest.view(shape))
+    if out is None or out[0] is None:
+        stacked = torch.stack(tuple(parts)).reshape(n, rows)
+    else:
+        for part, plane in zip(parts, out, strict=True):
+            if part is not plane:
+                plane.copy_(part)
+        stacked = out[0]._base.reshape(n, rows)
+    result = None if dest is None else dest.view(rows, n)
+    return torch.mm(stacked.T, _eye(first.dtype, n), out=result).reshape(shape)

@@ -105,30 +105,40 @@ _SIGNED_TERMS = {(ca, cb): _signed_terms(ca, cb) for ca in (False, True) for cb 
 
 
 def _hamilton(
-    a: Sequence[Tensor], b: Sequence[Tensor], conj_a: bool = False, conj_b: bool = False
+    a: Sequence[Tensor],
+    b: Sequence[Tensor],
+    conj_a: bool = False,
+    conj_b: bool = False,
+    out: Sequence[Tensor | None] = (None,) * 4,
 ) -> list[Tensor]:
     """Components of ``a b`` (``conj(a)``, ``conj(b)`` if asked) from the components of each:
-    one product and three multiply-adds per component."""
-    out = []
-    for (j, k, _), *rest in _SIGNED_TERMS[(conj_a, conj_b)]:
+    one product and three multiply-adds per component (the last written to ``out``)."""
+    result = []
+    for ((j, k, _), *rest), o in zip(_SIGNED_TERMS[(conj_a, conj_b)], out, strict=True):
         acc = a[j] * b[k]
-        for j, k, s in rest:
-            acc = torch.addcmul(acc, a[j], b[k], value=s)
-        out.append(acc)
-    return out
+        (j1, k1, s1), (j2, k2, s2), (j3, k3, s3) = rest
+        acc = torch.addcmul(torch.addcmul(acc, a[j1], b[k1], value=s1), a[j2], b[k2], value=s2)
+        result.append(torch.addcmul(acc, a[j3], b[k3], value=s3, out=o))
+    return result
 
 
-def _multiply_values(a: Tensor, b: Tensor) -> Tensor:
-    return _layout.interleave(_hamilton(_planes(a, 4), _planes(b, 4)))
+def _product(a: Sequence[Tensor], b: Sequence[Tensor], dest: Tensor | None, **conj: bool):
+    """:func:`_hamilton`, interleaved (into ``dest`` if given)."""
+    o = _layout.outputs(a[0], 4)
+    return _layout.interleave(_hamilton(a, b, out=o, **conj), o, dest)
 
 
-def _multiply_grads_block(a: Tensor, b: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
+def _multiply_values(a: Tensor, b: Tensor, *, dest: Tensor | None = None) -> Tensor:
+    return _product(_planes(a, 4), _planes(b, 4), dest)
+
+
+def _multiply_grads_block(
+    a: Tensor, b: Tensor, g: Tensor, *, dest: tuple[Tensor, Tensor] | None = None
+) -> tuple[Tensor, Tensor]:
     """``(g conj(b), conj(a) g)``, the plain backward of ``a b`` (one block of rows)."""
     ap, bp, gp = _planes(a, 4), _planes(b, 4), _planes(g, 4)
-    return (
-        _layout.interleave(_hamilton(gp, bp, conj_b=True)),
-        _layout.interleave(_hamilton(ap, gp, conj_a=True)),
-    )
+    da, db = (None, None) if dest is None else dest
+    return _product(gp, bp, da, conj_b=True), _product(ap, gp, db, conj_a=True)
 
 
 _multiply_grads = _blocked(_multiply_grads_block, (1, 1, 1))
@@ -238,7 +248,7 @@ def to_matrix(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 3 3"]:
     return _checks.out(_to_matrix(x), dtype)
 
 
-def _to_matrix_forward(q: Tensor) -> Tensor:
+def _to_matrix_forward(q: Tensor, *, dest: Tensor | None = None) -> Tensor:
     w, x, y, z = _planes(q, 4)
     ww, xx, yy, zz = w * w, x * x, y * y, z * z
     s = 2.0 / (ww + xx + yy + zz)
@@ -248,13 +258,14 @@ def _to_matrix_forward(q: Tensor) -> Tensor:
     # Diagonal as (w^2 + x^2 - y^2 - z^2) / |q|^2: two terms bounded by |q|^2, where
     # 1 - (yy + zz) s rounds a sum near 2 close to pi (3.1e-16 instead of 5.0e-16 in float64).
     hs = 0.5 * s
-    return _layout.interleave(
-        (
-            ((ww + xx) - (yy + zz)) * hs, xy - wz, xz + wy,
-            xy + wz, ((ww + yy) - (xx + zz)) * hs, yz - wx,
-            xz - wy, yz + wx, ((ww + zz) - (xx + yy)) * hs,
-        ),
-    ).unflatten(-1, (3, 3))  # fmt: skip
+    o = _layout.outputs(w, 9)
+    mul, add, sub = torch.mul, torch.add, torch.sub
+    entries = (
+        mul((ww + xx) - (yy + zz), hs, out=o[0]), sub(xy, wz, out=o[1]), add(xz, wy, out=o[2]),
+        add(xy, wz, out=o[3]), mul((ww + yy) - (xx + zz), hs, out=o[4]), sub(yz, wx, out=o[5]),
+        sub(xz, wy, out=o[6]), add(yz, wx, out=o[7]), mul((ww + zz) - (xx + yy), hs, out=o[8]),
+    )  # fmt: skip
+    return _layout.interleave(entries, o, dest).unflatten(-1, (3, 3))
 
 
 def _norm2(w: Tensor, x: Tensor, y: Tensor, z: Tensor) -> Tensor:
@@ -306,15 +317,21 @@ def _to_matrix_backward(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor]:
     return (_to_matrix_grad_values(q, R, G),)
 
 
-def _to_matrix_grad_values_block(q: Tensor, R: Tensor, G: Tensor) -> Tensor:
+def _to_matrix_grad_values_block(
+    q: Tensor, R: Tensor, G: Tensor, *, dest: Tensor | None = None
+) -> Tensor:
     """The plain backward of :func:`to_matrix` from components (one block of rows)."""
     w, x, y, z = _planes(q, 4)
     a1, a2, a3 = _rt_g_vee(R, G)
     k = 2.0 / _norm2(w, x, y, z)
-    gw = torch.addcmul(torch.addcmul(x * a1, y, a2), z, a3).mul_(-k)
+    o = _layout.outputs(w, 4)
+    gw = torch.mul(torch.addcmul(torch.addcmul(x * a1, y, a2), z, a3), k, out=o[0]).neg_()
     c = _cross_planes((x, y, z), (a1, a2, a3))
-    gv = [torch.addcmul(ci, w, ai).mul_(k) for ai, ci in zip((a1, a2, a3), c, strict=True)]
-    return _layout.interleave((gw, *gv))
+    gv = [
+        torch.mul(torch.addcmul(ci, w, ai), k, out=oi)
+        for ai, ci, oi in zip((a1, a2, a3), c, o[1:], strict=True)
+    ]
+    return _layout.interleave((gw, *gv), o, dest)
 
 
 _to_matrix_grad_values = _blocked(_to_matrix_grad_values_block, (1, 2, 2))
@@ -417,30 +434,36 @@ def _from_matrix_parts(R: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, Tenso
     return cw, pick(s21, d1, a01, a02), pick(s02, a01, d2, a12), pick(s10, a02, a12, d3), sign
 
 
-def _from_matrix_forward(R: Tensor) -> Tensor:
+def _from_matrix_forward(R: Tensor, *, dest: Tensor | None = None) -> Tensor:
     cw, cx, cy, cz, sign = _from_matrix_parts(R)
     # |c| = 4 q_p >= 2 for a rotation: the division is safe, and a NaN element stays in its row.
     n2 = _norm2(cw, cx, cy, cz)
     scale = torch.rsqrt(n2) * sign
-    return _layout.interleave((cw * scale, cx * scale, cy * scale, cz * scale))
+    o = _layout.outputs(cw, 4)
+    parts = [torch.mul(c, scale, out=oi) for c, oi in zip((cw, cx, cy, cz), o, strict=True)]
+    return _layout.interleave(parts, o, dest)
 
 
-def _cross_planes(a: Sequence[Tensor], b: Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
-    """``a x b`` from components (planes; :func:`_cross` takes ``(..., 3)`` tensors)."""
+def _cross_planes(
+    a: Sequence[Tensor], b: Sequence[Tensor], out: Sequence[Tensor | None] = (None,) * 3
+) -> tuple[Tensor, Tensor, Tensor]:
+    """``a x b`` from components (planes, written to ``out``; :func:`_cross` takes ``(..., 3)``
+    tensors)."""
     ax, ay, az = a
     bx, by, bz = b
     return (
-        torch.addcmul(ay * bz, az, by, value=-1.0),
-        torch.addcmul(az * bx, ax, bz, value=-1.0),
-        torch.addcmul(ax * by, ay, bx, value=-1.0),
+        torch.addcmul(ay * bz, az, by, value=-1.0, out=out[0]),
+        torch.addcmul(az * bx, ax, bz, value=-1.0, out=out[1]),
+        torch.addcmul(ax * by, ay, bx, value=-1.0, out=out[2]),
     )
 
 
-def _r_hat_values(R: Tensor, u: Sequence[Tensor]) -> Tensor:
+def _r_hat_values(R: Tensor, u: Sequence[Tensor], dest: Tensor | None = None) -> Tensor:
     """``R hat(u)`` from components: row ``i`` is ``cross(R_i, u)``."""
     r = _planes(R, 9)
-    out = [c for i in (0, 3, 6) for c in _cross_planes(r[i : i + 3], u)]
-    return _layout.interleave(out).unflatten(-1, (3, 3))
+    o = _layout.outputs(r[0], 9)
+    out = [c for i in (0, 3, 6) for c in _cross_planes(r[i : i + 3], u, o[i : i + 3])]
+    return _layout.interleave(out, o, dest).unflatten(-1, (3, 3))
 
 
 def _from_matrix_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:
@@ -483,14 +506,14 @@ def _from_matrix(R: Tensor) -> Tensor:
     return _FromMatrixFn(R)
 
 
-def _log_of_matrix(R: Tensor) -> Tensor:
+def _log_of_matrix(R: Tensor, dest: Tensor | None = None) -> Tensor:
     """Rotation vector of ``R`` (forward of :func:`torchlie.so3.log`; runs without autograd).
 
     ``2 atan2(|c_v|, |c_w|) c_v / |c_v|`` with the sign of the canonical quaternion, straight
     from the unnormalised Shepperd candidate ``c`` (atan2 is scale-invariant).  At ``c_v = 0``
     (the identity) the quotient's denominator is clamped, which gives exactly 0.
     """
-    return _layout.interleave(_log_of_matrix_components(R))
+    return _layout.interleave(_log_of_matrix_components(R), dest=dest)
 
 
 def _log_of_matrix_components(R: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -656,7 +679,7 @@ def _apply(q: Tensor, p: Tensor) -> Tensor:
     return torch.addcmul(p, w, t) + torch.linalg.cross(v, t, dim=-1)
 
 
-def _apply_entries(q: Tensor, p: Tensor) -> Tensor:
+def _apply_entries(q: Tensor, p: Tensor, *, dest: Tensor | None = None) -> Tensor:
     """:func:`_apply` from components: one fused loop when compiled, forward and backward,
     where ``linalg.cross`` is lowered to modular gathers over the last dimension; in eager mode
     on large batches, whose planes are transposed by matrix product (see :mod:`._layout`)."""
@@ -665,9 +688,12 @@ def _apply_entries(q: Tensor, p: Tensor) -> Tensor:
     s = 2.0 / _norm2(w, *v)
     t = [s * c for c in _cross_planes(v, pc)]
     vt = _cross_planes(v, t)
-    return _layout.interleave(
-        [torch.addcmul(pi, w, ti) + ci for pi, ti, ci in zip(pc, t, vt, strict=True)]
-    )
+    o = _layout.outputs(w, 3, q, p)  # differentiated through when q or p requires grad
+    parts = [
+        torch.add(torch.addcmul(pi, w, ti), ci, out=oi)
+        for pi, ti, ci, oi in zip(pc, t, vt, o, strict=True)
+    ]
+    return _layout.interleave(parts, o, dest)
 
 
 _apply_entries_blocked = _blocked(_apply_entries, (1, 1))

@@ -237,44 +237,70 @@ def _top_entries(T: Tensor) -> list[list[Tensor]]:
     return [list(e[4 * i : 4 * i + 4]) for i in range(3)]
 
 
-def _stack_top(rows: Sequence[Sequence[Tensor]], corner: float = 1.0) -> Tensor:
+def _top_outputs(like: Tensor) -> tuple[tuple[Tensor | None, ...], list[list[Tensor | None]]]:
+    """The 16 planes of :func:`_layout.outputs` for a 4x4 result, and the 12 of its top block
+    row by row (where the entries are to be written)."""
+    o = _layout.outputs(like, 16)
+    return o, [list(o[4 * i : 4 * i + 4]) for i in range(3)]
+
+
+def _stack_top(
+    rows: Sequence[Sequence[Tensor]],
+    corner: float = 1.0,
+    out: Sequence[Tensor | None] | None = None,
+    dest: Tensor | None = None,
+) -> Tensor:
     """``[[rows], [0, 0, 0, corner]]``: a 4x4 matrix from the 12 entries of its top block (row by
-    row, all of one shape)."""
-    zero = torch.zeros_like(rows[0][0])
-    last = zero if corner == 0.0 else torch.full_like(zero, corner)
-    entries = (*rows[0], *rows[1], *rows[2], zero, zero, zero, last)
-    return _layout.interleave(entries).unflatten(-1, (4, 4))
+    row, all of one shape; written to the planes ``out`` of :func:`_top_outputs` or not), into
+    ``dest`` if given."""
+    if out is not None and out[0] is not None:
+        out[12].zero_()
+        out[13].zero_()
+        out[14].zero_()
+        last = out[15].fill_(corner)
+        zero = out[12:15]
+    else:
+        zero = (torch.zeros_like(rows[0][0]),) * 3
+        last = zero[0] if corner == 0.0 else torch.full_like(zero[0], corner)
+    entries = (*rows[0], *rows[1], *rows[2], *zero, last)
+    return _layout.interleave(entries, out, dest).unflatten(-1, (4, 4))
 
 
-def _stack_rows(rows: Sequence[Sequence[Tensor]]) -> Tensor:
+def _stack_rows(
+    rows: Sequence[Sequence[Tensor]],
+    out: Sequence[Tensor | None] | None = None,
+    dest: Tensor | None = None,
+) -> Tensor:
     """:func:`_stack_top` with a zero last row (a gradient: the bottom row is not read)."""
-    return _stack_top(rows, corner=0.0)
+    return _stack_top(rows, 0.0, out, dest)
 
 
-def _compose_entries(A: Tensor, B: Tensor) -> Tensor:
+def _compose_entries(A: Tensor, B: Tensor, dest: Tensor | None = None) -> Tensor:
     """:func:`_compose_fwd` entry by entry: one fused loop when compiled, where the batched
     matmul is a library call of its own with a copy on each side."""
     a, b = _top_entries(A), _top_entries(B)
+    o, top = _top_outputs(a[0][0])
     rows = []
-    for ai in a:
+    for ai, oi in zip(a, top, strict=True):
         row = [
-            torch.addcmul(torch.addcmul(ai[0] * b[0][j], ai[1], b[1][j]), ai[2], b[2][j])
-            for j in range(4)
+            torch.addcmul(torch.addcmul(ai[0] * b[0][j], ai[1], b[1][j]), ai[2], b[2][j], out=oi[j])
+            for j in range(3)
         ]
-        row[3] = row[3] + ai[3]
-        rows.append(row)
-    return _stack_top(rows)
+        t = torch.addcmul(torch.addcmul(ai[0] * b[0][3], ai[1], b[1][3]), ai[2], b[2][3])
+        rows.append([*row, torch.add(t, ai[3], out=oi[3])])
+    return _stack_top(rows, out=o, dest=dest)
 
 
-def _inverse_entries(T: Tensor) -> Tensor:
+def _inverse_entries(T: Tensor, dest: Tensor | None = None) -> Tensor:
     """:func:`_inverse_fwd` entry by entry (for the compiled path, as :func:`_compose_entries`)."""
     r = _top_entries(T)
+    o, top = _top_outputs(r[0][0])
     rows = []
     for i in range(3):
         col = [r[0][i], r[1][i], r[2][i]]
         t = torch.addcmul(torch.addcmul(col[0] * r[0][3], col[1], r[1][3]), col[2], r[2][3])
-        rows.append([*col, -t])
-    return _stack_top(rows)
+        rows.append([*col, torch.neg(t, out=top[i][3])])
+    return _stack_top(rows, out=o, dest=dest)
 
 
 def _entry_by_entry(T: Tensor) -> bool:
@@ -286,9 +312,9 @@ def _entry_by_entry(T: Tensor) -> bool:
     return torch.compiler.is_compiling() or _layout.by_product(T, 2)
 
 
-def _compose_fwd(A: Tensor, B: Tensor) -> Tensor:
+def _compose_fwd(A: Tensor, B: Tensor, *, dest: Tensor | None = None) -> Tensor:
     if _entry_by_entry(A):
-        return _compose_entries(A, B)
+        return _compose_entries(A, B, dest)
     top = torch.matmul(A[..., :3, :3], B[..., :3, :])  # [R1 R2, R1 t2]
     top.select(-1, 3).add_(A[..., :3, 3])
     return _with_last_row(top)
@@ -348,9 +374,9 @@ _ComposeFn = custom_function(
 )
 
 
-def _inverse_fwd(T: Tensor) -> Tensor:
+def _inverse_fwd(T: Tensor, *, dest: Tensor | None = None) -> Tensor:
     if _entry_by_entry(T):
-        return _inverse_entries(T)
+        return _inverse_entries(T, dest)
     Rt = T[..., :3, :3].transpose(-1, -2)
     return _with_last_row(torch.cat((Rt, torch.matmul(Rt, T[..., :3, 3:]).neg_()), dim=-1))
 
@@ -447,17 +473,18 @@ _ActFn = custom_function(
 # ----------------------------------------------------------------------------------------------
 
 
-def _exp_forward(xi: Tensor) -> Tensor:
+def _exp_forward(xi: Tensor, *, dest: Tensor | None = None) -> Tensor:
     """``[[Exp(phi), Jl(phi) rho], [0, 1]]`` from components, one set of coefficients for both
     blocks (runs without autograd: forward-only coefficients); in float64 the rotation block is
     :func:`torchlie.so3.exp`'s compensated one."""
     xyz, (a, b, c, d) = so3._rodrigues(xi[..., 3:])
+    o, top = _top_outputs(xyz[0])
     if xi.dtype == torch.float64:  # the rotation block of so3.exp, bit for bit
         R = _compensated.exp_entries(xi[..., 3:])
     else:
-        R = so3._exp_entries(xyz, a, b, d)
-    t = so3._jl_components(xyz, _quat._planes(xi[..., :3], 3), a, b, c)
-    return _stack_top([(*R[0:3], t[0]), (*R[3:6], t[1]), (*R[6:9], t[2])])
+        R = so3._exp_entries(xyz, a, b, d, [e for row in top for e in row[:3]])
+    t = so3._jl_components(xyz, _quat._planes(xi[..., :3], 3), a, b, c, [r[3] for r in top])
+    return _stack_top([(*R[0:3], t[0]), (*R[3:6], t[1]), (*R[6:9], t[2])], out=o, dest=dest)
 
 
 def _exp_backward(saved, G: Tensor):
@@ -477,21 +504,24 @@ def _exp_backward(saved, G: Tensor):
     return (torch.cat((g_rho, g_phi + _q_apply(-rho, -phi, g_t)), dim=-1),)
 
 
-def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor) -> Tensor:
+def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor, *, dest: Tensor | None = None):
     """:func:`_exp_backward` from components, forward-only coefficients (plain backward)."""
     x = _quat._planes(xi, 6)
     xyz = x[3:]
     a, b, c, _ = (v.to(xi.dtype) for v in _coeffs.rodrigues_values(xi[..., 3:]))
     t = _quat._planes(_trans(T), 3)
     g_t = _quat._planes(_trans(G), 3)
-    g_rho = so3._jl_components(xyz, g_t, a, -b, c)
+    o = _layout.outputs(x[0], 6)
+    g_rho = so3._jl_components(xyz, g_t, a, -b, c, o[:3])
     u = so3._rt_g_vee(_rot(T), _rot(G))
     g_phi = so3._jl_components(xyz, u, a, b, c)
     g_tx = so3._jl_components(xyz, so3._cross(t, g_t), a, -b, c)
     neg = [-v for v in x]
     q = _q_components(neg[:3], neg[3:], g_t, *_q_coeffs(xi[..., 3:]))
-    g_phi = [(p + r).add_(s) for p, r, s in zip(g_phi, g_tx, q, strict=True)]
-    return _layout.interleave((*g_rho, *g_phi))
+    g_phi = [
+        torch.add(p, r, out=oi).add_(s) for p, r, s, oi in zip(g_phi, g_tx, q, o[3:], strict=True)
+    ]
+    return _layout.interleave((*g_rho, *g_phi), o, dest)
 
 
 _exp_grad_values = _blocked(_exp_backward_values, (1, 2, 2))
@@ -522,12 +552,12 @@ def _exp(xi: Tensor) -> Tensor:
     return _ExpFn(xi)
 
 
-def _log_forward(T: Tensor) -> Tensor:
+def _log_forward(T: Tensor, *, dest: Tensor | None = None) -> Tensor:
     """From components, stacked once: compiled, every intermediate is per element and the whole
     map is one loop over the batch (a stacked rotation vector read again by components would be
     a loop of its own); eager, one stack fewer."""
     phi = _quat._log_of_matrix_components(_rot(T))
-    return _layout.interleave((*so3._jl_inv_apply_values(phi, _trans(T)), *phi))
+    return _layout.interleave((*so3._jl_inv_apply_values(phi, _trans(T)), *phi), dest=dest)
 
 
 def _log_backward(saved, g: Tensor):
@@ -547,7 +577,7 @@ def _log_backward(saved, g: Tensor):
     return (torch.cat((top, torch.zeros_like(top[..., :1, :])), dim=-2),)
 
 
-def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
+def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor, *, dest: Tensor | None = None):
     """:func:`_log_backward` from components, forward-only coefficients (plain backward)."""
     phi = xi[..., 3:]
     x = _quat._planes(xi, 6)
@@ -559,12 +589,15 @@ def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
     v = [(gi - qi).mul_(0.5) for gi, qi in zip(gs[3:], q, strict=True)]
     u = so3._jl_components(x[3:], v, e, half, d)  # h_phi / 2
     r = _quat._planes(_rot(T), 9)
-    G_R = so3._cross(r[0:3], u), so3._cross(r[3:6], u), so3._cross(r[6:9], u)  # rows of R hat(u)
+    o, top = _top_outputs(r[0])
+    G_R = [so3._cross(r[3 * i : 3 * i + 3], u, top[i][:3]) for i in range(3)]  # rows of R hat(u)
     G_t = [
-        torch.addcmul(torch.addcmul(r[i] * h_rho[0], r[i + 1], h_rho[1]), r[i + 2], h_rho[2])
-        for i in (0, 3, 6)
+        torch.addcmul(
+            torch.addcmul(r[i] * h_rho[0], r[i + 1], h_rho[1]), r[i + 2], h_rho[2], out=oi[3]
+        )
+        for i, oi in zip((0, 3, 6), top, strict=True)
     ]
-    return _stack_rows([(*G_R[i], G_t[i]) for i in range(3)])
+    return _stack_rows([(*G_R[i], G_t[i]) for i in range(3)], o, dest)
 
 
 _log_grad_values = _blocked(_log_backward_values, (2, 1, 1))

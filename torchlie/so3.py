@@ -118,34 +118,43 @@ def _rodrigues(w: Tensor) -> tuple[tuple[Tensor, ...], tuple[Tensor, ...]]:
     return _quat._planes(w, 3), tuple(v.to(w.dtype) for v in _coeffs.rodrigues_values(w))
 
 
-def _exp_entries(xyz: tuple[Tensor, ...], a: Tensor, b: Tensor, d: Tensor) -> list[Tensor]:
-    """The 9 entries (row by row) of ``d I + a hat(w) + b w w^T`` from components."""
+def _exp_entries(
+    xyz: Sequence[Tensor],
+    a: Tensor,
+    b: Tensor,
+    d: Tensor,
+    out: Sequence[Tensor | None] = (None,) * 9,
+) -> list[Tensor]:
+    """The 9 entries (row by row) of ``d I + a hat(w) + b w w^T`` from components (written to
+    ``out``)."""
     x, y, z = xyz
     bx, by, bz = b * x, b * y, b * z
     ax, ay, az = a * x, a * y, a * z
     bxy, bxz, byz = bx * y, bx * z, by * z
+    o, add, sub, fma = out, torch.add, torch.sub, torch.addcmul
     return [
-        torch.addcmul(d, bx, x), bxy - az, bxz + ay,
-        bxy + az, torch.addcmul(d, by, y), byz - ax,
-        bxz - ay, byz + ax, torch.addcmul(d, bz, z),
+        fma(d, bx, x, out=o[0]), sub(bxy, az, out=o[1]), add(bxz, ay, out=o[2]),
+        add(bxy, az, out=o[3]), fma(d, by, y, out=o[4]), sub(byz, ax, out=o[5]),
+        sub(bxz, ay, out=o[6]), add(byz, ax, out=o[7]), fma(d, bz, z, out=o[8]),
     ]  # fmt: skip
 
 
-def _exp(w: Tensor) -> Tensor:
+def _exp(w: Tensor, *, dest: Tensor | None = None) -> Tensor:
     """Forward of :func:`exp` (runs without autograd: forward-only coefficients).
 
     float64 takes the compensated kernel of :mod:`torchlie._compensated` (within 1.1 ulp
     norm-wise at every angle instead of 3); float32 evaluates its coefficients in float64.
     """
     if w.dtype == torch.float64:
-        return _compensated.exp(w)
+        return _compensated.exp(w, dest=dest)
     xyz, (a, b, _, d) = _rodrigues(w)
-    return _layout.interleave(_exp_entries(xyz, a, b, d)).unflatten(-1, (3, 3))
+    o = _layout.outputs(xyz[0], 9)
+    return _layout.interleave(_exp_entries(xyz, a, b, d, o), o, dest).unflatten(-1, (3, 3))
 
 
-def _log(R: Tensor) -> Tensor:
+def _log(R: Tensor, *, dest: Tensor | None = None) -> Tensor:
     """Forward of :func:`log` (runs without autograd)."""
-    return _quat._log_of_matrix(R)
+    return _quat._log_of_matrix(R, dest)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -162,30 +171,35 @@ def _jl_components(
     a: Tensor,
     b: Tensor,
     c: Tensor,
+    out: Sequence[Tensor | None] = (None,) * 3,
 ) -> list[Tensor]:
-    """Components of ``a v + b (w x v) + c (w . v) w`` (``w = xyz``, ``v`` by components)."""
+    """Components of ``a v + b (w x v) + c (w . v) w`` (``w = xyz``, ``v`` by components;
+    written to ``out``)."""
     x, y, z = xyz
     p, q, r = v
     cwv = c * torch.addcmul(torch.addcmul(x * p, y, q), z, r)
-    out = []
-    for vi, wi, (w1, v2), (w2, v1) in (
-        (p, x, (y, r), (z, q)),
-        (q, y, (z, p), (x, r)),
-        (r, z, (x, q), (y, p)),
+    result = []
+    for vi, wi, (w1, v2), (w2, v1), o in (
+        (p, x, (y, r), (z, q), out[0]),
+        (q, y, (z, p), (x, r), out[1]),
+        (r, z, (x, q), (y, p), out[2]),
     ):
         cross = torch.addcmul(w1 * v2, w2, v1, value=-1.0)
-        out.append(torch.addcmul(torch.addcmul(a * vi, b, cross), cwv, wi))
-    return out
+        result.append(torch.addcmul(torch.addcmul(a * vi, b, cross), cwv, wi, out=o))
+    return result
 
 
-def _jl_apply_values(w: Tensor, v: tuple[Tensor, ...], sign: float = 1.0) -> Tensor:
+def _jl_apply_values(
+    w: Tensor, v: tuple[Tensor, ...], sign: float = 1.0, dest: Tensor | None = None
+) -> Tensor:
     """``Jl(w) v`` (``sign=1``) or ``Jr(w) v`` (``sign=-1``) from components; forward-only.
 
     ``Jl(w) v = a v + b (w x v) + c (w . v) w`` with :func:`torchlie._coeffs.rodrigues_values`
     (not differentiable: backward passes without ``create_graph`` only).
     """
     xyz, (a, b, c, _) = _rodrigues(w)
-    return _layout.interleave(_jl_components(xyz, v, a, b if sign > 0 else -b, c))
+    o = _layout.outputs(xyz[0], 3)
+    return _layout.interleave(_jl_components(xyz, v, a, b if sign > 0 else -b, c, o), o, dest)
 
 
 def _exp_backward(saved, g: Tensor):
@@ -197,8 +211,8 @@ def _exp_backward(saved, g: Tensor):
     return (_exp_grad_values(w, R, g),)
 
 
-def _exp_grad_values_block(w: Tensor, R: Tensor, g: Tensor) -> Tensor:
-    return _jl_apply_values(w, _rt_g_vee(R, g))
+def _exp_grad_values_block(w: Tensor, R: Tensor, g: Tensor, *, dest: Tensor | None = None):
+    return _jl_apply_values(w, _rt_g_vee(R, g), dest=dest)
 
 
 _exp_grad_values = _blocked(_exp_grad_values_block, (1, 2, 2))
@@ -240,8 +254,8 @@ def _log_backward(saved, g: Tensor):
     return (_log_grad_values(R, w, g),)
 
 
-def _log_grad_values_block(R: Tensor, w: Tensor, g: Tensor) -> Tensor:
-    return _r_hat_values(R, _jl_inv_apply_values(w, 0.5 * g))
+def _log_grad_values_block(R: Tensor, w: Tensor, g: Tensor, *, dest: Tensor | None = None):
+    return _r_hat_values(R, _jl_inv_apply_values(w, 0.5 * g), dest)
 
 
 _log_grad_values = _blocked(_log_grad_values_block, (2, 1, 1))
