@@ -193,13 +193,21 @@ def test_blocks_written_in_place_equal_one_pass(dtype, monkeypatch):
         (se3.compose, (T, T.flip(0))),
         (se3.inverse, (T,)),
         (se3.act, (T, p)),
+        (so3.act, (T[..., :3, :3], p)),
         (quaternion.apply, (q, p)),
     ]
+
+    def second_order(fn, args):  # the backward recorded for a second one: blocks joined
+        leaves = [a.clone().requires_grad_() for a in args]
+        y = fn(*leaves)
+        grads = torch.autograd.grad(y, leaves, torch.ones_like(y), create_graph=True)
+        return torch.autograd.grad(sum(g.square().sum() for g in grads), leaves)
 
     def run():
         with torch.no_grad():
             plain = [fn(*args) for fn, args in cases]
-        return plain, _values_and_grads(cases)
+        again = [g for fn, args in cases[-5:] for g in second_order(fn, args)]
+        return plain + again, _values_and_grads(cases)
 
     whole = run()
     monkeypatch.setattr(_autograd, "BLOCK", 256)  # float32 256 rows, float64 128

@@ -237,10 +237,12 @@ def _top_entries(T: Tensor) -> list[list[Tensor]]:
     return [list(e[4 * i : 4 * i + 4]) for i in range(3)]
 
 
-def _top_outputs(like: Tensor) -> tuple[tuple[Tensor | None, ...], list[list[Tensor | None]]]:
+def _top_outputs(
+    like: Tensor, *inputs: Tensor
+) -> tuple[tuple[Tensor | None, ...], list[list[Tensor | None]]]:
     """The 16 planes of :func:`_layout.outputs` for a 4x4 result, and the 12 of its top block
     row by row (where the entries are to be written)."""
-    o = _layout.outputs(like, 16)
+    o = _layout.outputs(like, 16, *inputs)
     return o, [list(o[4 * i : 4 * i + 4]) for i in range(3)]
 
 
@@ -323,7 +325,7 @@ def _compose_fwd(A: Tensor, B: Tensor, *, dest: Tensor | None = None) -> Tensor:
 def _compose_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor, Tensor]:
     A, B = saved
     if _entry_by_entry(G):
-        dA, dB = _compose_bwd_entries(A, B, G)
+        dA, dB = _compose_grads(A, B, G)
         return dA.sum_to_size(A.shape), dB.sum_to_size(B.shape)
     G3 = G[..., :3, :]
     dR1 = torch.matmul(G3, B[..., :3, :].transpose(-1, -2))  # G_R R2^T + g t2^T
@@ -332,28 +334,42 @@ def _compose_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor, Tensor]:
     return dA.sum_to_size(A.shape), dB.sum_to_size(B.shape)
 
 
-def _compose_bwd_entries(A: Tensor, B: Tensor, G: Tensor) -> tuple[Tensor, Tensor]:
-    """:func:`_compose_bwd` entry by entry (for the compiled path, as :func:`_compose_entries`):
-    ``dA_ij = sum_k G_ik B_jk`` (``j < 3``), ``dA_i3 = G_i3``, ``dB_kj = sum_i A_ik G_ij``."""
+def _compose_bwd_entries(
+    A: Tensor, B: Tensor, G: Tensor, *, dest: tuple[Tensor, Tensor] | None = None
+) -> tuple[Tensor, Tensor]:
+    """:func:`_compose_bwd` entry by entry (for the compiled path, as :func:`_compose_entries`;
+    differentiable): ``dA_ij = sum_k G_ik B_jk`` (``j < 3``), ``dA_i3 = G_i3``,
+    ``dB_kj = sum_i A_ik G_ij``."""
     a, b, g = _top_entries(A), _top_entries(B), _top_entries(G)
+    oa, top_a = _top_outputs(g[0][0], A, B, G)
+    ob, top_b = _top_outputs(g[0][0], A, B, G)
     da = [
         [
-            torch.addcmul(torch.addcmul(gi[0] * b[j][0], gi[1], b[j][1]), gi[2], b[j][2]).addcmul(
-                gi[3], b[j][3]
+            torch.addcmul(
+                torch.addcmul(torch.addcmul(gi[0] * b[j][0], gi[1], b[j][1]), gi[2], b[j][2]),
+                gi[3],
+                b[j][3],
+                out=oi[j],
             )
             for j in range(3)
         ]
         + [gi[3]]
-        for gi in g
+        for gi, oi in zip(g, top_a, strict=True)
     ]
     db = [
         [
-            torch.addcmul(torch.addcmul(a[0][k] * g[0][j], a[1][k], g[1][j]), a[2][k], g[2][j])
+            torch.addcmul(
+                torch.addcmul(a[0][k] * g[0][j], a[1][k], g[1][j]), a[2][k], g[2][j], out=ok[j]
+            )
             for j in range(4)
         ]
-        for k in range(3)
+        for k, ok in zip(range(3), top_b, strict=True)
     ]
-    return _stack_rows(da), _stack_rows(db)
+    da_dest, db_dest = (None, None) if dest is None else dest
+    return _stack_rows(da, oa, da_dest), _stack_rows(db, ob, db_dest)
+
+
+_compose_grads = _blocked(_compose_bwd_entries, (2, 2, 2))
 
 
 def _compose_jvp(saved: tuple[Tensor, ...], dA: Tensor, dB: Tensor) -> Tensor:
@@ -385,23 +401,27 @@ def _inverse_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor]:
     # out = [R^T, -R^T t]: dR = G_R^T - t g^T and dt = -R g (g = the translation column of G).
     (T,) = saved
     if _entry_by_entry(G):
-        return (_inverse_bwd_entries(T, G),)
+        return (_inverse_grad(T, G),)
     h = -G[..., :3, 3:]
     dR = torch.addcmul(G[..., :3, :3].transpose(-1, -2), T[..., :3, 3:], h.transpose(-1, -2))
     dt = torch.matmul(T[..., :3, :3], h)
     return (_pad_row(torch.cat((dR, dt), dim=-1)),)
 
 
-def _inverse_bwd_entries(T: Tensor, G: Tensor) -> Tensor:
-    """:func:`_inverse_bwd` entry by entry (for the compiled path, as :func:`_compose_entries`):
-    ``dR_ij = G_ji - t_i G_j3``, ``dt_i = -sum_j R_ij G_j3``."""
+def _inverse_bwd_entries(T: Tensor, G: Tensor, *, dest: Tensor | None = None) -> Tensor:
+    """:func:`_inverse_bwd` entry by entry (for the compiled path, as :func:`_compose_entries`;
+    differentiable): ``dR_ij = G_ji - t_i G_j3``, ``dt_i = -sum_j R_ij G_j3``."""
     r, g = _top_entries(T), _top_entries(G)
+    o, top = _top_outputs(g[0][0], T, G)
     rows = []
-    for i in range(3):
-        dR = [torch.addcmul(g[j][i], r[i][3], g[j][3], value=-1.0) for j in range(3)]
+    for i, oi in zip(range(3), top, strict=True):
+        dR = [torch.addcmul(g[j][i], r[i][3], g[j][3], value=-1.0, out=oi[j]) for j in range(3)]
         dt = torch.addcmul(torch.addcmul(r[i][0] * g[0][3], r[i][1], g[1][3]), r[i][2], g[2][3])
-        rows.append([*dR, -dt])
-    return _stack_rows(rows)
+        rows.append([*dR, torch.neg(dt, out=oi[3])])
+    return _stack_rows(rows, o, dest)
+
+
+_inverse_grad = _blocked(_inverse_bwd_entries, (2, 2))
 
 
 def _inverse_jvp(saved: tuple[Tensor, ...], dT: Tensor) -> Tensor:
@@ -434,14 +454,30 @@ def _act_bwd(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]:
     # out = [R, t] (p, 1): d[R, t] = g (p, 1)^T and dp = R^T g.
     T, p = saved
     if _layout.by_product(g, 1):
-        r, gc = _top_entries(T), _quat._planes(g, 3)
-        R9 = [r[i][j] for i in range(3) for j in range(3)]
-        dR9, dp = so3._act_grad_components(R9, _quat._planes(p, 3), gc)
-        dT = _stack_rows([(*dR9[3 * i : 3 * i + 3], gc[i]) for i in range(3)])
-        return dT.sum_to_size(T.shape), _layout.interleave(dp).sum_to_size(p.shape)
+        dT, dp = _act_grads(T, p, g)
+        return dT.sum_to_size(T.shape), dp.sum_to_size(p.shape)
     dT = _pad_row(g.unsqueeze(-1) * _homogeneous(p).unsqueeze(-2))
     dp = torch.matmul(T[..., :3, :3].transpose(-1, -2), g.unsqueeze(-1)).squeeze(-1)
     return dT.sum_to_size(T.shape), dp.sum_to_size(p.shape)
+
+
+def _act_grads_block(
+    T: Tensor, p: Tensor, g: Tensor, *, dest: tuple[Tensor, Tensor] | None = None
+) -> tuple[Tensor, Tensor]:
+    """:func:`_act_bwd` entry by entry (one block of rows; differentiable)."""
+    r, gc = _top_entries(T), _quat._planes(g, 3)
+    o, top = _top_outputs(gc[0], T, p, g)
+    out_p = _layout.outputs(gc[0], 3, T, p, g)
+    R9 = [r[i][j] for i in range(3) for j in range(3)]
+    dR9, dp = so3._act_grad_components(
+        R9, _quat._planes(p, 3), gc, [e for row in top for e in row[:3]], out_p
+    )
+    dT_dest, dp_dest = (None, None) if dest is None else dest
+    dT = _stack_rows([(*dR9[3 * i : 3 * i + 3], gc[i]) for i in range(3)], o, dT_dest)
+    return dT, _layout.interleave(dp, out_p, dp_dest)
+
+
+_act_grads = _blocked(_act_grads_block, (2, 1, 1))
 
 
 def _act_jvp(saved: tuple[Tensor, ...], dT: Tensor, dp: Tensor) -> Tensor:

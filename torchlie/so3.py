@@ -17,6 +17,7 @@ Jacobians (``Jr(w)`` = ``jac_right``, ``Jl(w)`` = ``jac_left``)::
 from __future__ import annotations
 
 from collections.abc import Sequence
+from itertools import product
 
 import torch
 from torch import Tensor
@@ -397,15 +398,37 @@ def _mv(M: Tensor, v: Tensor) -> Tensor:
 
 
 def _act_grad_components(
-    r: Sequence[Tensor], p: Sequence[Tensor], g: Sequence[Tensor]
+    r: Sequence[Tensor],
+    p: Sequence[Tensor],
+    g: Sequence[Tensor],
+    out_r: Sequence[Tensor | None] = (None,) * 9,
+    out_p: Sequence[Tensor | None] = (None,) * 3,
 ) -> tuple[list[Tensor], list[Tensor]]:
     """The 9 entries of ``g p^T`` (row by row) and the 3 components of ``R^T g``, from the
-    components of ``R`` (row by row), ``p`` and ``g``: the backward of ``R p``."""
-    dR = [gi * pj for gi in g for pj in p]
+    components of ``R`` (row by row), ``p`` and ``g``: the backward of ``R p`` (written to
+    ``out_r`` and ``out_p``)."""
+    dR = [torch.mul(gi, pj, out=o) for (gi, pj), o in zip(product(g, p), out_r, strict=True)]
     dp = [
-        torch.addcmul(torch.addcmul(r[j] * g[0], r[3 + j], g[1]), r[6 + j], g[2]) for j in range(3)
+        torch.addcmul(torch.addcmul(r[j] * g[0], r[3 + j], g[1]), r[6 + j], g[2], out=out_p[j])
+        for j in range(3)
     ]
     return dR, dp
+
+
+def _act_grads_block(
+    R: Tensor, p: Tensor, g: Tensor, *, dest: tuple[Tensor, Tensor] | None = None
+) -> tuple[Tensor, Tensor]:
+    """``(g p^T, R^T g)`` entry by entry (one block of rows; differentiable: the backward of
+    the backward)."""
+    planes, like = _quat._planes, g[..., 0]
+    out_r, out_p = _layout.outputs(like, 9, R, p, g), _layout.outputs(like, 3, R, p, g)
+    dR9, dp3 = _act_grad_components(planes(R, 9), planes(p, 3), planes(g, 3), out_r, out_p)
+    dR_dest, dp_dest = (None, None) if dest is None else dest
+    dR = _layout.interleave(dR9, out_r, dR_dest).unflatten(-1, (3, 3))
+    return dR, _layout.interleave(dp3, out_p, dp_dest)
+
+
+_act_grads = _blocked(_act_grads_block, (2, 1, 1))
 
 
 def _act_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]:
@@ -414,9 +437,7 @@ def _act_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]
     entry by entry), batched products elsewhere."""
     R, p = saved
     if _layout.by_product(g, 1):  # planes transposed by matrix product, see _layout
-        planes = _quat._planes
-        dR9, dp3 = _act_grad_components(planes(R, 9), planes(p, 3), planes(g, 3))
-        dR, dp = _layout.interleave(dR9).unflatten(-1, (3, 3)), _layout.interleave(dp3)
+        dR, dp = _act_grads(R, p, g)
     else:
         dR, dp = g.unsqueeze(-1) * p.unsqueeze(-2), _mv(R.transpose(-1, -2), g)
     return dR.sum_to_size(R.shape), dp.sum_to_size(p.shape)
