@@ -264,6 +264,43 @@ def jl_inv_values(w: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor]:
     return e, (1.0 - e).div_(t2.clamp_min(_H_MIN[t2.dtype]))
 
 
+#: ``t2`` below which :func:`q_values` takes its series.
+Q_VALUES_T2 = 1e-2
+#: Three terms of each series of :func:`q_values`: ``sinc3``, ``cosc4`` and ``c3`` (whose
+#: coefficients are ``(cosc4_k - 3 sinc5_k) / 2``); the first omitted term is below 2e-11 of
+#: the value for ``t2 < Q_VALUES_T2``.
+_Q_SERIES = (
+    tuple(_SINC3[:3]),
+    tuple(_COSC4[:3]),
+    tuple(0.5 * (a - 3.0 * b) for a, b in zip(_COSC4[:3], _SINC5[:3], strict=True)),
+)
+
+
+def q_values(t2: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """``(c1, c2, c3) = (sinc3, cosc4, (cosc4 - 3 sinc5)/2)`` of ``t2`` in float64, to well
+    within float32's precision: the coefficients of the top-right block of the SE(3) Jacobian
+    in the plain backward passes of float32 input.
+
+    Forward-only (module docstring).  One ``sqrt`` and two ``sin`` for all three: with
+    ``t = sqrt(t2)``, ``c1 = (t - sin t)/t^3``, ``c2 = (1/2 - 2 sin^2(t/2)/t2)/t2`` and
+    ``sinc5 = (1/6 - c1)/t2``, whose cancellations leave relative errors of about
+    ``6 eps/t2``, ``12 eps/t2`` and ``180 eps/t2^2`` (float64 ``eps``: below 2e-10 for
+    ``t2 >= Q_VALUES_T2``), and three terms of each series below that (no ``where`` guards:
+    the branch not taken is never differentiated).
+    """
+    t = t2.sqrt()
+    r = torch.sin(0.5 * t).div_(t)
+    c1 = (t - torch.sin(t)).div_(t2 * t)
+    c2 = r.mul_(r).mul_(-2.0).add_(0.5).div_(t2)
+    s5 = (1.0 / 6.0 - c1).div_(t2)
+    c3 = (c2 - 3.0 * s5).mul_(0.5)
+    small = t2 < Q_VALUES_T2
+    return tuple(
+        torch.where(small, (t2 * k2).add_(k1).mul_(t2).add_(k0), exact)
+        for (k0, k1, k2), exact in zip(_Q_SERIES, (c1, c2, c3), strict=True)
+    )
+
+
 def theta2(w: Tensor | Sequence[Tensor], keepdim: bool = False) -> Tensor:
     """|w|^2 over the last dimension, in the dtype the coefficients are evaluated in.
 

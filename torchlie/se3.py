@@ -119,10 +119,23 @@ def _hat(xi: Tensor) -> Tensor:
 def _q_coeffs(phi: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """``(c1, c2, c3)`` of :func:`_q_components`: ``(t - sin t)/t^3``, ``(t^2/2 + cos t - 1)/t^4``
     and ``(c2 - 3 (t - sin t - t^3/6)/t^5)/2`` (series near 0), in ``phi``'s dtype."""
-    t2 = _coeffs.theta2(phi)
+    return _q_of_t2(_coeffs.theta2(phi), phi.dtype)
+
+
+def _q_of_t2(t2: Tensor, dtype: torch.dtype) -> tuple[Tensor, Tensor, Tensor]:
     c2 = _coeffs.cosc4(t2)
-    c3 = (0.5 * (c2 - 3.0 * _coeffs.sinc5(t2))).to(phi.dtype)
-    return _coeffs.sinc3(t2).to(phi.dtype), c2.to(phi.dtype), c3
+    c3 = 0.5 * (c2 - 3.0 * _coeffs.sinc5(t2))
+    return _coeffs.sinc3(t2).to(dtype), c2.to(dtype), c3.to(dtype)
+
+
+def _q_values(xyz: Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
+    """:func:`_q_coeffs` from the components of ``phi``, forward-only (the plain backward
+    passes): for float32, :func:`_coeffs.q_values` (a third of the operations)."""
+    t2, dtype = _coeffs.theta2(xyz), xyz[0].dtype
+    if dtype != torch.float32:
+        return _q_of_t2(t2, dtype)
+    c1, c2, c3 = _coeffs.q_values(t2)
+    return c1.to(dtype), c2.to(dtype), c3.to(dtype)
 
 
 def _q_components(
@@ -544,7 +557,7 @@ def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor, *, dest: Tensor | Non
     """:func:`_exp_backward` from components, forward-only coefficients (plain backward)."""
     x = _quat._planes(xi, 6)
     xyz = x[3:]
-    a, b, c, _ = (v.to(xi.dtype) for v in _coeffs.rodrigues_values(xi[..., 3:]))
+    a, b, c, _ = (v.to(xi.dtype) for v in _coeffs.rodrigues_values(xyz))
     t = _quat._planes(_trans(T), 3)
     g_t = _quat._planes(_trans(G), 3)
     o = _layout.outputs(x[0], 6)
@@ -553,7 +566,7 @@ def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor, *, dest: Tensor | Non
     g_phi = so3._jl_components(xyz, u, a, b, c)
     g_tx = so3._jl_components(xyz, so3._cross(t, g_t), a, -b, c)
     neg = [-v for v in x]
-    q = _q_components(neg[:3], neg[3:], g_t, *_q_coeffs(xi[..., 3:]))
+    q = _q_components(neg[:3], neg[3:], g_t, *_q_values(xyz))
     g_phi = [
         torch.add(p, r, out=oi).add_(s) for p, r, s, oi in zip(g_phi, g_tx, q, o[3:], strict=True)
     ]
@@ -615,13 +628,12 @@ def _log_backward(saved, g: Tensor):
 
 def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor, *, dest: Tensor | None = None):
     """:func:`_log_backward` from components, forward-only coefficients (plain backward)."""
-    phi = xi[..., 3:]
     x = _quat._planes(xi, 6)
     gs = _quat._planes(g, 6)
-    e, d = (v.to(xi.dtype) for v in _coeffs.jl_inv_values(phi))
+    e, d = (v.to(xi.dtype) for v in _coeffs.jl_inv_values(x[3:]))
     half = e.new_full((), -0.5)
     h_rho = so3._jl_components(x[3:], gs[:3], e, half, d)
-    q = _q_components(x[:3], x[3:], h_rho, *_q_coeffs(phi))
+    q = _q_components(x[:3], x[3:], h_rho, *_q_values(x[3:]))
     v = [(gi - qi).mul_(0.5) for gi, qi in zip(gs[3:], q, strict=True)]
     u = so3._jl_components(x[3:], v, e, half, d)  # h_phi / 2
     r = _quat._planes(_rot(T), 9)
