@@ -57,9 +57,12 @@ __all__ = [
 ]
 
 
-def _planes(M: Tensor, n: int) -> tuple[Tensor, ...]:
+def _planes(M: Tensor | Sequence[Tensor], n: int) -> tuple[Tensor, ...]:
     """The ``n`` trailing entries of ``M`` as contiguous planes (see :func:`_layout.planes`);
-    ``n = 9``: a 3x3 matrix read row by row."""
+    ``n = 9``: a 3x3 matrix read row by row.  ``M`` given as its planes already: those (the
+    callers that read several blocks of one matrix transpose it once)."""
+    if not isinstance(M, Tensor):
+        return tuple(M)
     return _layout.planes(M, (3, 3) if n == 9 else n)
 
 
@@ -287,8 +290,11 @@ def _conj_product_vec(q: Tensor, p: Tensor) -> Tensor:
     return u - torch.linalg.cross(v, p[..., 1:], dim=-1)
 
 
-def _rt_g_vee(R: Tensor, G: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """Components of ``vee(R^T G - G^T R)`` (the full vee: twice that of the skew part).
+def _rt_g_vee(
+    R: Tensor | Sequence[Tensor], G: Tensor | Sequence[Tensor]
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Components of ``vee(R^T G - G^T R)`` (the full vee: twice that of the skew part; each
+    matrix as a tensor or its 9 planes).
 
     ``= sum_k cross(G_k, R_k)`` over the rows, from components (no batched 3x3 product).
     """
@@ -400,7 +406,9 @@ def _orthogonalize_step(R: Tensor) -> tuple[Tensor, ...]:
     return tuple(out)
 
 
-def _from_matrix_parts(R: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+def _from_matrix_parts(
+    R: Tensor | Sequence[Tensor],
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
     """``(cw, cx, cy, cz, sign)``: ``c`` is proportional to the quaternion of ``R``, with
     ``|c| >= 2`` for a rotation; ``sign * c / |c|`` is the canonical unit quaternion."""
     m00, m01, m02, m10, m11, m12, m20, m21, m22 = _orthogonalize_step(R)
@@ -516,8 +524,9 @@ def _log_of_matrix(R: Tensor, dest: Tensor | None = None) -> Tensor:
     return _layout.interleave(_log_of_matrix_components(R), dest=dest)
 
 
-def _log_of_matrix_components(R: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """The three components of :func:`_log_of_matrix` (not stacked)."""
+def _log_of_matrix_components(R: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
+    """The three components of :func:`_log_of_matrix` (not stacked; ``R`` as a tensor or its
+    9 planes, row by row)."""
     cw, cx, cy, cz, sign = _from_matrix_parts(R)
     nv = torch.addcmul(torch.addcmul(cx * cx, cy, cy), cz, cz).sqrt_()
     f = torch.atan2(nv, cw.abs()).mul_(2.0).div_(nv.clamp_min(torch.finfo(nv.dtype).tiny))

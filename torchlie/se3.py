@@ -250,6 +250,13 @@ def _top_entries(T: Tensor) -> list[list[Tensor]]:
     return [list(e[4 * i : 4 * i + 4]) for i in range(3)]
 
 
+def _rotation_and_translation(T: Tensor) -> tuple[list[Tensor], list[Tensor]]:
+    """:func:`_top_entries` as the 9 entries of the rotation (row by row) and the 3 of the
+    translation."""
+    e = _top_entries(T)
+    return [x for row in e for x in row[:3]], [row[3] for row in e]
+
+
 def _top_outputs(
     like: Tensor, *inputs: Tensor
 ) -> tuple[tuple[Tensor | None, ...], list[list[Tensor | None]]]:
@@ -558,11 +565,11 @@ def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor, *, dest: Tensor | Non
     x = _quat._planes(xi, 6)
     xyz = x[3:]
     a, b, c, _ = (v.to(xi.dtype) for v in _coeffs.rodrigues_values(xyz))
-    t = _quat._planes(_trans(T), 3)
-    g_t = _quat._planes(_trans(G), 3)
+    R, t = _rotation_and_translation(T)
+    G_R, g_t = _rotation_and_translation(G)
     o = _layout.outputs(x[0], 6)
     g_rho = so3._jl_components(xyz, g_t, a, -b, c, o[:3])
-    u = so3._rt_g_vee(_rot(T), _rot(G))
+    u = so3._rt_g_vee(R, G_R)
     g_phi = so3._jl_components(xyz, u, a, b, c)
     g_tx = so3._jl_components(xyz, so3._cross(t, g_t), a, -b, c)
     neg = [-v for v in x]
@@ -605,8 +612,9 @@ def _log_forward(T: Tensor, *, dest: Tensor | None = None) -> Tensor:
     """From components, stacked once: compiled, every intermediate is per element and the whole
     map is one loop over the batch (a stacked rotation vector read again by components would be
     a loop of its own); eager, one stack fewer."""
-    phi = _quat._log_of_matrix_components(_rot(T))
-    return _layout.interleave((*so3._jl_inv_apply_values(phi, _trans(T)), *phi), dest=dest)
+    R, t = _rotation_and_translation(T)  # one transposition of the top block
+    phi = _quat._log_of_matrix_components(R)
+    return _layout.interleave((*so3._jl_inv_apply_values(phi, t), *phi), dest=dest)
 
 
 def _log_backward(saved, g: Tensor):
