@@ -228,7 +228,7 @@ def norm(v: Tensor, dim: int = -1, keepdim: bool = False) -> Tensor:
 _H_MIN = {torch.float32: 1e-30, torch.float64: 1e-150}
 
 
-def rodrigues_values(w: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+def rodrigues_values(w: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """``(a, b, c, d) = (sin t / t, (1 - cos t)/t^2, (t - sin t)/t^3, cos t)`` of ``t = |w|``.
 
     ``Exp(w) = d I + a hat(w) + b w w^T`` and ``Jl(w) = a I + b hat(w) + c w w^T``.
@@ -237,7 +237,8 @@ def rodrigues_values(w: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     angle; one ``sqrt``, ``sin`` and ``cos`` per element.  ``c = (1 - a)/t^2`` has no series: its
     absolute error is about ``eps / t^2``, so the term it enters, ``c w w^T``, is accurate to
     about ``eps`` at every angle (and 0 at t = 0); use it only in that product.  Computed in
-    the precision of :func:`theta2` (float64 for float32 input) and returned in it.
+    the precision of :func:`theta2` (float64 for float32 input) and returned in it.  ``w`` as a
+    ``(..., 3)`` tensor or its three components (as :func:`theta2`).
     """
     t2 = theta2(w)
     h = t2.sqrt().mul_(0.5).clamp_min_(_H_MIN[t2.dtype])

@@ -382,7 +382,7 @@ def from_matrix(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 4"]:
     return _checks.out(_from_matrix(x), dtype)
 
 
-def _orthogonalize_step(R: Tensor) -> tuple[Tensor, ...]:
+def _orthogonalize_step(R: Tensor | Sequence[Tensor]) -> tuple[Tensor, ...]:
     """One Newton step of the polar decomposition, ``R - R (R^T R - I) / 2``, from components.
 
     Returns the 9 entries row by row (no batched 3x3 matmul: those cost more than the rest).
