@@ -15,6 +15,11 @@ float32 while float32 matrix products are full precision (no bfloat16 or TF32 se
 mode outside ``torch.func`` transforms, and for batches of at least :data:`MIN_ROWS` elements
 (below that the extra kernel launch costs more than it saves).  Everywhere else (CUDA,
 ``torch.compile``, vmap, small batches) the plain copy, stack and unbind.
+
+Where the product is taken, a kernel writes its last operations into the planes of one buffer
+(:func:`outputs`), which :func:`interleave` reads as it is instead of stacking the parts first,
+and the product writes into ``dest`` (the rows of a blocked result) when given: no extra pass
+over the result either way.
 """
 
 from __future__ import annotations
