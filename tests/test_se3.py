@@ -281,6 +281,21 @@ def test_q_values_match_the_series_coefficients():
         torch.testing.assert_close(a, b, rtol=1e-9, atol=0)
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, F64])
+def test_step_is_a_float_comparison(dtype):
+    tiny = torch.finfo(dtype).tiny * torch.finfo(dtype).eps  # the smallest subnormal
+    x = torch.tensor([-1.0, -0.0, 0.0, tiny, 1.0, math.inf, -math.inf, math.nan], dtype=dtype)
+    got = _coeffs.step(x)
+    assert got.dtype == dtype
+    assert got.tolist() == [0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0]  # x > 0, NaN included
+    g = torch.Generator().manual_seed(13)
+    a = torch.randn(1000, generator=g, dtype=dtype)
+    b = torch.where(torch.rand(1000, generator=g) < 0.3, a, a.nextafter(a + 1))  # ties, 1 ulp
+    b[:200] = torch.randn(200, generator=g, dtype=dtype)
+    assert torch.equal(_coeffs.step(a - b), (a > b).to(dtype))
+    assert torch.equal(_coeffs.step(b - a), (b > a).to(dtype))
+
+
 def test_float32_plain_backward_of_exp_and_log():
     """float32 gradients of exp and log (the plain backward, forward-only coefficients) against
     float64 ones at the same inputs: within a few float32 ulp, norm-wise, at every angle."""

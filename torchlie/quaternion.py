@@ -421,15 +421,17 @@ def _from_matrix_parts(
     a01, a02, a12 = m01 + m10, m02 + m20, m12 + m21  # 4 (xy, xz, yz)
     # Pivot: the largest d_i (the first on ties).  Candidate i holds 4 q_i q: proportional to q
     # with a positive i-th entry.  The selection is a one-hot sum: f_i in {0, 1} with exactly
-    # one 1, so sum_i f_i c_i is exactly the selected candidate (and so is its gradient).
-    is1 = d1 > d0
+    # one 1, so sum_i f_i c_i is exactly the selected candidate (and so is its gradient); the
+    # f_i from float steps, not comparisons (see _coeffs.step).
+    g1 = _coeffs.step(d1 - d0)  # d1 > d0
     dmax = torch.maximum(d0, d1)
-    is2 = d2 > dmax
-    is3 = d3 > torch.maximum(dmax, d2)
-    f3 = is3.to(d0.dtype)
-    f2 = (is2 & ~is3).to(d0.dtype)
-    f1 = (is1 & ~(is2 | is3)).to(d0.dtype)
-    f0 = 1.0 - (f1 + f2 + f3)
+    g2 = _coeffs.step(d2 - dmax)
+    f3 = _coeffs.step(d3 - torch.maximum(dmax, d2))
+    rest = 1.0 - f3  # not 3
+    f2 = g2 * rest
+    rest = rest.sub_(f2)  # neither 3 nor 2
+    f1 = g1 * rest
+    f0 = rest.sub_(f1)
 
     def pick(c0: Tensor, c1: Tensor, c2: Tensor, c3: Tensor) -> Tensor:
         return torch.addcmul(torch.addcmul(torch.addcmul(c0 * f0, c1, f1), c2, f2), c3, f3)
