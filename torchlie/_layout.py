@@ -35,6 +35,9 @@ from torch.autograd import forward_ad as _forward_ad
 #: entry-by-entry ops; at 8000, 0-40 % faster).
 MIN_ROWS = 8192
 
+#: ``dest`` of a kernel with two results (see :func:`interleave`): the rows of each, or None.
+Dest2 = tuple[Tensor | None, Tensor | None]
+
 _is_compiling = torch.compiler.is_compiling
 _transforms_active = torch._C._are_functorch_transforms_active
 _EYES: dict[tuple[torch.dtype, int], Tensor] = {}

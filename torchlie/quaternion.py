@@ -136,11 +136,11 @@ def _multiply_values(a: Tensor, b: Tensor, *, dest: Tensor | None = None) -> Ten
 
 
 def _multiply_grads_block(
-    a: Tensor, b: Tensor, g: Tensor, *, dest: tuple[Tensor, Tensor] | None = None
+    a: Tensor, b: Tensor, g: Tensor, *, dest: _layout.Dest2 = (None, None)
 ) -> tuple[Tensor, Tensor]:
     """``(g conj(b), conj(a) g)``, the plain backward of ``a b`` (one block of rows)."""
     ap, bp, gp = _planes(a, 4), _planes(b, 4), _planes(g, 4)
-    da, db = (None, None) if dest is None else dest
+    da, db = dest
     return _product(gp, bp, da, conj_b=True), _product(ap, gp, db, conj_a=True)
 
 

@@ -355,7 +355,7 @@ def _compose_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor, Tensor]:
 
 
 def _compose_bwd_entries(
-    A: Tensor, B: Tensor, G: Tensor, *, dest: tuple[Tensor, Tensor] | None = None
+    A: Tensor, B: Tensor, G: Tensor, *, dest: _layout.Dest2 = (None, None)
 ) -> tuple[Tensor, Tensor]:
     """:func:`_compose_bwd` entry by entry (for the compiled path, as :func:`_compose_entries`;
     differentiable): ``dA_ij = sum_k G_ik B_jk`` (``j < 3``), ``dA_i3 = G_i3``,
@@ -385,7 +385,7 @@ def _compose_bwd_entries(
         ]
         for k, ok in zip(range(3), top_b, strict=True)
     ]
-    da_dest, db_dest = (None, None) if dest is None else dest
+    da_dest, db_dest = dest
     return _stack_rows(da, oa, da_dest), _stack_rows(db, ob, db_dest)
 
 
@@ -482,7 +482,7 @@ def _act_bwd(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]:
 
 
 def _act_grads_block(
-    T: Tensor, p: Tensor, g: Tensor, *, dest: tuple[Tensor, Tensor] | None = None
+    T: Tensor, p: Tensor, g: Tensor, *, dest: _layout.Dest2 = (None, None)
 ) -> tuple[Tensor, Tensor]:
     """:func:`_act_bwd` entry by entry (one block of rows; differentiable)."""
     r, gc = _top_entries(T), _quat._planes(g, 3)
@@ -492,7 +492,7 @@ def _act_grads_block(
     dR9, dp = so3._act_grad_components(
         R9, _quat._planes(p, 3), gc, [e for row in top for e in row[:3]], out_p
     )
-    dT_dest, dp_dest = (None, None) if dest is None else dest
+    dT_dest, dp_dest = dest
     dT = _stack_rows([(*dR9[3 * i : 3 * i + 3], gc[i]) for i in range(3)], o, dT_dest)
     return dT, _layout.interleave(dp, out_p, dp_dest)
 
@@ -560,7 +560,7 @@ def _exp_backward(saved, G: Tensor):
     return (torch.cat((g_rho, g_phi + _q_apply(-rho, -phi, g_t)), dim=-1),)
 
 
-def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor, *, dest: Tensor | None = None):
+def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor, *, dest: Tensor | None = None) -> Tensor:
     """:func:`_exp_backward` from components, forward-only coefficients (plain backward)."""
     x = _quat._planes(xi, 6)
     xyz = x[3:]
@@ -634,7 +634,7 @@ def _log_backward(saved, g: Tensor):
     return (torch.cat((top, torch.zeros_like(top[..., :1, :])), dim=-2),)
 
 
-def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor, *, dest: Tensor | None = None):
+def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor, *, dest: Tensor | None = None) -> Tensor:
     """:func:`_log_backward` from components, forward-only coefficients (plain backward)."""
     x = _quat._planes(xi, 6)
     gs = _quat._planes(g, 6)

@@ -212,7 +212,9 @@ def _exp_backward(saved, g: Tensor):
     return (_exp_grad_values(w, R, g),)
 
 
-def _exp_grad_values_block(w: Tensor, R: Tensor, g: Tensor, *, dest: Tensor | None = None):
+def _exp_grad_values_block(
+    w: Tensor, R: Tensor, g: Tensor, *, dest: Tensor | None = None
+) -> Tensor:
     return _jl_apply_values(w, _rt_g_vee(R, g), dest=dest)
 
 
@@ -257,7 +259,9 @@ def _log_backward(saved, g: Tensor):
     return (_log_grad_values(R, w, g),)
 
 
-def _log_grad_values_block(R: Tensor, w: Tensor, g: Tensor, *, dest: Tensor | None = None):
+def _log_grad_values_block(
+    R: Tensor, w: Tensor, g: Tensor, *, dest: Tensor | None = None
+) -> Tensor:
     return _r_hat_values(R, _jl_inv_apply_values(w, 0.5 * g), dest)
 
 
@@ -418,14 +422,14 @@ def _act_grad_components(
 
 
 def _act_grads_block(
-    R: Tensor, p: Tensor, g: Tensor, *, dest: tuple[Tensor, Tensor] | None = None
+    R: Tensor, p: Tensor, g: Tensor, *, dest: _layout.Dest2 = (None, None)
 ) -> tuple[Tensor, Tensor]:
     """``(g p^T, R^T g)`` entry by entry (one block of rows; differentiable: the backward of
     the backward)."""
     planes, like = _quat._planes, g[..., 0]
     out_r, out_p = _layout.outputs(like, 9, R, p, g), _layout.outputs(like, 3, R, p, g)
     dR9, dp3 = _act_grad_components(planes(R, 9), planes(p, 3), planes(g, 3), out_r, out_p)
-    dR_dest, dp_dest = (None, None) if dest is None else dest
+    dR_dest, dp_dest = dest
     dR = _layout.interleave(dR9, out_r, dR_dest).unflatten(-1, (3, 3))
     return dR, _layout.interleave(dp3, out_p, dp_dest)
 
