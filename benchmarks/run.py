@@ -26,7 +26,11 @@ What is measured, for every op, mode (``fwd``; ``fwd+bwd`` = forward then
 
 Timings: ``torch.utils.benchmark.Timer.blocked_autorange`` (median of blocks) with
 ``--threads`` threads (one by default), on the calling thread's CPU time by default (``--clock``):
-on a machine whose cores are shared, wall-clock medians measure the other processes.
+on a machine whose cores are shared, wall-clock medians measure the other processes.  All the
+implementations of one cell (op, dtype, mode, N: floor, torchlie, compiled, peers) are timed in
+turn, ``--rounds`` times over (3 by default), and each reports the least of its rounds' medians
+(all kept in the JSON): on a shared machine a slow phase otherwise lands on whichever
+implementation is being timed and skews its ratios.
 
 Environment: run as a script, this file re-executes itself once with
 
@@ -144,7 +148,16 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         default=None,
         help="also time torch.compile(fullgraph=True) (default: on, off with --quick)",
     )
-    p.add_argument("--min-time", type=float, default=None, help="seconds per measurement")
+    p.add_argument(
+        "--min-time", type=float, default=None, help="seconds per measurement (per round)"
+    )
+    p.add_argument(
+        "--rounds",
+        type=int,
+        default=None,
+        help="times every implementation of a cell is measured, in turn (default 3, 1 with "
+        "--quick); the least of the rounds' medians is reported",
+    )
     p.add_argument(
         "--compile-cache",
         action="store_true",
@@ -180,6 +193,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         args.dtypes = "float32" if args.quick else "float32,float64"
     if args.compile is None:
         args.compile = not args.quick
+    if args.rounds is None:
+        args.rounds = 1 if args.quick else 3
+    if args.rounds < 1:
+        p.error("--rounds must be at least 1")
     if args.kinematics is None:
         args.kinematics = not args.quick
     if args.clock is None:
@@ -211,7 +228,7 @@ def min_time(args: argparse.Namespace, n: int) -> float:
         return args.min_time
     if args.quick:
         return 0.01
-    return 0.4 if n >= 100_000 else 0.15
+    return 0.25 if n >= 100_000 else 0.1
 
 
 # ----------------------------------------------------------------------------------------------
@@ -306,8 +323,8 @@ def warm_up(fn, seconds: float, max_calls: int = 12) -> int:
     return calls
 
 
-def timeit(fn, seconds: float, threads: int, clock: str = "wall") -> dict:
-    warm_up(fn, seconds)
+def timeit(fn, seconds: float, threads: int, clock: str = "wall", warm_calls: int = 12) -> dict:
+    warm_up(fn, seconds, warm_calls)
     t = tbench.Timer(stmt="fn()", globals={"fn": fn}, num_threads=threads, timer=CLOCKS[clock])
     m = t.blocked_autorange(min_run_time=seconds)
     return {"median_s": m.median, "iqr_s": m.iqr, "runs": len(m.times)}
@@ -389,13 +406,41 @@ class _Cell:
         self.records.append(rec)
         return rec
 
-    def time(self, impl: str, call: str, step, **extra) -> dict:
-        """Time ``step``; an exception is recorded as this implementation's error."""
-        try:
-            res = timeit(step, self.seconds, self.args.threads, self.args.clock)
-        except Exception as e:
-            return self.add(impl, call, {}, error=f"{type(e).__name__}: {e}"[:300])
-        return self.add(impl, call, res, **extra)
+    def time_all(self, entries: list[tuple[str, str, object, dict]]) -> None:
+        """Time every ``(impl, call, step, extra)`` in turn, ``--rounds`` times over.
+
+        Each round times each implementation once (``timeit``: warm-up, then the median of
+        ``blocked_autorange``); the recorded median is the least of the rounds' medians, and
+        every round's median is kept (``round_medians_s``).  A slow phase of the machine then
+        has to cover the same implementation in every round to bias its figure, instead of
+        whichever implementation it happened to fall on.  An exception is recorded as that
+        implementation's error (and it is not timed again).
+        """
+        rounds: list[list[dict]] = [[] for _ in entries]
+        errors: dict[int, str] = {}
+        for k in range(self.args.rounds):
+            # The first round warms each step up fully (fresh outputs fault their pages in);
+            # later ones find the memory mapped and need a couple of calls.
+            warm_calls = 12 if k == 0 else 2
+            for i, (_impl, _call, step, _extra) in enumerate(entries):
+                if i in errors:
+                    continue
+                try:
+                    res = timeit(step, self.seconds, self.args.threads, self.args.clock, warm_calls)
+                    rounds[i].append(res)
+                except Exception as e:
+                    errors[i] = f"{type(e).__name__}: {e}"[:300]
+        for i, (impl, call, _step, extra) in enumerate(entries):
+            if i in errors:
+                self.add(impl, call, {}, error=errors[i])
+                continue
+            best = min(rounds[i], key=lambda r: r["median_s"])
+            res = {
+                **best,
+                "runs": sum(r["runs"] for r in rounds[i]),
+                "round_medians_s": [r["median_s"] for r in rounds[i]],
+            }
+            self.add(impl, call, res, **extra)
 
 
 def run(args: argparse.Namespace, log=print, checkpoint=None) -> dict:
@@ -439,10 +484,11 @@ def run(args: argparse.Namespace, log=print, checkpoint=None) -> dict:
                     shapes = floor_shapes(op, xs, grad)
                     numbers = sum(math.prod(s) for s in shapes)
                     call = f"clone of {numbers} numbers in {len(shapes)} tensors"
-                    cell.time("floor", call, floor_step(shapes, dtype))
+                    entries = [("floor", call, floor_step(shapes, dtype), {})]
                     if tl is not None:
                         lx = _leaves(xs, grad)
-                        cell.time("torchlie", "torchlie." + op.target, make_step(tl, lx, mode))
+                        tl_step = make_step(tl, lx, mode)
+                        entries.append(("torchlie", "torchlie." + op.target, tl_step, {}))
                         if compiled is not None and compile_error is None:
                             call = f"torchlie.compiled.{op.target}"
                             try:
@@ -455,7 +501,7 @@ def run(args: argparse.Namespace, log=print, checkpoint=None) -> dict:
                                 cell.add("compiled", call, {}, error=compile_error)
                                 log(f"  ! compile failed for {name}: {compile_error}")
                             else:
-                                cell.time("compiled", call, step, first_call_s=first)
+                                entries.append(("compiled", call, step, {"first_call_s": first}))
                         del lx
                     for a in adapters:
                         if (a.max_n is not None and n > a.max_n) or (grad and not a.differentiable):
@@ -466,8 +512,9 @@ def run(args: argparse.Namespace, log=print, checkpoint=None) -> dict:
                             cell.add(a.peer, a.call, {}, error=f"{type(e).__name__}: {e}"[:300])
                             log(f"  ! {a.peer} failed on {name} {dname} {mode} N={n}: {e}"[:300])
                             continue
-                        cell.time(a.peer, a.call, step)
-                    step = None
+                        entries.append((a.peer, a.call, step, {}))
+                    cell.time_all(entries)
+                    entries = tl_step = step = None
                     del xs
                     gc.collect()
                     elapsed = time.perf_counter() - t_start
@@ -577,15 +624,17 @@ def markdown(result: dict) -> str:
         f"- peers: {peer_v}",
         "- left out: " + "; ".join(f"{k} ({v})" for k, v in meta["left_out"].items()),
         "",
-        "Cells: median time per element in **ns** (N = 1: per call in **us**); in parentheses "
-        "the peer's time over torchlie's (> 1: torchlie is faster). `floor` = `clone()` of "
-        "one buffer per input and output of the op, N x (input + output numbers) in all (twice "
+        "Cells: median time per element in **ns** (N = 1: per call in **us**), the least of "
+        f"{result['args'].get('rounds', 1)} rounds that time the cell's implementations in "
+        "turn; in parentheses the "
+        "peer's time over torchlie's (> 1: torchlie is faster). `floor` = `clone()` of one "
+        "buffer per input and output of the op, N x (input + output numbers) in all (twice "
         "that for fwd+bwd): every byte of the op read and written once, no arithmetic. "
         "`compiled` = `torchlie.compiled.<op>` (`torch.compile(fn, fullgraph=True)` with "
-        "Inductor's CPU loops vectorised, see `torchlie.compiled.inductor_options`). "
-        "fwd+bwd = forward, then `torch.autograd.grad` of all inputs. Peers get the same "
-        "elements in their own conventions (converted before timing; object construction from "
-        "tensors is timed).",
+        "Inductor's CPU loops vectorised, see `torchlie.compiled.inductor_options`). fwd+bwd "
+        "= forward, then `torch.autograd.grad` of all inputs. Peers get the same elements in "
+        "their own conventions (converted before timing; object construction from tensors is "
+        "timed).",
         "",
     ]
     if result["check_failures"]:

@@ -108,6 +108,30 @@ def test_warm_up_stops_at_calls_or_time() -> None:
     assert 2 <= n <= 4
 
 
+def test_cells_are_timed_in_rounds() -> None:
+    args = brun.parse_args(["--quick", "--rounds", "3", "--min-time", "0.001"])
+    records: list[dict] = []
+    cell = brun._Cell(records, args, op="so3.exp", dtype="float32", mode="fwd", n=1)
+    calls = {"ok": 0, "bad": 0}
+
+    def ok() -> None:
+        calls["ok"] += 1
+
+    def bad() -> None:
+        calls["bad"] += 1
+        raise RuntimeError("no such op")
+
+    cell.time_all([("torchlie", "fn", ok, {}), ("roma", "peer", bad, {"x": 1})])
+    good, err = records
+    assert good["impl"] == "torchlie" and len(good["round_medians_s"]) == 3
+    assert good["median_s"] == min(good["round_medians_s"]) > 0
+    assert good["runs"] >= 3 and calls["ok"] > 3
+    # An implementation that fails is recorded with its error and not called again.
+    assert err["impl"] == "roma" and err["error"] == "RuntimeError: no such op"
+    assert "median_s" not in err and calls["bad"] == 1
+    assert brun.parse_args(["--quick"]).rounds == 1 and brun.parse_args([]).rounds == 3
+
+
 def _synthetic(tl: float, peer: float, compiled: float, floor: float) -> dict:
     records = []
     for n in (1, 1000):
