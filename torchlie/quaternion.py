@@ -260,13 +260,15 @@ def _to_matrix_forward(q: Tensor, *, dest: Tensor | None = None) -> Tensor:
     xy, xz, yz = x * ys, x * zs, y * zs
     # Diagonal as (w^2 + x^2 - y^2 - z^2) / |q|^2: two terms bounded by |q|^2, where
     # 1 - (yy + zz) s rounds a sum near 2 close to pi (3.1e-16 instead of 5.0e-16 in float64).
+    # The last two share their halves: (ww - xx) +- (yy - zz).
     hs = 0.5 * s
+    u, v = ww - xx, yy - zz
     o = _layout.outputs(w, 9)
     mul, add, sub = torch.mul, torch.add, torch.sub
     entries = (
         mul((ww + xx) - (yy + zz), hs, out=o[0]), sub(xy, wz, out=o[1]), add(xz, wy, out=o[2]),
-        add(xy, wz, out=o[3]), mul((ww + yy) - (xx + zz), hs, out=o[4]), sub(yz, wx, out=o[5]),
-        sub(xz, wy, out=o[6]), add(yz, wx, out=o[7]), mul((ww + zz) - (xx + yy), hs, out=o[8]),
+        add(xy, wz, out=o[3]), mul(u + v, hs, out=o[4]), sub(yz, wx, out=o[5]),
+        sub(xz, wy, out=o[6]), add(yz, wx, out=o[7]), mul(u - v, hs, out=o[8]),
     )  # fmt: skip
     return _layout.interleave(entries, o, dest).unflatten(-1, (3, 3))
 
