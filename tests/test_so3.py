@@ -10,7 +10,7 @@ import torch
 from samplers import ANGLES, GRAD_ANGLES, PI, axes, eps, rotvecs, unit
 from scipy.spatial.transform import Rotation, Slerp
 
-from torchlie import so3
+from torchlie import _coeffs, so3
 
 F64 = torch.float64
 
@@ -444,3 +444,16 @@ def test_axes_sampler_covers_hard_axes():
     a = axes(n_random=0)
     assert torch.allclose(a.norm(dim=-1), torch.ones(len(a), dtype=F64))
     assert len(a) == 6 + 8 + 4
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("parts", ["abd", "abc", "d", "ca"])
+def test_rodrigues_values_computes_the_parts_asked_for(dtype, parts):
+    """The forward-only coefficients asked for by letter are those of the full set, bit for bit,
+    in the order asked (every angle of the sampler: 0, tiny, pi and just below)."""
+    w, _ = rotvecs(n_random=20, dtype=dtype)
+    full = dict(zip("abcd", _coeffs.rodrigues_values(w), strict=True))
+    got = _coeffs.rodrigues_values(w, parts)
+    assert len(got) == len(parts)
+    for k, v in zip(parts, got, strict=True):
+        assert torch.equal(v, full[k]), k

@@ -228,7 +228,7 @@ def norm(v: Tensor, dim: int = -1, keepdim: bool = False) -> Tensor:
 _H_MIN = {torch.float32: 1e-30, torch.float64: 1e-150}
 
 
-def rodrigues_values(w: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+def rodrigues_values(w: Tensor | Sequence[Tensor], parts: str = "abcd") -> tuple[Tensor, ...]:
     """``(a, b, c, d) = (sin t / t, (1 - cos t)/t^2, (t - sin t)/t^3, cos t)`` of ``t = |w|``.
 
     ``Exp(w) = d I + a hat(w) + b w w^T`` and ``Jl(w) = a I + b hat(w) + c w w^T``.
@@ -238,16 +238,23 @@ def rodrigues_values(w: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor, Tens
     absolute error is about ``eps / t^2``, so the term it enters, ``c w w^T``, is accurate to
     about ``eps`` at every angle (and 0 at t = 0); use it only in that product.  Computed in
     the precision of :func:`theta2` (float64 for float32 input) and returned in it.  ``w`` as a
-    ``(..., 3)`` tensor or its three components (as :func:`theta2`).
+    ``(..., 3)`` tensor or its three components (as :func:`theta2`).  ``parts``: the
+    coefficients wanted, by letter, in the order returned (``"abd"`` for ``Exp``, ``"abc"`` for
+    ``Jl``); the others are not computed.
     """
     t2 = theta2(w)
     h = t2.sqrt().mul_(0.5).clamp_min_(_H_MIN[t2.dtype])
     sh, ch = torch.sin(h), torch.cos(h)
     s = sh / h
     a = s * ch
-    c = (1.0 - a).div_(t2.clamp_min(_H_MIN[t2.dtype]))
-    d = (ch - sh).mul_(ch.add_(sh))
-    return a, s.mul_(s).mul_(0.5), c, d
+    values = {"a": a}
+    if "c" in parts:
+        values["c"] = (1.0 - a).div_(t2.clamp_min(_H_MIN[t2.dtype]))
+    if "d" in parts:
+        values["d"] = (ch - sh).mul_(ch.add_(sh))
+    if "b" in parts:
+        values["b"] = s.mul_(s).mul_(0.5)
+    return tuple(values[k] for k in parts)
 
 
 def jl_inv_values(w: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor]:

@@ -113,10 +113,11 @@ def _jl_inv_apply(w: Tensor, v: Tensor, sign: float = 1.0) -> Tensor:
     return v - sign * 0.5 * wxv + d * wxwxv
 
 
-def _rodrigues(w: Tensor) -> tuple[tuple[Tensor, ...], tuple[Tensor, ...]]:
-    """Planes ``(x, y, z)`` of ``w`` and ``(a, b, c, d)`` of :func:`_coeffs.rodrigues_values`
-    in ``w``'s dtype (forward-only)."""
-    return _quat._planes(w, 3), tuple(v.to(w.dtype) for v in _coeffs.rodrigues_values(w))
+def _rodrigues(w: Tensor, parts: str = "abcd") -> tuple[tuple[Tensor, ...], tuple[Tensor, ...]]:
+    """Planes ``(x, y, z)`` of ``w`` and the coefficients ``parts`` of
+    :func:`_coeffs.rodrigues_values` in ``w``'s dtype (forward-only)."""
+    values = _coeffs.rodrigues_values(w, parts)
+    return _quat._planes(w, 3), tuple(v.to(w.dtype) for v in values)
 
 
 def _exp_entries(
@@ -148,7 +149,7 @@ def _exp(w: Tensor, *, dest: Tensor | None = None) -> Tensor:
     """
     if w.dtype == torch.float64:
         return _compensated.exp(w, dest=dest)
-    xyz, (a, b, _, d) = _rodrigues(w)
+    xyz, (a, b, d) = _rodrigues(w, "abd")
     o = _layout.outputs(xyz[0], 9)
     return _layout.interleave(_exp_entries(xyz, a, b, d, o), o, dest).unflatten(-1, (3, 3))
 
@@ -198,7 +199,7 @@ def _jl_apply_values(
     ``Jl(w) v = a v + b (w x v) + c (w . v) w`` with :func:`torchlie._coeffs.rodrigues_values`
     (not differentiable: backward passes without ``create_graph`` only).
     """
-    xyz, (a, b, c, _) = _rodrigues(w)
+    xyz, (a, b, c) = _rodrigues(w, "abc")
     o = _layout.outputs(xyz[0], 3)
     return _layout.interleave(_jl_components(xyz, v, a, b if sign > 0 else -b, c, o), o, dest)
 
