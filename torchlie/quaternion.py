@@ -688,8 +688,8 @@ def _apply(q: Tensor, p: Tensor) -> Tensor:
     if v.dim() != p.dim():  # linalg.cross broadcasts sizes, not numbers of dimensions
         v, p = torch.broadcast_tensors(v, p)
     s = 2.0 / (q * q).sum(-1, keepdim=True)
-    t = s * torch.linalg.cross(v, p, dim=-1)
-    return torch.addcmul(p, w, t) + torch.linalg.cross(v, t, dim=-1)
+    c = torch.linalg.cross(v, p, dim=-1)
+    return torch.addcmul(p, s, torch.addcmul(torch.linalg.cross(v, c, dim=-1), w, c))
 
 
 def _apply_entries(q: Tensor, p: Tensor, *, dest: Tensor | None = None) -> Tensor:
@@ -699,12 +699,13 @@ def _apply_entries(q: Tensor, p: Tensor, *, dest: Tensor | None = None) -> Tenso
     w, *v = _planes(q, 4)
     pc = _planes(p, 3)
     s = 2.0 / _norm2(w, *v)
-    t = [s * c for c in _cross_planes(v, pc)]
-    vt = _cross_planes(v, t)
+    c = _cross_planes(v, pc)
+    vc = _cross_planes(v, c)
     o = _layout.outputs(w, 3, q, p)  # differentiated through when q or p requires grad
+    # p + s (w (v x p) + v x (v x p)), s = 2 / |q|^2: the scale applied once per component.
     parts = [
-        torch.add(torch.addcmul(pi, w, ti), ci, out=oi)
-        for pi, ti, ci, oi in zip(pc, t, vt, o, strict=True)
+        torch.addcmul(pi, s, torch.addcmul(vci, w, ci), out=oi)
+        for pi, ci, vci, oi in zip(pc, c, vc, o, strict=True)
     ]
     return _layout.interleave(parts, o, dest)
 
