@@ -414,11 +414,9 @@ def _from_matrix_parts(
     """``(cw, cx, cy, cz, sign)``: ``c`` is proportional to the quaternion of ``R``, with
     ``|c| >= 2`` for a rotation; ``sign * c / |c|`` is the canonical unit quaternion."""
     m00, m01, m02, m10, m11, m12, m20, m21, m22 = _orthogonalize_step(R)
-    # 4 q_i^2 for i = w, x, y, z
-    d0 = 1.0 + m00 + m11 + m22
-    d1 = 1.0 + m00 - m11 - m22
-    d2 = 1.0 - m00 + m11 - m22
-    d3 = 1.0 - m00 - m11 + m22
+    # 4 q_i^2 for i = w, x, y, z, as (1 +- m22) +- (m00 +- m11)
+    p22, n22, p01, n01 = 1.0 + m22, 1.0 - m22, m00 + m11, m00 - m11
+    d0, d1, d2, d3 = p22 + p01, n22 + n01, n22 - n01, p22 - p01
     s21, s02, s10 = m21 - m12, m02 - m20, m10 - m01  # 4 w (x, y, z)
     a01, a02, a12 = m01 + m10, m02 + m20, m12 + m21  # 4 (xy, xz, yz)
     # Pivot: the largest d_i (the first on ties).  Candidate i holds 4 q_i q: proportional to q
