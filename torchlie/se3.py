@@ -533,13 +533,15 @@ def _exp_forward(xi: Tensor, *, dest: Tensor | None = None) -> Tensor:
     """``[[Exp(phi), Jl(phi) rho], [0, 1]]`` from components, one set of coefficients for both
     blocks (runs without autograd: forward-only coefficients); in float64 the rotation block is
     :func:`torchlie.so3.exp`'s compensated one."""
-    exact = xi.dtype == torch.float64  # the rotation block of so3.exp, bit for bit
-    xyz, (a, b, c, *d) = so3._rodrigues(xi[..., 3:], "abc" if exact else "abcd")
-    o, top = _top_outputs(xyz[0])
-    if exact:
-        R = _compensated.exp_entries(xi[..., 3:])
+    phi = xi[..., 3:]
+    if xi.dtype == torch.float64:  # the rotation block of so3.exp, bit for bit
+        xyz, (a, b, c) = so3._rodrigues(phi, "abc")
+        o, top = _top_outputs(xyz[0])
+        R = _compensated.exp_entries(phi)
     else:
-        R = so3._exp_entries(xyz, a, b, d[0], [e for row in top for e in row[:3]])
+        xyz, (a, b, c, d) = so3._rodrigues(phi)
+        o, top = _top_outputs(xyz[0])
+        R = so3._exp_entries(xyz, a, b, d, [e for row in top for e in row[:3]])
     t = so3._jl_components(xyz, _quat._planes(xi[..., :3], 3), a, b, c, [r[3] for r in top])
     return _stack_top([(*R[0:3], t[0]), (*R[3:6], t[1]), (*R[6:9], t[2])], out=o, dest=dest)
 
