@@ -194,6 +194,57 @@ def test_multiply_composes_like_matrices(dtype):
     assert torch.equal(Q.multiply(i, j), k)
 
 
+def test_multiply_of_large_batches_in_complex_arithmetic(dtype, monkeypatch):
+    """Large CPU batches multiply (and back-propagate) in complex arithmetic on the pairs
+    ``(w + x i, y + z i)``: within two ulp of the component form, every sampler angle, batch
+    shapes broadcast, views that cannot be complex fall back, a NaN stays in its element."""
+    from torchlie import _layout
+
+    monkeypatch.setattr(_layout, "MIN_ROWS", 64)
+    calls = []
+    form = Q._complex_product
+    monkeypatch.setattr(Q, "_complex_product", lambda *a, **k: calls.append(1) or form(*a, **k))
+    w, _ = samplers.rotvecs(dtype=dtype)
+    q = Q.from_rotvec(w) * 1.7
+    r = q[torch.randperm(q.shape[0], generator=torch.Generator().manual_seed(1))]
+    g = torch.Generator().manual_seed(2)
+
+    def run(a, b):
+        a, b = a.clone().requires_grad_(), b.clone().requires_grad_()
+        y = Q.multiply(a, b)
+        dy = torch.randn(y.shape, generator=torch.Generator().manual_seed(3), dtype=dtype)
+        return (y, *torch.autograd.grad(y, (a, b), dy)), dy
+
+    for a, b in ((q, r), (q, r[100]), (r[7:8], q), (q[:96].unflatten(0, (8, 12)), r[:12])):
+        calls.clear()
+        fast, dy = run(a, b)
+        assert len(calls) == 3  # the product and both gradients
+        with monkeypatch.context() as m:
+            m.setattr(Q, "_large_pair", lambda a, b: False)
+            plain, _ = run(a, b)
+        assert len(calls) == 3
+        # |q p| = |q| |p|: the norm of each product, summed where a gradient sums over a
+        # broadcast batch, is the scale of its rounding
+        na, nb, nd = (x.norm(dim=-1, keepdim=True) for x in (a, b, dy))
+        scales = (na * nb, (nd * nb).sum_to_size(na.shape), (na * nd).sum_to_size(nb.shape))
+        for x, ref, scale in zip(fast, plain, scales, strict=True):
+            assert x.shape == ref.shape
+            assert ((x - ref).norm(dim=-1, keepdim=True) <= 2 * eps(dtype) * scale).all()
+    # i j = k exactly; a view with odd strides takes the component form
+    i, j, k = torch.eye(4, dtype=dtype)[1:]
+    assert torch.equal(Q.multiply(i.expand(100, 4), j), k.expand(100, 4))
+    odd = torch.randn(100, 5, generator=g, dtype=dtype)[:, 1:]
+    with monkeypatch.context() as m:
+        m.setattr(Q, "_large_pair", lambda a, b: False)
+        ref = Q.multiply(odd, r[:100])
+    calls.clear()
+    assert torch.equal(Q.multiply(odd, r[:100]), ref) and calls == [1]  # tried, declined
+    bad = q[:100].clone()
+    bad[3, 2] = float("nan")
+    out = Q.multiply(bad, r[:100])
+    assert out[3].isnan().all() and not out[torch.arange(100) != 3].isnan().any()
+
+
 def test_apply_matches_scipy(dtype):
     q = haar(200, 6, dtype)
     p = torch.randn(200, 3, generator=torch.Generator().manual_seed(0), dtype=F64).to(dtype)

@@ -62,8 +62,19 @@ def _eye(dtype: torch.dtype, n: int) -> Tensor:
     return eye
 
 
+def large(x: Tensor, rows: int) -> bool:
+    """Whether an op over ``rows`` elements like ``x`` takes the kernels meant for large eager
+    CPU batches: at least :data:`MIN_ROWS` elements, on CPU, in eager mode outside
+    ``torch.func`` transforms."""
+    return (
+        rows >= MIN_ROWS
+        and x.device.type == "cpu"
+        and not (_is_compiling() or _transforms_active())
+    )
+
+
 def _use_product(x: Tensor, rows: int) -> bool:
-    if rows < MIN_ROWS or x.device.type != "cpu" or _is_compiling() or _transforms_active():
+    if not large(x, rows):
         return False
     if x.dtype == torch.float64:
         return True

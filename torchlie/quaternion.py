@@ -132,16 +132,85 @@ def _product(a: Sequence[Tensor], b: Sequence[Tensor], dest: Tensor | None, **co
     return _layout.interleave(_hamilton(a, b, out=o, **conj), o, dest)
 
 
-def _multiply_values(a: Tensor, b: Tensor, *, dest: Tensor | None = None) -> Tensor:
+def _pairs(q: Tensor) -> Tensor | None:
+    """``q`` as the complex pair ``(w + x i, y + z i)`` (shape ``(..., 2)``, a view: ``q = z1 +
+    z2 j``), or None where its strides do not allow a complex view."""
+    if q.stride(-1) != 1 or q.storage_offset() % 2 or any(st % 2 for st in q.stride()[:-1]):
+        return None
+    return torch.view_as_complex(q.unflatten(-1, (2, 2)))
+
+
+def _complex_product(
+    a: Tensor, b: Tensor, conj_a: bool = False, conj_b: bool = False, dest: Tensor | None = None
+) -> Tensor | None:
+    """``a b`` (``conj(a)``, ``conj(b)`` if asked) with ``a = z1 + z2 j``, ``b = u1 + u2 j``:
+    ``(z1 u1 - z2 conj(u2)) + (z1 u2 + z2 conj(u1)) j``, in complex arithmetic on the pairs as
+    they lie in memory (no transposition; batch shapes broadcast).  None where a complex view
+    is not possible.
+
+    ``conj(a) = conj(z1) - z2 j``.  Each real component sums the same four rounded products
+    as :func:`_hamilton`, in the complex products' own order and rounding, then one addition:
+    the two agree to about two ulp of the terms (the tests hold them to that), not bit for bit,
+    and a kernel's vectorised and scalar loops may differ in the last bit.
+    """
+    A, B = _pairs(a), _pairs(b)
+    if A is None or B is None:
+        return None
+    z1, z2, u1, u2 = A[..., 0], A[..., 1], B[..., 0], B[..., 1]
+    p1 = z1.conj() if conj_a else z1
+    v1, v1c = (u1.conj(), u1) if conj_b else (u1, u1.conj())
+    shape = torch.broadcast_shapes(a.shape, b.shape)
+    out = torch.empty(shape, dtype=a.dtype, device=a.device) if dest is None else dest.view(shape)
+    pairs = _pairs(out)
+    if pairs is None:
+        return None
+    c1, c2 = pairs.unbind(-1)
+    # c1 = p1 v1 - s z2 conj(u2), s = (-1 if conj_a) (-1 if conj_b)
+    (torch.add if conj_a != conj_b else torch.sub)(p1 * v1, z2 * u2.conj(), out=c1)
+    # c2 = (-1 if conj_b) p1 u2 + (-1 if conj_a) z2 conj(v1)
+    t1, t2 = p1 * u2, z2 * v1c
+    if conj_b:
+        torch.sub(t2, t1, out=c2)
+    else:
+        (torch.sub if conj_a else torch.add)(t1, t2, out=c2)
+    return out
+
+
+def _large_pair(a: Tensor, b: Tensor) -> bool:
+    """Whether a product of ``a`` and ``b`` takes the complex form (a large CPU batch)."""
+    return _layout.large(a, torch.broadcast_shapes(a.shape[:-1], b.shape[:-1]).numel())
+
+
+def _multiply_block(a: Tensor, b: Tensor, *, dest: Tensor | None = None) -> Tensor:
     return _product(_planes(a, 4), _planes(b, 4), dest)
+
+
+_multiply_blocks = _blocked(_multiply_block, (1, 1))
+
+
+def _multiply_values(a: Tensor, b: Tensor) -> Tensor:
+    """``a b`` without autograd: on large CPU batches in complex arithmetic (measured, float32
+    N = 10^6, one thread: 26-29 -> 18-21 ns per element; float64 55-58 -> 36-46), elsewhere
+    component by component (bit for bit the same at every batch size)."""
+    if _large_pair(a, b):
+        out = _complex_product(a, b)
+        if out is not None:
+            return out
+    return _multiply_blocks(a, b)
 
 
 def _multiply_grads_block(
     a: Tensor, b: Tensor, g: Tensor, *, dest: _layout.Dest2 = (None, None)
 ) -> tuple[Tensor, Tensor]:
-    """``(g conj(b), conj(a) g)``, the plain backward of ``a b`` (one block of rows)."""
-    ap, bp, gp = _planes(a, 4), _planes(b, 4), _planes(g, 4)
+    """``(g conj(b), conj(a) g)``, the plain backward of ``a b`` (one block of rows; in complex
+    arithmetic on large CPU batches, as :func:`_multiply_values`)."""
     da, db = dest
+    if _large_pair(a, g) and _large_pair(g, b):
+        ga = _complex_product(g, b, conj_b=True, dest=da)
+        gb = _complex_product(a, g, conj_a=True, dest=db)
+        if ga is not None and gb is not None:
+            return ga, gb
+    ap, bp, gp = _planes(a, 4), _planes(b, 4), _planes(g, 4)
     return _product(gp, bp, da, conj_b=True), _product(ap, gp, db, conj_a=True)
 
 
@@ -166,6 +235,7 @@ _MultiplyFn = custom_function(
     backward=_multiply_backward,
     jvp=lambda saved, da, db: _multiply_values(da, saved[1]) + _multiply_values(saved[0], db),
     event_dims=(1, 1),
+    blocked=False,  # the component form is blocked by itself (_multiply_blocks)
 )
 
 
