@@ -190,7 +190,7 @@ _multiply_blocks = _blocked(_multiply_block, (1, 1))
 
 def _multiply_values(a: Tensor, b: Tensor) -> Tensor:
     """``a b`` without autograd: on large CPU batches in complex arithmetic (measured, float32
-    N = 10^6, one thread: 26-29 -> 18-21 ns per element; float64 55-58 -> 36-46), elsewhere
+    N = 10^6, one thread: 26-34 -> 20-29 ns per element; float64 55-58 -> 36-46), elsewhere
     component by component (bit for bit the same at every batch size)."""
     if _large_pair(a, b):
         out = _complex_product(a, b)
