@@ -88,7 +88,7 @@ def _blocked(forward: Callable[..., _Out], event_dims: tuple[int, ...]) -> Calla
         batch = first.shape[: first.dim() - event_dims[0]]
         n = batch.numel()
         rows = BLOCK * 4 // first.element_size()  # the same bytes per plane in every dtype
-        if n < 2 * rows or first.device.type != "cpu" or _is_compiling() or _transforms_active():
+        if n < 2 * rows or not _layout.eager_cpu(first):
             return forward(*inputs)
         flat = []
         for x, k in zip(inputs, event_dims, strict=True):

@@ -62,15 +62,17 @@ def _eye(dtype: torch.dtype, n: int) -> Tensor:
     return eye
 
 
+def eager_cpu(x: Tensor) -> bool:
+    """Whether ``x`` is on CPU and the op runs in eager mode outside ``torch.func`` transforms:
+    where the CPU-specific eager kernels (blocks, transpositions by product, the large- and
+    small-batch forms) apply."""
+    return x.device.type == "cpu" and not (_is_compiling() or _transforms_active())
+
+
 def large(x: Tensor, rows: int) -> bool:
     """Whether an op over ``rows`` elements like ``x`` takes the kernels meant for large eager
-    CPU batches: at least :data:`MIN_ROWS` elements, on CPU, in eager mode outside
-    ``torch.func`` transforms."""
-    return (
-        rows >= MIN_ROWS
-        and x.device.type == "cpu"
-        and not (_is_compiling() or _transforms_active())
-    )
+    CPU batches: at least :data:`MIN_ROWS` elements, :func:`eager_cpu`."""
+    return rows >= MIN_ROWS and eager_cpu(x)
 
 
 def _use_product(x: Tensor, rows: int) -> bool:

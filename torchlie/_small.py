@@ -22,23 +22,19 @@ the component-wise form into one loop, which is faster at every size).
 
 from __future__ import annotations
 
-import torch
 from torch import Tensor
+
+from torchlie import _layout
 
 #: Batches (number of elements) below this take the small-batch forms (float32 and float64, one
 #: thread, per call, ``quaternion.from_matrix``: 1.5-1.6x faster at one element, 1.2x at 1000,
 #: 0.9x at 2048; ``se3.log`` 0.8-0.9x there).
 SMALL_ROWS = 1024
 
-_is_compiling = torch.compiler.is_compiling
-_transforms_active = torch._C._are_functorch_transforms_active
-
 
 def enabled(x: Tensor, rows: int) -> bool:
-    """Whether an op over ``rows`` elements on ``x``'s device takes its small form."""
-    if rows >= SMALL_ROWS or x.device.type != "cpu":
-        return False
-    return not (_is_compiling() or _transforms_active())
+    """Whether an op over ``rows`` elements like ``x`` takes its small form."""
+    return rows < SMALL_ROWS and _layout.eager_cpu(x)
 
 
 def interleave(planes: Tensor) -> Tensor:

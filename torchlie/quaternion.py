@@ -205,7 +205,7 @@ def _multiply_grads_block(
     """``(g conj(b), conj(a) g)``, the plain backward of ``a b`` (one block of rows; in complex
     arithmetic on large CPU batches, as :func:`_multiply_values`)."""
     da, db = dest
-    if _large_pair(a, g) and _large_pair(g, b):
+    if _large_pair(a, b):  # as the forward (g has the product's batch shape)
         ga = _complex_product(g, b, conj_b=True, dest=da)
         gb = _complex_product(a, g, conj_a=True, dest=db)
         if ga is not None and gb is not None:
