@@ -566,7 +566,7 @@ def _small_candidate(R: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor]:
     d = take(pn22, 0, pair) + take(pn01, 0, pair) * sign4
     sa = take(m, 0, first) + take(m, 0, second) * sign6
     cand = take(torch.cat((d, sa)), 0, rows).view((4, 4) + batch)
-    pivot = d.movedim(0, -1).contiguous().argmax(-1)  # the first on ties
+    pivot = _small.interleave(d).argmax(-1)  # the first on ties
     c = cand.gather(0, pivot.unsqueeze(0).unsqueeze(0).expand((1, 4) + batch))[0]
     return c, torch.copysign(torch.ones_like(c[0]), c[0] + 0.0)
 
