@@ -152,21 +152,54 @@ def test_entry_by_entry_kernels_equal_the_matmuls(dtype, monkeypatch):
             torch.testing.assert_close(a, b, rtol=4 * eps, atol=4 * eps * summed, msg=name)
 
 
+def _same_bits(a, b):
+    ints = {torch.float32: torch.int32, torch.float64: torch.int64}[a.dtype]
+    return torch.equal(a.view(ints), b.view(ints))
+
+
 @pytest.mark.parametrize("dtype", DTYPES)
-def test_interleave_reads_its_output_planes_and_writes_dest(dtype):
+def test_interleave_reads_its_output_columns_and_writes_dest(dtype):
     g = torch.Generator().manual_seed(7)
     x = torch.randn(700, 4, generator=g, dtype=dtype)
+    x[5] = torch.tensor(
+        [-0.0, float("inf"), float("nan"), 1e-40 if dtype == torch.float64 else 1e-42]
+    )
     cols = [c.contiguous() for c in x.unbind(-1)]
     o = _layout.outputs(cols[0], 4)
-    assert all(p is not None and p.shape == (700,) for p in o)
+    assert isinstance(o, _layout.Columns) and o.result.shape == (700, 4)
+    assert all(
+        c.shape == (700,) and c.data_ptr() == o.result[0, i].data_ptr() for i, c in enumerate(o)
+    )
     parts = [torch.mul(c, 1.0, out=p) for c, p in zip(cols[:3], o, strict=False)]
-    parts.append(cols[3])  # not written to its plane: copied there
+    parts.append(cols[3])  # not written to its column: copied there
+    got = _layout.interleave(parts, o)
+    assert got is o.result and _same_bits(got, x)  # -0.0, inf and NaN kept as they are
+    # columns of dest: the kernel's last operations write the rows of the blocked result
     dest = torch.full((1000, 4), float("nan"), dtype=dtype)
+    o = _layout.outputs(cols[0], 4, dest=dest[100:800])
+    assert o[0].data_ptr() == dest[100].data_ptr()
+    parts = [torch.mul(c, 1.0, out=p) for c, p in zip(cols, o, strict=True)]
     got = _layout.interleave(parts, o, dest[100:800])
     assert got.data_ptr() == dest[100].data_ptr()
-    assert torch.equal(dest[100:800], x) and dest[:100].isnan().all() and dest[800:].isnan().all()
-    # the copying layout writes dest as well
-    assert torch.equal(_layout.interleave(cols[:2], dest=dest[:700, :2].contiguous()), x[:, :2])
+    assert _same_bits(dest[100:800], x) and dest[:100].isnan().all() and dest[800:].isnan().all()
+    # columns of a new result, then copied to dest
+    o = _layout.outputs(cols[0], 4)
+    parts = [torch.mul(c, 1.0, out=p) for c, p in zip(cols, o, strict=True)]
+    dest = torch.zeros(700, 4, dtype=dtype)
+    assert _layout.interleave(parts, o, dest).data_ptr() == dest.data_ptr()
+    assert _same_bits(dest, x)
+    # no columns: the parts copied into the columns of the result, or of dest
+    assert _same_bits(_layout.interleave(cols), x)
+    assert _same_bits(_layout.interleave(cols[:2], dest=dest[:700, :2].contiguous()), x[:, :2])
+
+
+def test_interleave_is_differentiable_where_autograd_records():
+    x = torch.randn(700, 3, dtype=torch.float64, requires_grad=True)
+    parts = [2.0 * c for c in x.unbind(-1)]
+    y = _layout.interleave(parts)
+    assert torch.equal(y, 2.0 * x)
+    (grad,) = torch.autograd.grad(y, x, torch.arange(2100.0, dtype=x.dtype).view(700, 3))
+    assert torch.equal(grad, 2.0 * torch.arange(2100.0, dtype=x.dtype).view(700, 3))
 
 
 def test_no_output_planes_where_autograd_records():

@@ -128,7 +128,7 @@ def _hamilton(
 
 def _product(a: Sequence[Tensor], b: Sequence[Tensor], dest: Tensor | None, **conj: bool):
     """:func:`_hamilton`, interleaved (into ``dest`` if given)."""
-    o = _layout.outputs(a[0], 4)
+    o = _layout.outputs(a[0], 4, dest=dest)
     return _layout.interleave(_hamilton(a, b, out=o, **conj), o, dest)
 
 
@@ -334,7 +334,7 @@ def _to_matrix_forward(q: Tensor, *, dest: Tensor | None = None) -> Tensor:
     # The last two share their halves: (ww - xx) +- (yy - zz).
     hs = 0.5 * s
     u, v = ww - xx, yy - zz
-    o = _layout.outputs(w, 9)
+    o = _layout.outputs(w, 9, dest=dest)
     mul, add, sub = torch.mul, torch.add, torch.sub
     entries = (
         mul((ww + xx) - (yy + zz), hs, out=o[0]), sub(xy, wz, out=o[1]), add(xz, wy, out=o[2]),
@@ -403,7 +403,7 @@ def _to_matrix_grad_values_block(
     w, x, y, z = _planes(q, 4)
     a1, a2, a3 = _rt_g_vee(R, G)
     k = 2.0 / _norm2(w, x, y, z)
-    o = _layout.outputs(w, 4)
+    o = _layout.outputs(w, 4, dest=dest)
     gw = torch.mul(torch.addcmul(torch.addcmul(x * a1, y, a2), z, a3), k, out=o[0]).neg_()
     c = _cross_planes((x, y, z), (a1, a2, a3))
     gv = [
@@ -580,7 +580,7 @@ def _from_matrix_forward(R: Tensor, *, dest: Tensor | None = None) -> Tensor:
     # |c| = 4 q_p >= 2 for a rotation: the division is safe, and a NaN element stays in its row.
     n2 = _norm2(cw, cx, cy, cz)
     scale = torch.rsqrt(n2) * sign
-    o = _layout.outputs(cw, 4)
+    o = _layout.outputs(cw, 4, dest=dest)
     parts = [torch.mul(c, scale, out=oi) for c, oi in zip((cw, cx, cy, cz), o, strict=True)]
     return _layout.interleave(parts, o, dest)
 
@@ -602,7 +602,7 @@ def _cross_planes(
 def _r_hat_values(R: Tensor, u: Sequence[Tensor], dest: Tensor | None = None) -> Tensor:
     """``R hat(u)`` from components: row ``i`` is ``cross(R_i, u)``."""
     r = _planes(R, 9)
-    o = _layout.outputs(r[0], 9)
+    o = _layout.outputs(r[0], 9, dest=dest)
     out = [c for i in (0, 3, 6) for c in _cross_planes(r[i : i + 3], u, o[i : i + 3])]
     return _layout.interleave(out, o, dest).unflatten(-1, (3, 3))
 
@@ -838,7 +838,7 @@ def _apply_entries(q: Tensor, p: Tensor, *, dest: Tensor | None = None) -> Tenso
     s = 2.0 / _norm2(w, *v)
     c = _cross_planes(v, pc)
     vc = _cross_planes(v, c)
-    o = _layout.outputs(w, 3, q, p)  # differentiated through when q or p requires grad
+    o = _layout.outputs(w, 3, q, p, dest=dest)  # differentiated through when q or p requires grad
     # p + s (w (v x p) + v x (v x p)), s = 2 / |q|^2: the scale applied once per component.
     parts = [
         torch.addcmul(pi, s, torch.addcmul(vci, w, ci), out=oi)

@@ -258,11 +258,11 @@ def _rotation_and_translation(T: Tensor) -> tuple[list[Tensor], list[Tensor]]:
 
 
 def _top_outputs(
-    like: Tensor, *inputs: Tensor
+    like: Tensor, *inputs: Tensor, dest: Tensor | None = None
 ) -> tuple[tuple[Tensor | None, ...], list[list[Tensor | None]]]:
-    """The 16 planes of :func:`_layout.outputs` for a 4x4 result, and the 12 of its top block
-    row by row (where the entries are to be written)."""
-    o = _layout.outputs(like, 16, *inputs)
+    """The 16 columns of :func:`_layout.outputs` for a 4x4 result (in ``dest`` if given), and
+    the 12 of its top block row by row (where the entries are to be written)."""
+    o = _layout.outputs(like, 16, *inputs, dest=dest)
     return o, [list(o[4 * i : 4 * i + 4]) for i in range(3)]
 
 
@@ -273,14 +273,13 @@ def _stack_top(
     dest: Tensor | None = None,
 ) -> Tensor:
     """``[[rows], [0, 0, 0, corner]]``: a 4x4 matrix from the 12 entries of its top block (row by
-    row, all of one shape; written to the planes ``out`` of :func:`_top_outputs` or not), into
+    row, all of one shape; written to the columns ``out`` of :func:`_top_outputs` or not), into
     ``dest`` if given."""
-    if out is not None and out[0] is not None:
-        out[12].zero_()
-        out[13].zero_()
-        out[14].zero_()
-        last = out[15].fill_(corner)
-        zero = out[12:15]
+    if isinstance(out, _layout.Columns):
+        bottom = out.result[..., 12:]
+        bottom[..., :3].zero_()
+        bottom[..., 3].fill_(corner)
+        zero, last = out[12:15], out[15]
     else:
         zero = (torch.zeros_like(rows[0][0]),) * 3
         last = zero[0] if corner == 0.0 else torch.full_like(zero[0], corner)
@@ -301,7 +300,7 @@ def _compose_entries(A: Tensor, B: Tensor, dest: Tensor | None = None) -> Tensor
     """:func:`_compose_fwd` entry by entry: one fused loop when compiled, where the batched
     matmul is a library call of its own with a copy on each side."""
     a, b = _top_entries(A), _top_entries(B)
-    o, top = _top_outputs(a[0][0])
+    o, top = _top_outputs(a[0][0], dest=dest)
     rows = []
     for ai, oi in zip(a, top, strict=True):
         row = [
@@ -316,7 +315,7 @@ def _compose_entries(A: Tensor, B: Tensor, dest: Tensor | None = None) -> Tensor
 def _inverse_entries(T: Tensor, dest: Tensor | None = None) -> Tensor:
     """:func:`_inverse_fwd` entry by entry (for the compiled path, as :func:`_compose_entries`)."""
     r = _top_entries(T)
-    o, top = _top_outputs(r[0][0])
+    o, top = _top_outputs(r[0][0], dest=dest)
     rows = []
     for i in range(3):
         col = [r[0][i], r[1][i], r[2][i]]
@@ -361,8 +360,9 @@ def _compose_bwd_entries(
     differentiable): ``dA_ij = sum_k G_ik B_jk`` (``j < 3``), ``dA_i3 = G_i3``,
     ``dB_kj = sum_i A_ik G_ij``."""
     a, b, g = _top_entries(A), _top_entries(B), _top_entries(G)
-    oa, top_a = _top_outputs(g[0][0], A, B, G)
-    ob, top_b = _top_outputs(g[0][0], A, B, G)
+    da_dest, db_dest = dest
+    oa, top_a = _top_outputs(g[0][0], A, B, G, dest=da_dest)
+    ob, top_b = _top_outputs(g[0][0], A, B, G, dest=db_dest)
     da = [
         [
             torch.addcmul(
@@ -385,7 +385,6 @@ def _compose_bwd_entries(
         ]
         for k, ok in zip(range(3), top_b, strict=True)
     ]
-    da_dest, db_dest = dest
     return _stack_rows(da, oa, da_dest), _stack_rows(db, ob, db_dest)
 
 
@@ -432,7 +431,7 @@ def _inverse_bwd_entries(T: Tensor, G: Tensor, *, dest: Tensor | None = None) ->
     """:func:`_inverse_bwd` entry by entry (for the compiled path, as :func:`_compose_entries`;
     differentiable): ``dR_ij = G_ji - t_i G_j3``, ``dt_i = -sum_j R_ij G_j3``."""
     r, g = _top_entries(T), _top_entries(G)
-    o, top = _top_outputs(g[0][0], T, G)
+    o, top = _top_outputs(g[0][0], T, G, dest=dest)
     rows = []
     for i, oi in zip(range(3), top, strict=True):
         dR = [torch.addcmul(g[j][i], r[i][3], g[j][3], value=-1.0, out=oi[j]) for j in range(3)]
@@ -486,13 +485,13 @@ def _act_grads_block(
 ) -> tuple[Tensor, Tensor]:
     """:func:`_act_bwd` entry by entry (one block of rows; differentiable)."""
     r, gc = _top_entries(T), _quat._planes(g, 3)
-    o, top = _top_outputs(gc[0], T, p, g)
-    out_p = _layout.outputs(gc[0], 3, T, p, g)
+    dT_dest, dp_dest = dest
+    o, top = _top_outputs(gc[0], T, p, g, dest=dT_dest)
+    out_p = _layout.outputs(gc[0], 3, T, p, g, dest=dp_dest)
     R9 = [r[i][j] for i in range(3) for j in range(3)]
     dR9, dp = so3._act_grad_components(
         R9, _quat._planes(p, 3), gc, [e for row in top for e in row[:3]], out_p
     )
-    dT_dest, dp_dest = dest
     dT = _stack_rows([(*dR9[3 * i : 3 * i + 3], gc[i]) for i in range(3)], o, dT_dest)
     return dT, _layout.interleave(dp, out_p, dp_dest)
 
@@ -536,11 +535,11 @@ def _exp_forward(xi: Tensor, *, dest: Tensor | None = None) -> Tensor:
     phi = xi[..., 3:]
     if xi.dtype == torch.float64:  # the rotation block of so3.exp, bit for bit
         xyz, (a, b, c) = so3._rodrigues(phi, "abc")
-        o, top = _top_outputs(xyz[0])
+        o, top = _top_outputs(xyz[0], dest=dest)
         R = _compensated.exp_entries(phi)
     else:
         xyz, (a, b, c, d) = so3._rodrigues(phi)
-        o, top = _top_outputs(xyz[0])
+        o, top = _top_outputs(xyz[0], dest=dest)
         R = so3._exp_entries(xyz, a, b, d, [e for row in top for e in row[:3]])
     t = so3._jl_components(xyz, _quat._planes(xi[..., :3], 3), a, b, c, [r[3] for r in top])
     return _stack_top([(*R[0:3], t[0]), (*R[3:6], t[1]), (*R[6:9], t[2])], out=o, dest=dest)
@@ -570,7 +569,7 @@ def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor, *, dest: Tensor | Non
     a, b, c = (v.to(xi.dtype) for v in _coeffs.rodrigues_values(xyz, "abc"))
     R, t = _rotation_and_translation(T)
     G_R, g_t = _rotation_and_translation(G)
-    o = _layout.outputs(x[0], 6)
+    o = _layout.outputs(x[0], 6, dest=dest)
     g_rho = so3._jl_components(xyz, g_t, a, -b, c, o[:3])
     u = so3._rt_g_vee(R, G_R)
     g_phi = so3._jl_components(xyz, u, a, b, c)
@@ -648,7 +647,7 @@ def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor, *, dest: Tensor | Non
     v = [(gi - qi).mul_(0.5) for gi, qi in zip(gs[3:], q, strict=True)]
     u = so3._jl_components(x[3:], v, e, half, d)  # h_phi / 2
     r = _quat._planes(_rot(T), 9)
-    o, top = _top_outputs(r[0])
+    o, top = _top_outputs(r[0], dest=dest)
     G_R = [so3._cross(r[3 * i : 3 * i + 3], u, top[i][:3]) for i in range(3)]  # rows of R hat(u)
     G_t = [
         torch.addcmul(

@@ -150,7 +150,7 @@ def _exp(w: Tensor, *, dest: Tensor | None = None) -> Tensor:
     if w.dtype == torch.float64:
         return _compensated.exp(w, dest=dest)
     xyz, (a, b, d) = _rodrigues(w, "abd")
-    o = _layout.outputs(xyz[0], 9)
+    o = _layout.outputs(xyz[0], 9, dest=dest)
     return _layout.interleave(_exp_entries(xyz, a, b, d, o), o, dest).unflatten(-1, (3, 3))
 
 
@@ -200,7 +200,7 @@ def _jl_apply_values(
     (not differentiable: backward passes without ``create_graph`` only).
     """
     xyz, (a, b, c) = _rodrigues(w, "abc")
-    o = _layout.outputs(xyz[0], 3)
+    o = _layout.outputs(xyz[0], 3, dest=dest)
     return _layout.interleave(_jl_components(xyz, v, a, b if sign > 0 else -b, c, o), o, dest)
 
 
@@ -428,9 +428,10 @@ def _act_grads_block(
     """``(g p^T, R^T g)`` entry by entry (one block of rows; differentiable: the backward of
     the backward)."""
     planes, like = _quat._planes, g[..., 0]
-    out_r, out_p = _layout.outputs(like, 9, R, p, g), _layout.outputs(like, 3, R, p, g)
-    dR9, dp3 = _act_grad_components(planes(R, 9), planes(p, 3), planes(g, 3), out_r, out_p)
     dR_dest, dp_dest = dest
+    out_r = _layout.outputs(like, 9, R, p, g, dest=dR_dest)
+    out_p = _layout.outputs(like, 3, R, p, g, dest=dp_dest)
+    dR9, dp3 = _act_grad_components(planes(R, 9), planes(p, 3), planes(g, 3), out_r, out_p)
     dR = _layout.interleave(dR9, out_r, dR_dest).unflatten(-1, (3, 3))
     return dR, _layout.interleave(dp3, out_p, dp_dest)
 
