@@ -1,4 +1,4 @@
-"""The eager kernels' layout changes: planes and interleaving by matrix product equal the copies."""
+"""The eager kernels' layout changes (products, column copies, strided stores) equal the copies."""
 
 from __future__ import annotations
 
@@ -10,6 +10,11 @@ from torchlie import _autograd, _layout, conversions, quaternion, se3, so3
 
 DTYPES = [torch.float32, torch.float64]
 DEFAULT_MIN_ROWS = _layout.MIN_ROWS
+
+
+def _same_bits(a, b):
+    ints = {torch.float32: torch.int32, torch.float64: torch.int64}[a.dtype]
+    return torch.equal(a.view(ints), b.view(ints))
 
 
 @pytest.fixture(autouse=True)
@@ -36,6 +41,24 @@ def test_planes_and_interleave_are_exact(dtype):
     assert torch.equal(torch.stack(parts, -1), x)
     out = _layout.interleave(parts)
     assert out.shape == x.shape and torch.equal(out, x)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_planes_of_3_vectors_column_by_column(dtype):
+    """3-vectors are split by one copy per column: bit for bit, non-finite components kept
+    in their element and component."""
+    g = torch.Generator().manual_seed(9)
+    x = torch.randn(2, 700, 3, generator=g, dtype=dtype)
+    x[0, 5] = torch.tensor([float("nan"), -0.0, float("inf")])
+    x[1, 7] = torch.tensor([1e-40 if dtype == torch.float64 else 1e-42, 3e38, -2.5])
+    parts = _layout.planes(x, 3)
+    assert all(p.is_contiguous() and p.shape == (2, 700) for p in parts)
+    assert all(_same_bits(p, c) for p, c in zip(parts, x.unbind(-1), strict=True))
+    assert not parts[0][0, 4].isnan() and parts[1][0, 5].signbit()
+    y = x.clone().requires_grad_()  # recorded by autograd: the differentiable copy
+    parts = _layout.planes(y, 3)
+    (grad,) = torch.autograd.grad(parts[1].sum(), y)
+    assert torch.equal(grad, torch.tensor([0.0, 1.0, 0.0], dtype=dtype).expand_as(y))
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
@@ -150,11 +173,6 @@ def test_entry_by_entry_kernels_equal_the_matmuls(dtype, monkeypatch):
             # a broadcast input's gradient is a sum over the batch: a few eps per summand
             summed = T.shape[:-2].numel() // a.shape[:-2].numel()
             torch.testing.assert_close(a, b, rtol=4 * eps, atol=4 * eps * summed, msg=name)
-
-
-def _same_bits(a, b):
-    ints = {torch.float32: torch.int32, torch.float64: torch.int64}[a.dtype]
-    return torch.equal(a.view(ints), b.view(ints))
 
 
 @pytest.mark.parametrize("dtype", DTYPES)

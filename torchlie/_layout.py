@@ -11,8 +11,10 @@ component makes the element's other components NaN (``0 * inf``), and ``-0.0`` c
 ``+0.0``.  The product is taken only where it is exact and fast: CPU tensors of float64, or of
 float32 while float32 matrix products are full precision (no bfloat16 or TF32 setting), in eager
 mode outside ``torch.func`` transforms, and for batches of at least :data:`MIN_ROWS` elements
-(below that the extra kernel launch costs more than it saves).  Everywhere else (CUDA,
-``torch.compile``, vmap, small batches) the plain copy and unbind.
+(below that the extra kernel launch costs more than it saves).  Large batches of 3-vectors,
+and of vectors where the product is not taken, are split by one copy per column instead
+(strided loads of one column, contiguous stores: faster than both there).  Everywhere else
+(CUDA, ``torch.compile``, vmap, small batches) the plain copy and unbind.
 
 Results go the other way without a pass of their own: on large eager CPU batches a kernel's last
 operations write their values straight into the columns of its result (:func:`outputs`;
@@ -114,7 +116,7 @@ def _stacked(M: Tensor, n: int | tuple[int, int]) -> Tensor:
     batch = M.shape[: M.dim() - (2 if matrix else 1)]
     rows = batch.numel()
     count = n[0] * n[1] if matrix else n
-    if _use_product(M, rows):
+    if _use_product(M, rows) and (matrix or n > 3):
         flat = M.reshape((rows,) + M.shape[len(batch) :])
         if matrix:
             flat, columns = _rows_of_matrices(flat)
@@ -124,6 +126,14 @@ def _stacked(M: Tensor, n: int | tuple[int, int]) -> Tensor:
         return torch.mm(select, flat.T).reshape((count,) + batch)
     if matrix:  # one copy even when M is a strided block
         return M.movedim((-2, -1), (0, 1)).contiguous().flatten(0, 1)
+    if large(M, rows) and not needs_graph((M,)):
+        # column by column: faster than the transposing copy below, and than the product for
+        # 3-vectors (float32 and float64, a block of 65 536 rows, ns per entry: 0.7-1.3
+        # against 2.3-4.0 and 1.6-3.0)
+        out = M.new_empty((n,) + batch)
+        for plane, column in zip(out.unbind(0), M.unbind(-1), strict=True):
+            plane.copy_(column)
+        return out
     return M.movedim(-1, 0).contiguous()
 
 
