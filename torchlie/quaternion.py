@@ -832,7 +832,8 @@ def _apply(q: Tensor, p: Tensor) -> Tensor:
 def _apply_entries(q: Tensor, p: Tensor, *, dest: Tensor | None = None) -> Tensor:
     """:func:`_apply` from components: one fused loop when compiled, forward and backward,
     where ``linalg.cross`` is lowered to modular gathers over the last dimension; in eager mode
-    on large batches, whose planes are transposed by matrix product (see :mod:`._layout`)."""
+    on large batches, whose planes are split apart and results stored strided without a
+    transposing copy (see :mod:`._layout`)."""
     w, *v = _planes(q, 4)
     pc = _planes(p, 3)
     s = 2.0 / _norm2(w, *v)
