@@ -324,22 +324,23 @@ def to_matrix(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 3 3"]:
 
 def _to_matrix_forward(q: Tensor, *, dest: Tensor | None = None) -> Tensor:
     w, x, y, z = _planes(q, 4)
-    ww, xx, yy, zz = w * w, x * x, y * y, z * z
-    s = 2.0 / (ww + xx + yy + zz)
-    xs, ys, zs = x * s, y * s, z * s
-    wx, wy, wz = w * xs, w * ys, w * zs
-    xy, xz, yz = x * ys, x * zs, y * zs
+    ww, yy = w * w, y * y
     # Diagonal as (w^2 + x^2 - y^2 - z^2) / |q|^2: two terms bounded by |q|^2, where
     # 1 - (yy + zz) s rounds a sum near 2 close to pi (3.1e-16 instead of 5.0e-16 in float64).
-    # The last two share their halves: (ww - xx) +- (yy - zz).
-    hs = 0.5 * s
-    u, v = ww - xx, yy - zz
+    # The last two share their halves: (ww - xx) +- (yy - zz).  Squares and products enter
+    # by multiply-adds (one rounding each, where the CPU fuses them).
+    a, b = torch.addcmul(ww, x, x), torch.addcmul(yy, z, z)
+    hs = torch.reciprocal(a + b)  # 1 / |q|^2
+    s = hs + hs
+    u, v = torch.addcmul(ww, x, x, value=-1.0), torch.addcmul(yy, z, z, value=-1.0)
+    xs, ys, zs = x * s, y * s, z * s
+    xy, xz, yz = x * ys, x * zs, y * zs
     o = _layout.outputs(w, 9, dest=dest)
-    mul, add, sub = torch.mul, torch.add, torch.sub
+    mul, fma = torch.mul, torch.addcmul
     entries = (
-        mul((ww + xx) - (yy + zz), hs, out=o[0]), sub(xy, wz, out=o[1]), add(xz, wy, out=o[2]),
-        add(xy, wz, out=o[3]), mul(u + v, hs, out=o[4]), sub(yz, wx, out=o[5]),
-        sub(xz, wy, out=o[6]), add(yz, wx, out=o[7]), mul(u - v, hs, out=o[8]),
+        mul(a - b, hs, out=o[0]), fma(xy, w, zs, value=-1.0, out=o[1]), fma(xz, w, ys, out=o[2]),
+        fma(xy, w, zs, out=o[3]), mul(u + v, hs, out=o[4]), fma(yz, w, xs, value=-1.0, out=o[5]),
+        fma(xz, w, ys, value=-1.0, out=o[6]), fma(yz, w, xs, out=o[7]), mul(u - v, hs, out=o[8]),
     )  # fmt: skip
     return _layout.interleave(entries, o, dest).unflatten(-1, (3, 3))
 
