@@ -561,6 +561,45 @@ def test_gradcheck_apply(theta):
     assert gradgradcheck(Q.apply, (q, p))
 
 
+def test_apply_derivatives_in_forward_and_reverse_mode():
+    """apply's own backward and jvp: forward mode against central differences (a tangent on
+    either input or both), jacfwd against jacrev, and the plain backward (no graph) against the
+    differentiable one, batches broadcast."""
+    g = torch.Generator().manual_seed(31)
+    q = 1.3 * Q.random(5, generator=g, dtype=F64)
+    p = torch.randn(5, 3, generator=g, dtype=F64)
+    vmap, jacrev, jacfwd = torch.func.vmap, torch.func.jacrev, torch.func.jacfwd
+    for i in (0, 1):
+        Jr = vmap(jacrev(Q.apply, argnums=i))(q, p)
+        Jf = vmap(jacfwd(Q.apply, argnums=i))(q, p)
+        torch.testing.assert_close(Jr, Jf, rtol=0, atol=1e-14)
+    tq, tp = (
+        torch.randn(q.shape, generator=g, dtype=F64),
+        torch.randn(p.shape, generator=g, dtype=F64),
+    )
+    h = 1e-6
+    for dq, dp in ((tq, None), (None, tp), (tq, tp)):
+        with torch.autograd.forward_ad.dual_level():
+            qd = q if dq is None else torch.autograd.forward_ad.make_dual(q, dq)
+            pd = p if dp is None else torch.autograd.forward_ad.make_dual(p, dp)
+            _, dy = torch.autograd.forward_ad.unpack_dual(Q.apply(qd, pd))
+        sq = torch.zeros_like(q) if dq is None else h * dq
+        sp = torch.zeros_like(p) if dp is None else h * dp
+        fd = (Q.apply(q + sq, p + sp) - Q.apply(q - sq, p - sp)) / (2 * h)
+        torch.testing.assert_close(dy, fd, rtol=1e-7, atol=1e-8)
+    for qs, ps in ((q, p), (q[:1], p), (q[0], p), (q, p[0]), (q[:, None], p)):
+        ql, pl = qs.clone().requires_grad_(), ps.clone().requires_grad_()
+        y = Q.apply(ql, pl)
+        c = torch.randn(y.shape, generator=g, dtype=F64)
+        plain = torch.autograd.grad(y, (ql, pl), c)
+        graph = torch.autograd.grad(Q.apply(ql, pl), (ql, pl), c, create_graph=True)
+        assert plain[0].shape == qs.shape and plain[1].shape == ps.shape
+        for a, b in zip(plain, graph, strict=True):
+            torch.testing.assert_close(a, b, rtol=1e-13, atol=1e-13)
+        # dL/dq is orthogonal to q: apply does not see the scale of q
+        assert float((plain[0] * qs).sum(-1).abs().max()) < 1e-12
+
+
 @pytest.mark.parametrize("theta", GC_ANGLES)
 def test_gradcheck_slerp(theta):
     q0 = haar(3, 17)

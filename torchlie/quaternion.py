@@ -818,7 +818,7 @@ def apply(q: Float[Tensor, "*b1 4"], points: Float[Tensor, "*b2 3"]) -> Float[Te
     return _checks.out(_apply(a, p), dtype)
 
 
-def _apply(q: Tensor, p: Tensor) -> Tensor:
+def _apply_values(q: Tensor, p: Tensor) -> Tensor:
     if torch.compiler.is_compiling() or _layout.by_product(q, 1) or _layout.by_product(p, 1):
         return _apply_entries_blocked(q, p)
     w = q[..., :1]
@@ -828,6 +828,80 @@ def _apply(q: Tensor, p: Tensor) -> Tensor:
     s = 2.0 / (q * q).sum(-1, keepdim=True)
     c = torch.linalg.cross(v, p, dim=-1)
     return torch.addcmul(p, s, torch.addcmul(torch.linalg.cross(v, c, dim=-1), w, c))
+
+
+def _apply_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]:
+    # y = R p with R the rotation of q / |q|: dL/dp = R^T g (the rotation by conj(q)).  A
+    # change dq turns R into R Exp(d), d = 2 vec(conj(q) dq) / |q|^2, so dy = R (d x p) and
+    # <g, dy> = <p x R^T g, d>: dL/dq = 2 q (0, p x R^T g) / |q|^2 (orthogonal to q).
+    q, p = saved
+    if torch.is_grad_enabled():  # create_graph: differentiable ops
+        dp = _apply(_conjugate(q), g)
+        a = torch.linalg.cross(p.expand_as(dp), dp, dim=-1)
+        w, v = q[..., :1], q[..., 1:].expand_as(a)
+        u = torch.cat(((v * a).sum(-1, keepdim=True).neg(), w * a + torch.linalg.cross(v, a)), -1)
+        dq = u * (2.0 / (q * q).sum(-1, keepdim=True))
+    else:
+        dq, dp = _apply_grads(q, p, g)
+    return dq.sum_to_size(q.shape), dp.sum_to_size(p.shape)
+
+
+def _apply_grads_block(
+    q: Tensor, p: Tensor, g: Tensor, *, dest: _layout.Dest2 = (None, None)
+) -> tuple[Tensor, Tensor]:
+    """The plain backward of :func:`apply` from components (one block of rows)."""
+    w, *v = _planes(q, 4)
+    pc, gc = _planes(p, 3), _planes(g, 3)
+    s = 2.0 / _norm2(w, *v)
+    dq_dest, dp_dest = dest
+    like = gc[0]  # the batch shape of the result: q's and p's broadcast
+    oq = _layout.outputs(like, 4, dest=dq_dest)
+    op = _layout.outputs(like, 3, dest=dp_dest)
+    # R^T g = g + s (v x (v x g) - w (v x g))
+    c = _cross_planes(v, gc)
+    dp = [
+        torch.addcmul(gi, s, torch.addcmul(vci, w, ci, value=-1.0), out=oi)
+        for gi, ci, vci, oi in zip(gc, c, _cross_planes(v, c), op, strict=True)
+    ]
+    # q (0, a) = (-v . a, w a + v x a), times s, with a = p x R^T g
+    a = _cross_planes(pc, dp)
+    va = torch.addcmul(torch.addcmul(v[0] * a[0], v[1], a[1]), v[2], a[2])
+    dq = [torch.mul(va, s, out=oq[0]).neg_()]
+    dq += [
+        torch.mul(torch.addcmul(ci, w, ai), s, out=oi)
+        for ai, ci, oi in zip(a, _cross_planes(v, a), oq[1:], strict=True)
+    ]
+    return _layout.interleave(dq, oq, dq_dest), _layout.interleave(dp, op, dp_dest)
+
+
+_apply_grads = _blocked(_apply_grads_block, (1, 1, 1))
+
+
+def _apply_jvp(saved: tuple[Tensor, ...], dq: Tensor | None, dp: Tensor | None) -> Tensor:
+    # dy = R (d x p + dp), d = 2 vec(conj(q) dq) / |q|^2 (see _apply_backward).
+    q, p = saved
+    u = torch.zeros_like(p) if dp is None else dp
+    if dq is not None:
+        d = _multiply(_conjugate(q), dq)[..., 1:] * (2.0 / (q * q).sum(-1, keepdim=True))
+        if d.dim() != p.dim():
+            d, p = torch.broadcast_tensors(d, p)
+        u = u + torch.linalg.cross(d, p.expand_as(d), dim=-1)
+    return _apply(q, u)
+
+
+_ApplyFn = custom_function(
+    "QuaternionApply",
+    forward=_apply_values,
+    save=lambda inputs, out: (inputs[0], inputs[1]),
+    backward=_apply_backward,
+    jvp=_apply_jvp,
+    event_dims=(1, 1),
+    blocked=False,  # the component form is blocked by itself (_apply_entries_blocked)
+)
+
+
+def _apply(q: Tensor, p: Tensor) -> Tensor:
+    return _ApplyFn(q, p)
 
 
 def _apply_entries(q: Tensor, p: Tensor, *, dest: Tensor | None = None) -> Tensor:
