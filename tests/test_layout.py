@@ -273,3 +273,44 @@ def test_blocks_written_in_place_equal_one_pass(dtype, monkeypatch):
         torch.testing.assert_close(y1, y2, rtol=4 * eps, atol=4 * eps, msg=name)
         for a, b in zip(g1, g2, strict=True):
             torch.testing.assert_close(a, b, rtol=4 * eps, atol=4 * eps, msg=name)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_broadcast_batches_of_large_inputs(dtype):
+    """Operands whose batches broadcast (one of them large): values and gradients equal those
+    of the same op on operands expanded to the full batch first."""
+    g = torch.Generator().manual_seed(10)
+    a = quaternion.random(700, 1, generator=g, dtype=dtype)
+    b = quaternion.random(1, 3, generator=g, dtype=dtype)
+    strided = torch.randn(4, 700, 1, generator=g, dtype=dtype).permute(1, 2, 0)
+    A = se3.random(700, 1, generator=g, dtype=dtype)
+    B = se3.random(1, 3, generator=g, dtype=dtype)
+    p_small = torch.randn(1, 3, 3, generator=g, dtype=dtype)
+    p_large = torch.randn(700, 1, 3, generator=g, dtype=dtype)
+    cases = [
+        (quaternion.multiply, (a, b)),
+        (quaternion.multiply, (b, a)),
+        (quaternion.multiply, (strided, b)),
+        (quaternion.apply, (a, p_small)),
+        (quaternion.apply, (b, p_large)),
+        (se3.compose, (A, B)),
+        (se3.compose, (B, A)),
+        (se3.act, (A, p_small)),
+        (so3.act, (A[..., :3, :3], p_small)),
+    ]
+    eps = torch.finfo(dtype).eps
+    for fn, args in cases:
+        leaves = [x.clone().requires_grad_() for x in args]
+        y = fn(*leaves)
+        c = torch.randn(y.shape, generator=g, dtype=dtype)
+        grads = torch.autograd.grad(y, leaves, c)
+        batch = y.shape[:2]
+        full = [x.expand(batch + x.shape[2:]) for x in leaves]
+        want = fn(*[x.contiguous() for x in full])
+        want_grads = torch.autograd.grad(fn(*full), leaves, c)
+        with torch.no_grad():
+            torch.testing.assert_close(fn(*args), want, rtol=4 * eps, atol=8 * eps)
+        torch.testing.assert_close(y.detach(), want, rtol=4 * eps, atol=8 * eps)
+        for got, ref in zip(grads, want_grads, strict=True):
+            # sums over the broadcast dimension: a few eps per summand
+            torch.testing.assert_close(got, ref, rtol=4 * eps, atol=16 * eps * 700)

@@ -578,14 +578,19 @@ def test_apply_derivatives_in_forward_and_reverse_mode():
         torch.randn(p.shape, generator=g, dtype=F64),
     )
     h = 1e-6
-    for dq, dp in ((tq, None), (None, tp), (tq, tp)):
+    for dq, dp, qx, px in (
+        (tq, None, q, p),
+        (None, tp, q, p),
+        (tq, tp, q, p),
+        (tq[:1], tp, q[:1], p),  # batches broadcast
+    ):
         with torch.autograd.forward_ad.dual_level():
-            qd = q if dq is None else torch.autograd.forward_ad.make_dual(q, dq)
-            pd = p if dp is None else torch.autograd.forward_ad.make_dual(p, dp)
+            qd = qx if dq is None else torch.autograd.forward_ad.make_dual(qx, dq)
+            pd = px if dp is None else torch.autograd.forward_ad.make_dual(px, dp)
             _, dy = torch.autograd.forward_ad.unpack_dual(Q.apply(qd, pd))
-        sq = torch.zeros_like(q) if dq is None else h * dq
-        sp = torch.zeros_like(p) if dp is None else h * dp
-        fd = (Q.apply(q + sq, p + sp) - Q.apply(q - sq, p - sp)) / (2 * h)
+        sq = torch.zeros_like(qx) if dq is None else h * dq
+        sp = torch.zeros_like(px) if dp is None else h * dp
+        fd = (Q.apply(qx + sq, px + sp) - Q.apply(qx - sq, px - sp)) / (2 * h)
         torch.testing.assert_close(dy, fd, rtol=1e-7, atol=1e-8)
     for qs, ps in ((q, p), (q[:1], p), (q[0], p), (q, p[0]), (q[:, None], p)):
         ql, pl = qs.clone().requires_grad_(), ps.clone().requires_grad_()

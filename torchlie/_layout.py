@@ -169,20 +169,24 @@ class Columns(tuple):
 
 
 def outputs(
-    like: Tensor, n: int, *inputs: Tensor, dest: Tensor | None = None
+    like: Tensor | Sequence[Tensor], n: int, *inputs: Tensor, dest: Tensor | None = None
 ) -> tuple[Tensor | None, ...]:
     """Where a kernel writes the ``n`` parts it will :func:`interleave` (``out=`` of its last
-    operations): the columns of its ``(*like.shape, n)`` result, or of ``dest`` (the rows of a
+    operations): the columns of its ``(*batch, n)`` result (``batch``: the shape of ``like``, or
+    the broadcast of the shapes of several planes, one per operand), or of ``dest`` (the rows of a
     blocked result, see :func:`interleave`), as :class:`Columns`, on large eager CPU batches
     (:func:`large`); the last operations then store their values strided, where they belong,
     and no pass over the result interleaves them afterwards.  ``n`` Nones (new tensors)
     elsewhere, and where autograd records the kernel (grad mode on and one of ``inputs``
     requiring grad: ``out=`` is not differentiable)."""
-    if not large(like, like.numel()) or needs_graph(inputs):
+    likes = (like,) if isinstance(like, Tensor) else tuple(like)
+    first = likes[0]
+    batch = torch.broadcast_shapes(*(x.shape for x in likes))
+    if not large(first, batch.numel()) or needs_graph(inputs):
         return (None,) * n
-    shape = like.shape + (n,)
+    shape = batch + (n,)
     if dest is None:
-        whole = torch.empty(shape, dtype=like.dtype, device=like.device)
+        whole = torch.empty(shape, dtype=first.dtype, device=first.device)
     else:
         whole = dest.view(shape)
     columns = Columns(whole.unbind(-1))

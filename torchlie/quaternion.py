@@ -128,7 +128,7 @@ def _hamilton(
 
 def _product(a: Sequence[Tensor], b: Sequence[Tensor], dest: Tensor | None, **conj: bool):
     """:func:`_hamilton`, interleaved (into ``dest`` if given)."""
-    o = _layout.outputs(a[0], 4, dest=dest)
+    o = _layout.outputs((a[0], b[0]), 4, dest=dest)  # batches may broadcast
     return _layout.interleave(_hamilton(a, b, out=o, **conj), o, dest)
 
 
@@ -883,9 +883,8 @@ def _apply_jvp(saved: tuple[Tensor, ...], dq: Tensor | None, dp: Tensor | None) 
     u = torch.zeros_like(p) if dp is None else dp
     if dq is not None:
         d = _multiply(_conjugate(q), dq)[..., 1:] * (2.0 / (q * q).sum(-1, keepdim=True))
-        if d.dim() != p.dim():
-            d, p = torch.broadcast_tensors(d, p)
-        u = u + torch.linalg.cross(d, p.expand_as(d), dim=-1)
+        d, pb = torch.broadcast_tensors(d, p)
+        u = u + torch.linalg.cross(d, pb, dim=-1)
     return _apply(q, u)
 
 
@@ -914,7 +913,8 @@ def _apply_entries(q: Tensor, p: Tensor, *, dest: Tensor | None = None) -> Tenso
     s = 2.0 / _norm2(w, *v)
     c = _cross_planes(v, pc)
     vc = _cross_planes(v, c)
-    o = _layout.outputs(w, 3, q, p, dest=dest)  # differentiated through when q or p requires grad
+    # no columns where autograd records (q or p requiring grad); batches may broadcast
+    o = _layout.outputs((w, pc[0]), 3, q, p, dest=dest)
     # p + s (w (v x p) + v x (v x p)), s = 2 / |q|^2: the scale applied once per component.
     parts = [
         torch.addcmul(pi, s, torch.addcmul(vci, w, ci), out=oi)

@@ -258,7 +258,7 @@ def _rotation_and_translation(T: Tensor) -> tuple[list[Tensor], list[Tensor]]:
 
 
 def _top_outputs(
-    like: Tensor, *inputs: Tensor, dest: Tensor | None = None
+    like: Tensor | Sequence[Tensor], *inputs: Tensor, dest: Tensor | None = None
 ) -> tuple[tuple[Tensor | None, ...], list[list[Tensor | None]]]:
     """The 16 columns of :func:`_layout.outputs` for a 4x4 result (in ``dest`` if given), and
     the 12 of its top block row by row (where the entries are to be written)."""
@@ -300,7 +300,7 @@ def _compose_entries(A: Tensor, B: Tensor, dest: Tensor | None = None) -> Tensor
     """:func:`_compose_fwd` entry by entry: one fused loop when compiled, where the batched
     matmul is a library call of its own with a copy on each side."""
     a, b = _top_entries(A), _top_entries(B)
-    o, top = _top_outputs(a[0][0], dest=dest)
+    o, top = _top_outputs((a[0][0], b[0][0]), dest=dest)  # batches may broadcast
     rows = []
     for ai, oi in zip(a, top, strict=True):
         row = [
