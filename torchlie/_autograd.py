@@ -125,7 +125,7 @@ def _written(forward: Callable[..., _Out], blocks: list, n: int, batch: torch.Si
             outs = forward(*block, dest=dest[0] if single else dest)
             outs = (outs,) if single else outs
         for out, d in zip(outs, dest, strict=True):
-            if out.data_ptr() != d.data_ptr() or out.stride() != d.stride():
+            if not _layout.same_memory(out, d):
                 d.copy_(out)
         start = stop
     joined = tuple(r.reshape(batch + r.shape[1:]) for r in results)

@@ -222,7 +222,7 @@ def interleave(
         for part, column in zip(parts, out, strict=True):
             if part is not column:
                 column.copy_(part)
-        if target is None or _same_memory(out.result, target):
+        if target is None or same_memory(out.result, target):
             return out.result
         return target.copy_(out.result)
     if not large(first, first.numel()) or needs_graph(parts):
@@ -234,5 +234,7 @@ def interleave(
     return target
 
 
-def _same_memory(a: Tensor, b: Tensor) -> bool:
+def same_memory(a: Tensor, b: Tensor) -> bool:
+    """Whether ``a`` and ``b`` are the same elements of the same memory (a result written in
+    place, nothing to copy)."""
     return a.data_ptr() == b.data_ptr() and a.stride() == b.stride() and a.shape == b.shape

@@ -838,6 +838,8 @@ def _apply_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tenso
     if torch.is_grad_enabled():  # create_graph: differentiable ops
         dp = _apply(_conjugate(q), g)
         a = torch.linalg.cross(p.expand_as(dp), dp, dim=-1)
+        # q (0, a) spelled out, not _multiply: its complex form on large batches rounds
+        # differently from its component form on small blocks (ulps, amplified in second order)
         w, v = q[..., :1], q[..., 1:].expand_as(a)
         u = torch.cat(((v * a).sum(-1, keepdim=True).neg(), w * a + torch.linalg.cross(v, a)), -1)
         dq = u * (2.0 / (q * q).sum(-1, keepdim=True))
