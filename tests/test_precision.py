@@ -31,43 +31,25 @@ def _references(dtype: torch.dtype) -> dict[str, torch.Tensor]:
     if dtype in _CACHE:
         return _CACHE[dtype]
     w, theta = rotvecs(ANGLES, n_random=200, dtype=dtype)
-    w64 = w.double()
-    R_ref = [ref.exp(v) for v in w64.numpy()]
+    w64 = w.double().numpy()
+    R_ref = [ref.exp(v) for v in w64]
     R_in = torch.tensor(np.stack([ref.to_float(R) for R in R_ref])).to(dtype)
     logs = [ref.log(R) for R in R_in.double().numpy()]
-    q_in = torch.tensor(
-        np.stack(
-            [ref.to_float(ref.quaternion_of_rotvec(ref.log(R))) for R in R_in.double().numpy()]
-        )
-    ).to(dtype)
+    quats = [ref.quaternion_of_rotvec(v) for v in logs]
+    q_in = torch.tensor(np.stack([ref.to_float(q) for q in quats])).to(dtype)
     out = {
         "w": w,
         "theta": theta,
         "R_ref": torch.tensor(np.stack([ref.to_float(R) for R in R_ref])),
         "R_in": R_in,
         "log_ref": torch.tensor(np.stack([ref.to_float(v) for v in logs])),
-        "quat_ref": torch.tensor(
-            np.stack([ref.to_float(ref.quaternion_of_rotvec(v)) for v in logs])
-        ),
+        "quat_ref": torch.tensor(np.stack([ref.to_float(q) for q in quats])),
         "q_in": q_in,
         "q_matrix_ref": torch.tensor(
             np.stack([ref.to_float(ref.matrix_of_quaternion(q)) for q in q_in.double().numpy()])
         ),
         # d/dw exp(w) [i, j, k] = (R hat(Jr(w) e_k))_ij
-        "exp_grad_ref": torch.tensor(
-            np.stack(
-                [
-                    np.stack(
-                        [
-                            ref.to_float(R * ref._hat(list(ref.jac_right(v)[:, k])))
-                            for k in range(3)
-                        ],
-                        axis=-1,
-                    )
-                    for v, R in zip(w64.numpy(), R_ref, strict=True)
-                ]
-            )
-        ),
+        "exp_grad_ref": torch.tensor(np.stack([ref.to_float(ref.exp_derivative(v)) for v in w64])),
         "jr_inv_ref": torch.tensor(np.stack([ref.to_float(ref.jac_right_inv(v)) for v in logs])),
     }
     _CACHE[dtype] = out
