@@ -2,7 +2,11 @@
 
 fullgraph=True fails on any graph break, so these tests also prove that no op synchronises the
 device or branches in Python on tensor values.  One compiled function per module keeps the
-compile cost to one graph each.
+compile cost to one graph each.  These two graphs go through Inductor, the backend users get
+(so do tests/test_compiled.py, test_compensated.py, test_nn.py, test_se3.py and
+test_kinematics_compile.py); the fullgraph tests of the other modules use ``aot_eager``:
+Dynamo and AOTAutograd trace the same graph, forward and backward, without Inductor's C++ code
+generation, which costs 10-40 s per graph on a cold cache.
 """
 
 from __future__ import annotations
