@@ -314,3 +314,14 @@ def test_broadcast_batches_of_large_inputs(dtype):
         for got, ref in zip(grads, want_grads, strict=True):
             # sums over the broadcast dimension: a few eps per summand
             torch.testing.assert_close(got, ref, rtol=4 * eps, atol=16 * eps * 700)
+
+
+def test_broadcast_of_batch_shapes():
+    S = torch.Size
+    assert _layout.broadcast(S((5, 2)), S((5, 2))) == S((5, 2))
+    assert type(_layout.broadcast((3,), (3,))) is S
+    assert _layout.broadcast(S(()), S(())) == S(())
+    for shapes in [((5, 1), (1, 3)), ((2,), (4, 1)), ((), (7,)), ((1,), (6, 1), (6, 2))]:
+        assert _layout.broadcast(*map(S, shapes)) == torch.broadcast_shapes(*shapes)
+    with pytest.raises(RuntimeError):
+        _layout.broadcast(S((2,)), S((3,)))

@@ -79,6 +79,19 @@ def large(x: Tensor, rows: int) -> bool:
     return rows >= MIN_ROWS and eager_cpu(x)
 
 
+def broadcast(*shapes: torch.Size) -> torch.Size:
+    """``torch.broadcast_shapes(*shapes)``, without its cost where the shapes are equal (eager:
+    10-50 us a call, more than a small op's arithmetic)."""
+    first = shapes[0]
+    if not _is_compiling():
+        for shape in shapes[1:]:
+            if shape != first:
+                break
+        else:
+            return first if type(first) is torch.Size else torch.Size(first)
+    return torch.broadcast_shapes(*shapes)
+
+
 def _use_product(x: Tensor, rows: int) -> bool:
     if not large(x, rows):
         return False
@@ -181,8 +194,10 @@ def outputs(
     requiring grad: ``out=`` is not differentiable)."""
     likes = (like,) if isinstance(like, Tensor) else tuple(like)
     first = likes[0]
-    batch = torch.broadcast_shapes(*(x.shape for x in likes))
-    if not large(first, batch.numel()) or needs_graph(inputs):
+    if not eager_cpu(first):
+        return (None,) * n
+    batch = broadcast(*(x.shape for x in likes))
+    if batch.numel() < MIN_ROWS or needs_graph(inputs):
         return (None,) * n
     shape = batch + (n,)
     if dest is None:

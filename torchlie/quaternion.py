@@ -178,7 +178,7 @@ def _complex_product(
 
 def _large_pair(a: Tensor, b: Tensor) -> bool:
     """Whether a product of ``a`` and ``b`` takes the complex form (a large CPU batch)."""
-    return _layout.large(a, torch.broadcast_shapes(a.shape[:-1], b.shape[:-1]).numel())
+    return _layout.large(a, _layout.broadcast(a.shape[:-1], b.shape[:-1]).numel())
 
 
 def _multiply_block(a: Tensor, b: Tensor, *, dest: Tensor | None = None) -> Tensor:

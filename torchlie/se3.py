@@ -101,7 +101,7 @@ def _assemble(R: Tensor, t: Tensor) -> Tensor:
 
 
 def _broadcast_rt(R: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
-    batch = torch.broadcast_shapes(R.shape[:-2], t.shape[:-1])
+    batch = _layout.broadcast(R.shape[:-2], t.shape[:-1])
     return R.expand(*batch, 3, 3), t.expand(*batch, 3)
 
 
