@@ -34,6 +34,8 @@ import torch
 from torch import Tensor
 from torch.autograd import forward_ad as _forward_ad
 
+from torchlie import _checks
+
 #: Smallest batch (number of elements) that takes the matrix-product transposition (float32,
 #: one thread, per call: at 1000 elements 6-15 % slower than the copies, twice as slow for the
 #: entry-by-entry ops; at 8000, 0-40 % faster).
@@ -80,16 +82,10 @@ def large(x: Tensor, rows: int) -> bool:
 
 
 def broadcast(*shapes: torch.Size) -> torch.Size:
-    """``torch.broadcast_shapes(*shapes)``, without its cost where the shapes are equal (eager:
-    10-50 us a call, more than a small op's arithmetic)."""
-    first = shapes[0]
-    if not _is_compiling():
-        for shape in shapes[1:]:
-            if shape != first:
-                break
-        else:
-            return first if type(first) is torch.Size else torch.Size(first)
-    return torch.broadcast_shapes(*shapes)
+    """The broadcast of batch shapes already checked to broadcast, by
+    :func:`torchlie._checks.batch_broadcast` (plain Python eager: ``torch.broadcast_shapes``
+    costs 10-50 us a call, more than a small op's arithmetic)."""
+    return _checks.batch_broadcast("torchlie", *((s, f"operand {i}") for i, s in enumerate(shapes)))
 
 
 def _use_product(x: Tensor, rows: int) -> bool:
