@@ -6,7 +6,9 @@ norm-wise relative per element, ``|out - ref| / |ref|`` (absolute where ``ref = 
 
 Targets: values 4e-16 (float64) / 3e-7 (float32), gradients 1e-15 / 5e-7, all met.  float64
 ``so3.exp`` reaches them through compensated arithmetic (``torchlie._compensated``); the plain
-formula is 3 ulp off near pi, which also carries into ``log(exp(w))`` and its gradient.
+formula is 3 ulp off near pi, which also carries into ``log(exp(w))`` and its gradient.  The
+values are checked over the whole sample set and in batches of 100 rows, which take the
+small-batch forms of ``torchlie._small``.
 """
 
 from __future__ import annotations
@@ -76,34 +78,50 @@ def _sign_free_near_pi(out, expected, theta, nd):
     return torch.where(at_pi, torch.minimum(err, flipped), err)
 
 
-def test_exp_values(dtype):
+def _in_rows(fn, x: torch.Tensor, rows: int | None) -> torch.Tensor:
+    """``fn(x)`` over the whole sample set, or in batches of ``rows`` (small batches take the
+    small-batch forms of torchlie._small)."""
+    return fn(x) if rows is None else torch.cat([fn(part) for part in x.split(rows)])
+
+
+BATCHES = pytest.mark.parametrize("rows", [None, 100], ids=["whole", "rows100"])
+
+
+@BATCHES
+def test_exp_values(dtype, rows):
     r = _references(dtype)
-    err = _rel(so3.exp(r["w"]), r["R_ref"], 2)
+    err = _rel(_in_rows(so3.exp, r["w"], rows), r["R_ref"], 2)
     assert float(err.max()) <= VALUE_TOL[dtype], _report(err, r["theta"])
 
 
-def test_log_values(dtype):
+@BATCHES
+def test_log_values(dtype, rows):
     r = _references(dtype)
-    err = _sign_free_near_pi(so3.log(r["R_in"]), r["log_ref"], r["theta"], 1)
+    err = _sign_free_near_pi(_in_rows(so3.log, r["R_in"], rows), r["log_ref"], r["theta"], 1)
     assert float(err.max()) <= VALUE_TOL[dtype], _report(err, r["theta"])
 
 
-def test_log_of_exp(dtype):
+@BATCHES
+def test_log_of_exp(dtype, rows):
     r = _references(dtype)
     w = r["w"]
-    err = _sign_free_near_pi(so3.log(so3.exp(w)), w.double(), r["theta"], 1)
+    out = _in_rows(lambda v: so3.log(so3.exp(v)), w, rows)
+    err = _sign_free_near_pi(out, w.double(), r["theta"], 1)
     assert float(err.max()) <= VALUE_TOL[dtype], _report(err, r["theta"])
 
 
-def test_quaternion_from_matrix(dtype):
+@BATCHES
+def test_quaternion_from_matrix(dtype, rows):
     r = _references(dtype)
-    err = _sign_free_near_pi(quaternion.from_matrix(r["R_in"]), r["quat_ref"], r["theta"], 1)
+    out = _in_rows(quaternion.from_matrix, r["R_in"], rows)
+    err = _sign_free_near_pi(out, r["quat_ref"], r["theta"], 1)
     assert float(err.max()) <= VALUE_TOL[dtype], _report(err, r["theta"])
 
 
-def test_quaternion_to_matrix(dtype):
+@BATCHES
+def test_quaternion_to_matrix(dtype, rows):
     r = _references(dtype)
-    err = _rel(quaternion.to_matrix(r["q_in"]), r["q_matrix_ref"], 2)
+    err = _rel(_in_rows(quaternion.to_matrix, r["q_in"], rows), r["q_matrix_ref"], 2)
     assert float(err.max()) <= VALUE_TOL[dtype], _report(err, r["theta"])
 
 

@@ -16,6 +16,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from torch.autograd import gradcheck, gradgradcheck
 
 import torchlie.so3 as so3
+from torchlie import _small
 from torchlie import quaternion as Q
 
 F64 = torch.float64
@@ -200,6 +201,7 @@ def test_multiply_of_large_batches_in_complex_arithmetic(dtype, monkeypatch):
     shapes broadcast, views that cannot be complex fall back, a NaN stays in its element."""
     from torchlie import _layout
 
+    monkeypatch.setattr(_small, "MATRIX_ROWS", 0)  # the small batches below stand for large ones
     monkeypatch.setattr(_layout, "MIN_ROWS", 64)
     calls = []
     form = Q._complex_product
@@ -1088,7 +1090,10 @@ def test_zero_quaternion_gives_nan_in_its_element_only():
 # ----------------------------------------------------------------------------------------------
 
 
-def test_vmap():
+def test_vmap(monkeypatch):
+    # vmap runs the component kernels; eager small batches would take the matrix forms of
+    # torchlie._small (compared with those kernels in test_small.py): off here, bit for bit.
+    monkeypatch.setattr(_small, "MATRIX_ROWS", 0)
     q0, q1 = haar(6, 31), haar(6, 32)
     p = torch.randn(6, 3, dtype=F64, generator=torch.Generator().manual_seed(4))
     t = torch.linspace(0, 1, 6, dtype=F64)

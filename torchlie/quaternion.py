@@ -191,7 +191,9 @@ _multiply_blocks = _blocked(_multiply_block, (1, 1))
 def _multiply_values(a: Tensor, b: Tensor) -> Tensor:
     """``a b`` without autograd: on large CPU batches in complex arithmetic (measured, float32
     N = 10^6, one thread: 26-34 -> 20-29 ns per element; float64 55-58 -> 36-46), elsewhere
-    component by component (bit for bit the same at every batch size)."""
+    component by component; on small ones as ``L(a) b`` (:func:`torchlie._small.multiply`)."""
+    if _small.matrix_form(a, _layout.broadcast(a.shape[:-1], b.shape[:-1]).numel()):
+        return _small.multiply(a, b)
     if _large_pair(a, b):
         out = _complex_product(a, b)
         if out is not None:
@@ -323,6 +325,8 @@ def to_matrix(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 3 3"]:
 
 
 def _to_matrix_forward(q: Tensor, *, dest: Tensor | None = None) -> Tensor:
+    if dest is None and _small.matrix_form(q, q.shape[:-1].numel()):
+        return _small.to_matrix(q)
     w, x, y, z = _planes(q, 4)
     ww, yy = w * w, y * y
     # Diagonal as (w^2 + x^2 - y^2 - z^2) / |q|^2: two terms bounded by |q|^2, where

@@ -33,7 +33,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, _compensated, _layout, so3
+from . import _checks, _coeffs, _compensated, _layout, _small, so3
 from . import quaternion as _quat
 from ._autograd import _blocked, custom_function
 from ._typing import Bool, Float
@@ -530,13 +530,18 @@ _ActFn = custom_function(
 
 def _exp_forward(xi: Tensor, *, dest: Tensor | None = None) -> Tensor:
     """``[[Exp(phi), Jl(phi) rho], [0, 1]]`` from components, one set of coefficients for both
-    blocks (runs without autograd: forward-only coefficients); in float64 the rotation block is
-    :func:`torchlie.so3.exp`'s compensated one."""
+    blocks (runs without autograd: forward-only coefficients); the rotation block is
+    :func:`torchlie.so3.exp`'s, bit for bit (in float64 its compensated kernel, on small float32
+    batches its matrix form)."""
     phi = xi[..., 3:]
-    if xi.dtype == torch.float64:  # the rotation block of so3.exp, bit for bit
+    if xi.dtype == torch.float64:
         xyz, (a, b, c) = so3._rodrigues(phi, "abc")
         o, top = _top_outputs(xyz[0], dest=dest)
         R = _compensated.exp_entries(phi)
+    elif dest is None and _small.matrix_form(xi, xi.shape[:-1].numel()):
+        xyz, (a, b, c) = so3._rodrigues(phi, "abc")
+        o, top = _top_outputs(xyz[0])
+        R = _small.exp_float32(phi).flatten(-2).unbind(-1)
     else:
         xyz, (a, b, c, d) = so3._rodrigues(phi)
         o, top = _top_outputs(xyz[0], dest=dest)

@@ -22,7 +22,7 @@ from itertools import product
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, _compensated, _layout
+from . import _checks, _coeffs, _compensated, _layout, _small
 from . import quaternion as _quat
 from ._autograd import _blocked, custom_function
 from ._typing import Bool, Float
@@ -145,10 +145,13 @@ def _exp(w: Tensor, *, dest: Tensor | None = None) -> Tensor:
     """Forward of :func:`exp` (runs without autograd: forward-only coefficients).
 
     float64 takes the compensated kernel of :mod:`torchlie._compensated` (within 1.1 ulp
-    norm-wise at every angle instead of 3); float32 evaluates its coefficients in float64.
+    norm-wise at every angle instead of 3); float32 evaluates its coefficients in float64, and
+    small batches all of it (:func:`torchlie._small.exp_float32`).
     """
     if w.dtype == torch.float64:
         return _compensated.exp(w, dest=dest)
+    if dest is None and _small.matrix_form(w, w.shape[:-1].numel()):
+        return _small.exp_float32(w)
     xyz, (a, b, d) = _rodrigues(w, "abd")
     o = _layout.outputs(xyz[0], 9, dest=dest)
     return _layout.interleave(_exp_entries(xyz, a, b, d, o), o, dest).unflatten(-1, (3, 3))
