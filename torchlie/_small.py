@@ -86,6 +86,7 @@ def _hamilton_left() -> tuple[Tensor, Tensor]:
 
 
 _L_INDEX, _L_SIGN = _hamilton_left()
+_L_FLAT = _L_INDEX.flatten()
 
 
 def _quadratic_forms(scale_vector: float) -> Tensor:
@@ -135,9 +136,18 @@ def _outer(v: Tensor) -> Tensor:
     return (v.unsqueeze(-1) * v.unsqueeze(-2)).flatten(-2)
 
 
+#: Batches from this size gather ``L(a)`` by ``index_select`` (1000 elements, float32: 16 us
+#: against 53 for advanced indexing; one element: 7 against 4).
+_SELECT_ROWS = 64
+
+
 def multiply(a: Tensor, b: Tensor) -> Tensor:
     """Hamilton product ``a b`` as ``L(a) b`` (batch shapes broadcast)."""
-    left = a[..., _L_INDEX] * _constant("L_sign", a.dtype)
+    if a.shape[:-1].numel() < _SELECT_ROWS:
+        gathered = a[..., _L_INDEX]
+    else:
+        gathered = a.index_select(-1, _L_FLAT).view(a.shape[:-1] + (4, 4))
+    left = gathered * _constant("L_sign", a.dtype)
     return torch.matmul(left, b.unsqueeze(-1)).squeeze(-1)
 
 
