@@ -534,18 +534,16 @@ def _exp_forward(xi: Tensor, *, dest: Tensor | None = None) -> Tensor:
     :func:`torchlie.so3.exp`'s, bit for bit (in float64 its compensated kernel, on small float32
     batches its matrix form)."""
     phi = xi[..., 3:]
+    R = None  # the rotation block from a kernel of its own, or entry by entry below
     if xi.dtype == torch.float64:
-        xyz, (a, b, c) = so3._rodrigues(phi, "abc")
-        o, top = _top_outputs(xyz[0], dest=dest)
         R = _compensated.exp_entries(phi)
     elif dest is None and _small.matrix_form(xi, xi.shape[:-1].numel()):
-        xyz, (a, b, c) = so3._rodrigues(phi, "abc")
-        o, top = _top_outputs(xyz[0])
         R = _small.exp_float32(phi).flatten(-2).unbind(-1)
-    else:
-        xyz, (a, b, c, d) = so3._rodrigues(phi)
-        o, top = _top_outputs(xyz[0], dest=dest)
-        R = so3._exp_entries(xyz, a, b, d, [e for row in top for e in row[:3]])
+    xyz, coeffs = so3._rodrigues(phi, "abcd" if R is None else "abc")  # d: for the entries
+    a, b, c = coeffs[:3]
+    o, top = _top_outputs(xyz[0], dest=dest)
+    if R is None:
+        R = so3._exp_entries(xyz, a, b, coeffs[3], [e for row in top for e in row[:3]])
     t = so3._jl_components(xyz, _quat._planes(xi[..., :3], 3), a, b, c, [r[3] for r in top])
     return _stack_top([(*R[0:3], t[0]), (*R[3:6], t[1]), (*R[6:9], t[2])], out=o, dest=dest)
 
