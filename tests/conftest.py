@@ -1,9 +1,11 @@
-"""Shared fixtures: dtype, device, generator, batch shapes."""
+"""Shared fixtures: dtype, device, generator, batch shapes, component kernels."""
 
 from __future__ import annotations
 
 import pytest
 import torch
+
+from torchlie import _small
 
 torch.set_num_threads(1)
 
@@ -29,3 +31,11 @@ def batch(request) -> tuple[int, ...]:
 @pytest.fixture
 def gen() -> torch.Generator:
     return torch.Generator().manual_seed(1234)
+
+
+@pytest.fixture
+def component_kernels(monkeypatch) -> None:
+    """Eager small batches on the component kernels, as under ``torch.func.vmap``, which never
+    takes the matrix forms of :mod:`torchlie._small` (they agree with those kernels to a few
+    ulp, test_small.py): for the tests that compare vmap with eager mode bit for bit."""
+    monkeypatch.setattr(_small, "MATRIX_ROWS", 0)

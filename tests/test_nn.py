@@ -11,7 +11,7 @@ from samplers import rotvecs
 from torch.autograd import gradcheck, gradgradcheck
 from torch.nn.utils import parametrize
 
-from torchlie import _small, conversions, quaternion, se3, so3
+from torchlie import conversions, quaternion, se3, so3
 from torchlie.groups import SE3, SO3
 from torchlie.nn import (
     REPRESENTATIONS,
@@ -542,10 +542,8 @@ def test_parametrization_matrix_mode_is_projection(gen):
 
 
 @pytest.mark.parametrize("rep", REPS)
-def test_map_under_vmap(rep, gen, monkeypatch):
-    # vmap runs the component kernels, compared bit for bit with eager ones here (eager small
-    # batches would take the matrix forms of torchlie._small, compared in test_small.py)
-    monkeypatch.setattr(_small, "MATRIX_ROWS", 0)
+@pytest.mark.usefixtures("component_kernels")
+def test_map_under_vmap(rep, gen):
     x = torch.randn(6, REPRESENTATIONS[rep], generator=gen, dtype=F64)
     x[2] = 0.0  # the fallback branch inside vmap too
     y = torch.func.vmap(lambda v: representation_to_matrix(v, rep))(x)

@@ -1090,10 +1090,8 @@ def test_zero_quaternion_gives_nan_in_its_element_only():
 # ----------------------------------------------------------------------------------------------
 
 
-def test_vmap(monkeypatch):
-    # vmap runs the component kernels; eager small batches would take the matrix forms of
-    # torchlie._small (compared with those kernels in test_small.py): off here, bit for bit.
-    monkeypatch.setattr(_small, "MATRIX_ROWS", 0)
+@pytest.mark.usefixtures("component_kernels")
+def test_vmap():
     q0, q1 = haar(6, 31), haar(6, 32)
     p = torch.randn(6, 3, dtype=F64, generator=torch.Generator().manual_seed(4))
     t = torch.linspace(0, 1, 6, dtype=F64)

@@ -85,6 +85,8 @@ def _blocked(forward: Callable[..., _Out], event_dims: tuple[int, ...]) -> Calla
 
     def run(*inputs: Tensor) -> _Out:
         first = inputs[0]
+        if first.numel() < BLOCK // 2:  # below two blocks in every dtype (elements up to 16 B)
+            return forward(*inputs)
         batch = first.shape[: first.dim() - event_dims[0]]
         n = batch.numel()
         rows = BLOCK * 4 // first.element_size()  # the same bytes per plane in every dtype

@@ -1,32 +1,33 @@
-"""Small batches: an op as fewer ATen calls than one per arithmetic operation.
+"""Small batches: an op as a handful of ATen calls, not one per arithmetic operation.
 
 The eager kernels are written component by component (one element-wise call per multiply or
 add over the planes of the batch, see :mod:`torchlie._layout`), which is what streams a large
-batch through memory fastest.  Over a small batch each call costs its dispatch, 2-4 us on CPU
-whatever the batch.  Below :data:`SMALL_ROWS` elements the ops with a small-batch form take it
-instead: the same operations on the same values, in the same order, with the component axis
-inside each call (the planes stacked into one ``(k, *batch)`` tensor, gathered by index where a
-formula reads several components alike), and selections by ``argmax`` and ``gather`` rather
-than one-hot sums.  The results are those of the component-wise form bit for bit (the tests
-compare them with ``torch.equal``).
+batch through memory fastest.  Over a small batch each call costs its dispatch, 1-4 us on CPU
+whatever the batch.  Below :data:`MATRIX_ROWS` elements the ops below take a *matrix form*
+instead, a few calls with the component axis inside each (small matrix products, a gather),
+which are not the component-wise operations:
 
-Shepperd's method has one (``quaternion.from_matrix``, ``so3.log``, ``se3.log``: the
-orthogonalisation step and the selection among four candidates, about 100 calls, become 35):
-at one element 1.5-1.6x, 1.4-1.5x and 1.1-1.2x faster per call, at 1000 elements 1.2x, 1.1-1.2x
-and 1.0x.  The other ops are a few tens of calls with little shared structure, which a
-component axis inside each call does not shorten much.
+* ``quaternion.multiply`` as the 16 products ``a_j b_k`` mapped to the four components by one
+  matrix product;
+* ``quaternion.to_matrix`` as the products ``q q^T`` mapped to the nine entries of ``|q|^2 R``
+  and to ``|q|^2`` by one matrix product;
+* float32 ``so3.exp`` (with it the rotation block of float32 ``se3.exp``) as the matrix of the
+  unit quaternion ``(cos(t/2), sin(t/2) w / t)``, in float64;
+* Shepperd's method (``quaternion.from_matrix``, ``so3.log``, ``se3.log``): the
+  orthogonalisation step as two products of ``3 x 3`` matrices, the four candidates and their
+  pivots ``4 q_k^2`` as one product of the nine entries with a constant ``(9, 20)`` map, the
+  candidate by ``argmax`` and ``gather``; float32 input evaluated in float64.
 
-Three ops have a *matrix form* instead, a handful of calls that are not the component-wise
-operations: ``quaternion.multiply`` as ``L(a) b`` (the left-multiplication matrix of ``a``
-gathered from its components, one small matrix product), ``quaternion.to_matrix`` as the
-products ``q q^T`` mapped to the nine entries of ``|q|^2 R`` and to ``|q|^2`` by one matrix
-product, and float32 ``so3.exp`` (with it the rotation block of float32 ``se3.exp``) as the
-matrix of the unit quaternion ``(cos(t/2), sin(t/2) w / t)``, in float64.  They agree with the
-component-wise kernels to a few ulp, not bit for bit: float32 ``so3.exp`` and
-``quaternion.to_matrix`` are evaluated in float64 and rounded once (within 0.34 and 0.32 eps of
-the 60-digit references, against 0.92 and 1.17 for the component kernels), float64
-``quaternion.to_matrix`` within 1.21 eps (1.24).  Each element's result is the same whatever
-batch it is in (the products of small matrices are plain loops, element by element).  float64
+They agree with the component-wise kernels to a few ulp, not bit for bit: float32 ``so3.exp``,
+``quaternion.to_matrix``, ``quaternion.from_matrix`` and ``so3.log`` are evaluated in float64
+and rounded once (within 0.34, 0.32, 0.36 and 0.41 eps of the 60-digit references, against
+0.92, 1.17, 1.06 and 1.29 for the component kernels), float64 ``quaternion.to_matrix`` and
+``quaternion.from_matrix`` within 1.21 and 1.23 eps (1.24, 1.15).  Each element's result is the
+same whatever batch below :data:`MATRIX_ROWS` it is in (tested): the batched products of
+``3 x 3`` matrices are plain loops, element by element, and every other product is one with a
+constant map, each row summed alike whatever the number of rows (``addmm``, which adds the
+constant inside the sum, does not, nor does a product of one element's ``(4, 4)`` and
+``(4, 1)`` matrices against the batched one).  float64
 ``so3.exp`` keeps its compensated kernel (:mod:`torchlie._compensated`), which a plain formula
 in float64 cannot match.  The backwards are the ops' own closed forms at every size.
 
@@ -41,30 +42,16 @@ from torch import Tensor
 
 from torchlie import _layout
 
-#: Batches (number of elements) below this take the small-batch forms (float32 and float64, one
-#: thread, per call, ``quaternion.from_matrix``: 1.5-1.6x faster at one element, 1.2x at 1000,
-#: 0.9x at 2048; ``se3.log`` 0.8-0.9x there).
-SMALL_ROWS = 1024
-
-
-def enabled(x: Tensor, rows: int) -> bool:
-    """Whether an op over ``rows`` elements like ``x`` takes its small form."""
-    return rows < SMALL_ROWS and _layout.eager_cpu(x)
-
-
-def interleave(planes: Tensor) -> Tensor:
-    """``(k, *batch)`` planes as one ``(*batch, k)`` tensor (one copy)."""
-    return planes.movedim(0, -1).contiguous()
-
-
 # ----------------------------------------------------------------------------------------------
 # Matrix forms
 # ----------------------------------------------------------------------------------------------
 
-#: Batches below this take the matrix forms (float32, one thread, per call, alternated with
-#: the component kernels, us: ``so3.exp`` 209 -> 103 at one element, 308 -> 287 at 1000, 327
-#: -> 333 at 2048; ``quaternion.to_matrix`` 130 -> 72, 186 -> 165, 216 -> 250;
-#: ``quaternion.multiply`` 137 -> 44, 175 -> 129, 240 -> 232; float64 alike).
+#: Batches below this take the matrix forms (one thread, per call, alternated with the component
+#: kernels, Intel Xeon with AVX-512, us, float32: ``quaternion.multiply`` 51 -> 14 at one
+#: element, 76 -> 48 at 1000; ``quaternion.to_matrix`` 51 -> 23, 82 -> 70; ``so3.exp`` 77 -> 30,
+#: 110 -> 86; ``quaternion.from_matrix`` 181 -> 33, 222 -> 180; ``so3.log`` 188 -> 46, 232 ->
+#: 210; ``se3.log`` 265 -> 74, 335 -> 309; float64 alike, but for ``so3.exp``; at 2048 elements
+#: the matrix forms were as fast or slower on a 2-core AMD EPYC).
 MATRIX_ROWS = 1024
 
 _F64 = torch.float64
@@ -77,16 +64,21 @@ def matrix_form(x: Tensor, rows: int) -> bool:
     return rows < MATRIX_ROWS and _layout.eager_cpu(x)
 
 
-def _hamilton_left() -> tuple[Tensor, Tensor]:
-    """Index and sign of ``L(a)``, the ``4 x 4`` matrix with ``L(a) b = a b`` (Hamilton
-    product): ``L(a)[i, j] = sign[i, j] a[index[i, j]]``."""
-    index = torch.tensor([[0, 1, 2, 3], [1, 0, 3, 2], [2, 3, 0, 1], [3, 2, 1, 0]])
-    sign = torch.tensor([[1, -1, -1, -1], [1, 1, -1, 1], [1, 1, 1, -1], [1, -1, 1, 1]])
-    return index, sign
-
-
-_L_INDEX, _L_SIGN = _hamilton_left()
-_L_FLAT = _L_INDEX.flatten()
+def _hamilton_forms() -> Tensor:
+    """``(16, 4)``: the products ``a_j b_k`` (row ``4 j + k``) to the components of the Hamilton
+    product ``a b``."""
+    forms = torch.zeros(4, 4, 4, dtype=_F64)
+    w, x, y, z = range(4)
+    terms = (
+        ((w, w, 1), (x, x, -1), (y, y, -1), (z, z, -1)),  # w
+        ((w, x, 1), (x, w, 1), (y, z, 1), (z, y, -1)),  # x
+        ((w, y, 1), (x, z, -1), (y, w, 1), (z, x, 1)),  # y
+        ((w, z, 1), (x, y, 1), (y, x, -1), (z, w, 1)),  # z
+    )
+    for i, products in enumerate(terms):
+        for j, k, c in products:
+            forms[j, k, i] = c
+    return forms.reshape(16, 4)
 
 
 def _quadratic_forms(scale_vector: float) -> Tensor:
@@ -118,7 +110,7 @@ def _quadratic_forms(scale_vector: float) -> Tensor:
 
 _CONSTANTS: dict[tuple[str, torch.dtype], Tensor] = {}
 _SOURCES = {
-    "L_sign": lambda: _L_SIGN,
+    "multiply": _hamilton_forms,
     "to_matrix": lambda: _quadratic_forms(1.0),
     "exp": lambda: _quadratic_forms(2.0)[:, :9],
 }
@@ -131,24 +123,16 @@ def _constant(name: str, dtype: torch.dtype) -> Tensor:
     return out
 
 
-def _outer(v: Tensor) -> Tensor:
-    """``v v^T`` of each 4-vector, flattened to 16 entries."""
-    return (v.unsqueeze(-1) * v.unsqueeze(-2)).flatten(-2)
-
-
-#: Batches from this size gather ``L(a)`` by ``index_select`` (1000 elements, float32: 16 us
-#: against 53 for advanced indexing; one element: 7 against 4).
-_SELECT_ROWS = 64
+def _outer(v: Tensor, u: Tensor | None = None) -> Tensor:
+    """``v u^T`` of each pair of 4-vectors (``v v^T`` without ``u``; batch shapes broadcast),
+    flattened to 16 entries."""
+    return (v.unsqueeze(-1) * (v if u is None else u).unsqueeze(-2)).flatten(-2)
 
 
 def multiply(a: Tensor, b: Tensor) -> Tensor:
-    """Hamilton product ``a b`` as ``L(a) b`` (batch shapes broadcast)."""
-    if a.shape[:-1].numel() < _SELECT_ROWS:
-        gathered = a[..., _L_INDEX]
-    else:
-        gathered = a.index_select(-1, _L_FLAT).view(a.shape[:-1] + (4, 4))
-    left = gathered * _constant("L_sign", a.dtype)
-    return torch.matmul(left, b.unsqueeze(-1)).squeeze(-1)
+    """Hamilton product ``a b``: the products ``a_j b_k`` mapped to its components by one matrix
+    product (batch shapes broadcast)."""
+    return torch.matmul(_outer(a, b), _constant("multiply", a.dtype))
 
 
 def to_matrix(q: Tensor) -> Tensor:
@@ -168,3 +152,120 @@ def exp_float32(w: Tensor) -> Tensor:
     s = torch.sin(h).div_(h)  # sin(h) / h = 2 sin(h) / t: the vector part is twice q's
     q = torch.cat((torch.cos(h), s * w), -1)  # float64 (s) times float32 (w): float64
     return torch.matmul(_outer(q), _constant("exp", _F64)).to(w.dtype).view(w.shape[:-1] + (3, 3))
+
+
+def _shepperd_map() -> Tensor:
+    """``(10, 20)``: ``(1, m_00, m_01, ..., m_22)`` to Shepperd's values of a rotation matrix,
+    the four candidates ``4 q_k q`` (columns ``4 k + i``: component ``i`` of candidate ``k``) and
+    ``d_k = 4 q_k^2`` (columns 16-19), for ``q = (w, x, y, z)``."""
+    d = {  # 4 q_k^2 = 1 +- m00 +- m11 +- m22
+        0: ((0, 0, 1), (1, 1, 1), (2, 2, 1)),
+        1: ((0, 0, 1), (1, 1, -1), (2, 2, -1)),
+        2: ((0, 0, -1), (1, 1, 1), (2, 2, -1)),
+        3: ((0, 0, -1), (1, 1, -1), (2, 2, 1)),
+    }
+    s = {1: (2, 1), 2: (0, 2), 3: (1, 0)}  # 4 w v_i = m_jk - m_kj
+    # 4 v_i v_j = m_ij + m_ji (i, j vector components 1-3)
+    forms = torch.zeros(10, 20, dtype=_F64)
+    for k in range(4):
+        columns = (5 * k, 16 + k)  # the pivot entry of candidate k, and d_k equal to it
+        for column in columns:
+            forms[0, column] = 1.0
+            for i, j, c in d[k]:
+                forms[1 + 3 * i + j, column] = c
+        for i in range(4):
+            if i == k:
+                continue
+            column = 4 * k + i
+            lo, hi = min(i, k), max(i, k)
+            if lo == 0:  # w v_hi
+                a, b = s[hi]
+                forms[1 + 3 * a + b, column] = 1.0
+                forms[1 + 3 * b + a, column] = -1.0
+            else:  # v_lo v_hi
+                forms[1 + 3 * (lo - 1) + hi - 1, column] = 1.0
+                forms[1 + 3 * (hi - 1) + lo - 1, column] = 1.0
+    return forms
+
+
+_SOURCES["shepperd_bias"] = lambda: _shepperd_map()[0]
+_SOURCES["shepperd"] = lambda: _shepperd_map()[1:]
+
+
+def _compute(x: Tensor) -> Tensor:
+    """``x`` in the dtype of the Shepperd forms: float64 for float32."""
+    return x.double() if x.dtype == torch.float32 else x
+
+
+def shepperd(M: Tensor) -> Tensor:
+    """``(rows, 4)``: Shepperd's candidate of the largest ``d_k`` (the first on ties), ``c``
+    proportional to the quaternion of each ``(rows, 3, 3)`` matrix, after the orthogonalisation
+    step ``R - R (R^T R - I) / 2`` (one product ``R^T R``, one ``R E``); float64 input (see
+    :func:`_compute`).  Its ``w`` is never ``-0``: the constant added last is ``+0`` there."""
+    E = torch.bmm(M.mT, M)
+    P = torch.baddbmm(M, M, E, beta=1.5, alpha=-0.5)
+    bias, forms = _constant("shepperd_bias", M.dtype), _constant("shepperd", M.dtype)
+    # the product, then the constant (addmm fuses them into a sum whose rounding depends on
+    # the number of rows)
+    values = torch.mm(P.view(-1, 9), forms).add_(bias).view(-1, 5, 4)
+    pivot = values[:, 4:].argmax(-1, keepdim=True)
+    return values.gather(1, pivot.expand(-1, 1, 4)).view(-1, 4)
+
+
+def _rows(x: Tensor, event: tuple[int, ...]) -> Tensor:
+    """``x`` as ``(rows, *event)``."""
+    return x if x.dim() == len(event) + 1 else x.reshape((-1,) + event)
+
+
+def _batch(y: Tensor, x: Tensor, dims: int, dtype: torch.dtype) -> Tensor:
+    """``(rows, k)`` result ``y`` in ``dtype`` with the batch shape of ``x`` (``dims`` trailing
+    dimensions of ``x`` are not batch)."""
+    y = y.float() if dtype == torch.float32 else y.to(dtype)
+    return y if x.dim() == dims + 1 else y.view(x.shape[: x.dim() - dims] + y.shape[1:])
+
+
+def _signed(c: Tensor, x: Tensor) -> Tensor:
+    """``x`` with the sign of the :func:`shepperd` candidate ``c``'s ``w`` (never ``-0``: no
+    flip at ``w = 0``), the canonical sign (the pivot entry of ``c`` is positive)."""
+    return torch.copysign(x, c[:, :1])
+
+
+def from_matrix(R: Tensor) -> Tensor:
+    """Canonical unit quaternion of each matrix: Shepperd's candidate, normalised and signed."""
+    c = shepperd(_compute(_rows(R, (3, 3))))
+    return _batch(c / _signed(c, torch.linalg.vector_norm(c, dim=-1, keepdim=True)), R, 2, R.dtype)
+
+
+def _log_of_candidate(c: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """``(phi, theta, |c_w| / |c_v|)``: the rotation vector of Shepperd's candidate ``c``,
+    ``2 atan2(|c_v|, |c_w|) c_v / |c_v|`` signed like the canonical quaternion, its angle, and
+    the ratio that gives ``(theta/2) cot(theta/2)``.  ``|c_v|`` is clamped at :data:`_H_MIN`
+    before both the angle and the division: the quotient tends to ``2 / |c_w|`` there, and
+    ``phi`` is exactly 0 at ``c_v = 0``."""
+    v = c[:, 1:]
+    nv = torch.linalg.vector_norm(v, dim=-1, keepdim=True).clamp_min_(_H_MIN)
+    a = c[:, :1].abs()
+    theta = torch.atan2(nv, a).mul_(2.0)
+    return v * _signed(c, theta / nv), theta, a.div_(nv)
+
+
+def log(R: Tensor) -> Tensor:
+    """Rotation vector of each matrix (:func:`torchlie.so3.log`)."""
+    phi, _, _ = _log_of_candidate(shepperd(_compute(_rows(R, (3, 3)))))
+    return _batch(phi, R, 2, R.dtype)
+
+
+def se3_log(T: Tensor) -> Tensor:
+    """``(rho, phi)`` of each pose (:func:`torchlie.se3.log`): ``phi`` as :func:`log`,
+    ``rho = Jl(phi)^-1 t = e t - phi x t / 2 + D (phi . t) phi`` with
+    ``e = (theta/2) cot(theta/2)`` (from the candidate: ``|c_w| / |c_v|`` times half the angle)
+    and ``D = (1 - e) / theta^2``, whose absolute error of about ``eps / theta^2`` is that of
+    :func:`torchlie._coeffs.jl_inv_values` (``D`` enters only ``D (phi . t) phi``)."""
+    M = _compute(_rows(T, (4, 4)))
+    t = M[:, :3, 3]
+    phi, theta, ratio = _log_of_candidate(shepperd(M[:, :3, :3]))
+    e = ratio.mul_(theta).mul_(0.5)
+    d = torch.rsub(e, 1.0).div_(theta.square_().clamp_min_(_H_MIN))
+    rho = torch.mul(e, t).add_(torch.linalg.cross(phi, t), alpha=-0.5)
+    rho.addcmul_(d.mul_((phi * t).sum(-1, keepdim=True)), phi)
+    return _batch(torch.cat((rho, phi), -1), T, 2, T.dtype)

@@ -18,7 +18,6 @@ silent identity).  Other layouts and conventions convert at the boundary: :func:
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Sequence
 
 import torch
@@ -191,7 +190,8 @@ _multiply_blocks = _blocked(_multiply_block, (1, 1))
 def _multiply_values(a: Tensor, b: Tensor) -> Tensor:
     """``a b`` without autograd: on large CPU batches in complex arithmetic (measured, float32
     N = 10^6, one thread: 26-34 -> 20-29 ns per element; float64 55-58 -> 36-46), elsewhere
-    component by component; on small ones as ``L(a) b`` (:func:`torchlie._small.multiply`)."""
+    component by component; on small ones by one small matrix product
+    (:func:`torchlie._small.multiply`)."""
     if _small.matrix_form(a, _layout.broadcast(a.shape[:-1], b.shape[:-1]).numel()):
         return _small.multiply(a, b)
     if _large_pair(a, b):
@@ -489,11 +489,6 @@ def _from_matrix_parts(
 ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
     """``(cw, cx, cy, cz, sign)``: ``c`` is proportional to the quaternion of ``R``, with
     ``|c| >= 2`` for a rotation; ``sign * c / |c|`` is the canonical unit quaternion."""
-    like, rows = (R, R.shape[:-2].numel()) if isinstance(R, Tensor) else (R[0], R[0].numel())
-    if _small.enabled(like, rows):
-        c, sign = _small_candidate(R)
-        cw, cx, cy, cz = c.unbind(0)
-        return cw, cx, cy, cz, sign
     m00, m01, m02, m10, m11, m12, m20, m21, m22 = _orthogonalize_step(R)
     # 4 q_i^2 for i = w, x, y, z, as (1 +- m22) +- (m00 +- m11)
     p22, n22, p01, n01 = 1.0 + m22, 1.0 - m22, m00 + m11, m00 - m11
@@ -525,62 +520,9 @@ def _from_matrix_parts(
     return cw, pick(s21, d1, a01, a02), pick(s02, a01, d2, a12), pick(s10, a02, a12, d3), sign
 
 
-@functools.cache
-def _shepperd_indices(dtype: torch.dtype, batch_dims: int) -> tuple[Tensor, ...]:
-    """Constants of :func:`_small_candidate`: signs ``(1, -1)`` and ``(1, 1, -1, -1)``, the
-    pairs whose sums give ``d_i``, the entries whose differences and sums give the others, and
-    where each candidate reads the ten values (signs shaped to broadcast over the batch)."""
-    long, ones = torch.long, (1,) * batch_dims
-    return (
-        torch.tensor([1.0, -1.0], dtype=dtype).view((2,) + ones),
-        torch.tensor([1.0, 1.0, -1.0, -1.0], dtype=dtype).view((4,) + ones),
-        torch.tensor([0, 1, 1, 0], dtype=long),  # d_i = (p22, n22, n22, p22) +- (p01, n01, ...)
-        torch.tensor([7, 2, 3, 1, 2, 5], dtype=long),  # s21, s02, s10, a01, a02, a12:
-        torch.tensor([5, 6, 1, 3, 6, 7], dtype=long),  # first -+ second
-        torch.tensor([-1.0, -1.0, -1.0, 1.0, 1.0, 1.0], dtype=dtype).view((6,) + ones),
-        # candidate rows from (d0, d1, d2, d3, s21, s02, s10, a01, a02, a12)
-        torch.tensor([0, 4, 5, 6, 4, 1, 7, 8, 5, 7, 2, 9, 6, 8, 9, 3], dtype=long),
-    )
-
-
-def _small_candidate(R: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor]:
-    """:func:`_from_matrix_parts` in the small-batch form (:mod:`torchlie._small`): the selected
-    candidate as one ``(4, *batch)`` tensor, and the sign.  The same operations on the same
-    values, bit for bit, on whole matrices and on the four candidates at once; the pivot by
-    ``argmax`` and ``gather`` (the first largest ``d_i``, as the one-hot sum selects it)."""
-    if isinstance(R, Tensor):
-        batch = R.shape[:-2]
-        M = _layout._stacked(R, (3, 3))
-    else:
-        batch = R[0].shape
-        M = torch.stack(tuple(R))
-    M = M.view((3, 3) + batch)  # M[i, j]: the plane of m_ij
-
-    def product(A: Tensor, B: Tensor) -> Tensor:  # A B, rounded as dot3 rounds it
-        a0, a1, a2 = A.unsqueeze(1).unbind(2)  # the columns of A
-        b0, b1, b2 = B.unsqueeze(1).unbind(0)  # the rows of B
-        return torch.addcmul(torch.addcmul(a0 * b0, a1, b1), a2, b2)
-
-    E = product(M.transpose(0, 1), M)  # _orthogonalize_step
-    E.diagonal(0, 0, 1).sub_(1.0)
-    m = torch.add(M, product(M, E), alpha=-0.5).view((9,) + batch)
-    sign2, sign4, pair, first, second, sign6, rows = _shepperd_indices(M.dtype, len(batch))
-    pn22 = (m[8] * sign2).add_(1.0)  # 1 + m22, 1 - m22
-    pn01 = m[4] * sign2 + m[0]  # m00 + m11, m00 - m11
-    take = torch.index_select
-    d = take(pn22, 0, pair) + take(pn01, 0, pair) * sign4
-    sa = take(m, 0, first) + take(m, 0, second) * sign6
-    cand = take(torch.cat((d, sa)), 0, rows).view((4, 4) + batch)
-    pivot = _small.interleave(d).argmax(-1)  # the first on ties
-    c = cand.gather(0, pivot.unsqueeze(0).unsqueeze(0).expand((1, 4) + batch))[0]
-    return c, torch.copysign(torch.ones_like(c[0]), c[0] + 0.0)
-
-
 def _from_matrix_forward(R: Tensor, *, dest: Tensor | None = None) -> Tensor:
-    if dest is None and _small.enabled(R, R.shape[:-2].numel()):
-        c, sign = _small_candidate(R)
-        cw, cx, cy, cz = c
-        return _small.interleave(c * (torch.rsqrt(_norm2(cw, cx, cy, cz)) * sign))
+    if dest is None and _small.matrix_form(R, R.shape[:-2].numel()):
+        return _small.from_matrix(R)
     cw, cx, cy, cz, sign = _from_matrix_parts(R)
     # |c| = 4 q_p >= 2 for a rotation: the division is safe, and a NaN element stays in its row.
     n2 = _norm2(cw, cx, cy, cz)
@@ -659,9 +601,8 @@ def _log_of_matrix(R: Tensor, dest: Tensor | None = None) -> Tensor:
     from the unnormalised Shepperd candidate ``c`` (atan2 is scale-invariant).  At ``c_v = 0``
     (the identity) the quotient's denominator is clamped, which gives exactly 0.
     """
-    if dest is None and _small.enabled(R, R.shape[:-2].numel()):
-        c, sign = _small_candidate(R)
-        return _small.interleave(c[1:] * _log_factor(*c, sign))
+    if dest is None and _small.matrix_form(R, R.shape[:-2].numel()):
+        return _small.log(R)
     return _layout.interleave(_log_of_matrix_components(R), dest=dest)
 
 

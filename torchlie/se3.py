@@ -616,7 +616,9 @@ def _exp(xi: Tensor) -> Tensor:
 def _log_forward(T: Tensor, *, dest: Tensor | None = None) -> Tensor:
     """From components, stacked once: compiled, every intermediate is per element and the whole
     map is one loop over the batch (a stacked rotation vector read again by components would be
-    a loop of its own); eager, one stack fewer."""
+    a loop of its own); eager, one stack fewer.  Small batches: :func:`torchlie._small.se3_log`."""
+    if dest is None and _small.matrix_form(T, T.shape[:-2].numel()):
+        return _small.se3_log(T)
     R, t = _rotation_and_translation(T)  # one transposition of the top block
     phi = _quat._log_of_matrix_components(R)
     return _layout.interleave((*so3._jl_inv_apply_values(phi, t), *phi), dest=dest)
