@@ -7,8 +7,8 @@ norm-wise relative per element, ``|out - ref| / |ref|`` (absolute where ``ref = 
 Targets: values 4e-16 (float64) / 3e-7 (float32), gradients 1e-15 / 5e-7, all met.  float64
 ``so3.exp`` reaches them through compensated arithmetic (``torchlie._compensated``); the plain
 formula is 3 ulp off near pi, which also carries into ``log(exp(w))`` and its gradient.  The
-values are checked over the whole sample set and in batches of 100 rows, which take the
-small-batch forms of ``torchlie._small``.
+values and the plain backward passes are checked over the whole sample set and in batches of
+100 rows, which take the matrix forms of ``torchlie._small``.
 """
 
 from __future__ import annotations
@@ -176,20 +176,34 @@ def _rows_of_plain_backward(out: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     return torch.stack(rows, 1).unflatten(1, out.shape[1:])
 
 
-def test_exp_gradient_plain_backward(dtype):
+def _plain_jacobian(fn, x: torch.Tensor, *rest: torch.Tensor, rows: int | None) -> torch.Tensor:
+    """:func:`_rows_of_plain_backward` of ``fn(x, *rest)`` with respect to ``x``, over the whole
+    sample set or in batches of ``rows`` (small batches take the matrix forms of
+    torchlie._small, backward passes included)."""
+    whole = [(x, *rest)]
+    parts = whole if rows is None else zip(*(t.split(rows) for t in whole[0]), strict=True)
+    out = []
+    for first, *others in parts:
+        leaf = first.clone().requires_grad_()
+        out.append(_rows_of_plain_backward(fn(leaf, *others), leaf))
+    return torch.cat(out)
+
+
+@BATCHES
+def test_exp_gradient_plain_backward(dtype, rows):
     r = _references(dtype)
-    w = r["w"].clone().requires_grad_()
-    J = _rows_of_plain_backward(so3.exp(w), w)
+    J = _plain_jacobian(so3.exp, r["w"], rows=rows)
     assert bool(torch.isfinite(J).all())
     err = _rel(J, r["exp_grad_ref"], 3)
     assert float(err.max()) <= GRAD_TOL[dtype], _report(err, r["theta"])
 
 
-def test_log_gradient_plain_backward(dtype):
+@BATCHES
+def test_log_gradient_plain_backward(dtype, rows):
     r = _references(dtype)
     R = r["R_in"]
-    d0 = torch.zeros(R.shape[0], 3, dtype=dtype, requires_grad=True)
-    J = _rows_of_plain_backward(so3.log(R @ so3.exp(d0)), d0)
+    d0 = torch.zeros(R.shape[0], 3, dtype=dtype)
+    J = _plain_jacobian(lambda d, X: so3.log(X @ so3.exp(d)), d0, R, rows=rows)
     assert bool(torch.isfinite(J).all())
     err = _rel(J, r["jr_inv_ref"], 2)
     flipped = _rel(J.transpose(-1, -2), r["jr_inv_ref"], 2)
@@ -198,10 +212,10 @@ def test_log_gradient_plain_backward(dtype):
     assert float(err.max()) <= GRAD_TOL[dtype], _report(err, r["theta"])
 
 
-def test_log_of_exp_gradient_plain_backward(dtype):
+@BATCHES
+def test_log_of_exp_gradient_plain_backward(dtype, rows):
     r = _references(dtype)
-    w = r["w"].clone().requires_grad_()
-    J = _rows_of_plain_backward(so3.log(so3.exp(w)), w)
+    J = _plain_jacobian(lambda w: so3.log(so3.exp(w)), r["w"], rows=rows)
     assert bool(torch.isfinite(J).all())
     err = _rel(J, torch.eye(3, dtype=torch.float64).expand(J.shape), 2)
     below = r["theta"].double() < PI - 1e-12

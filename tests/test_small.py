@@ -73,12 +73,21 @@ def test_nan_stays_in_its_element():
 # Matrix forms
 # ----------------------------------------------------------------------------------------------
 
-MATRIX_FORMS = ("multiply", "to_matrix", "exp_float32", "from_matrix", "log", "se3_log")
+MATRIX_FORMS = (
+    "multiply",
+    "to_matrix",
+    "exp_float32",
+    "se3_exp_float32",
+    "from_matrix",
+    "log",
+    "se3_log",
+)
+BACKWARD_FORMS = ("exp_backward", "log_backward", "to_matrix_backward")
 
 
 def _counted(monkeypatch):
     """Calls of each matrix form, by name."""
-    calls = {name: 0 for name in MATRIX_FORMS}
+    calls = {name: 0 for name in MATRIX_FORMS + BACKWARD_FORMS}
 
     def wrap(name):
         form = getattr(_small, name)
@@ -89,7 +98,7 @@ def _counted(monkeypatch):
 
         return counted
 
-    for name in MATRIX_FORMS:
+    for name in calls:
         monkeypatch.setattr(_small, name, wrap(name))
     return calls
 
@@ -115,28 +124,30 @@ def _norm_error(a, b, nd):
 
 
 def _matrix_form_ops(dtype):
-    """(name of the form, op, inputs, trailing dims of the result)"""
+    """(the forms taken, forward first, op, inputs, trailing dims of the result)"""
     w, q, p = _sampled(dtype)
     g = torch.Generator().manual_seed(14)
     R = so3.exp(w)
     # a perturbed copy: the orthogonalisation step and the pivot see non-rotations too
     Rp = R + 1e-3 * torch.randn(R.shape, generator=g, dtype=dtype)
-    T = se3.exp(torch.cat((torch.randn(w.shape, generator=g, dtype=dtype), w), -1))
+    xi = torch.cat((torch.randn(w.shape, generator=g, dtype=dtype), w), -1)
     ops = [
-        ("multiply", quaternion.multiply, (q, p), 1),
-        ("multiply", quaternion.multiply, (q, p[5]), 1),  # batch shapes broadcast
-        ("to_matrix", quaternion.to_matrix, (q,), 2),
-        ("from_matrix", quaternion.from_matrix, (R,), 1),
-        ("from_matrix", quaternion.from_matrix, (Rp,), 1),
-        ("log", so3.log, (R,), 1),
-        ("log", so3.log, (Rp,), 1),
-        ("se3_log", se3.log, (T,), 1),
+        (("multiply",), quaternion.multiply, (q, p), 1),
+        (("multiply",), quaternion.multiply, (q, p[5]), 1),  # batch shapes broadcast
+        (("to_matrix", "to_matrix_backward"), quaternion.to_matrix, (q,), 2),
+        (("from_matrix",), quaternion.from_matrix, (R,), 1),
+        (("from_matrix",), quaternion.from_matrix, (Rp,), 1),
+        (("log", "log_backward"), so3.log, (R,), 1),
+        (("log", "log_backward"), so3.log, (Rp,), 1),
+        (("se3_log",), se3.log, (se3.exp(xi),), 1),
     ]
     if dtype == torch.float32:
         ops += [
-            ("exp_float32", so3.exp, (w,), 2),
-            ("exp_float32", lambda v: se3.exp(torch.cat((v, v), -1)), (w,), 2),
+            (("exp_float32", "exp_backward"), so3.exp, (w,), 2),
+            (("se3_exp_float32",), se3.exp, (xi,), 2),
         ]
+    else:  # the compensated kernel forward, the matrix form backward
+        ops.append((("exp_backward",), so3.exp, (w,), 2))
     return ops
 
 
@@ -161,21 +172,23 @@ def _other_sign(name, y, x):
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_matrix_forms_agree_with_the_component_kernels(dtype, monkeypatch):
     """Norm-wise within 3 eps of the component kernels (each is within about 1.5 eps of the
-    exact value, test_precision.py), 2 eps for float32 ``so3.exp`` (rounded once from float64),
-    every sampler angle, batches of 1 to 1000 rows; gradients (the same closed-form backwards,
-    fed the forms' results where they read the output) within 8 eps of their largest entry.
+    exact value, test_precision.py), 2 eps for float32 ``so3.exp`` and ``se3.exp`` (rounded
+    once from float64), every sampler angle, batches of 1 to 1000 rows; gradients (the
+    closed-form backwards, of which some have matrix forms too, fed the forms' results where
+    they read the output) within 8 eps of their largest entry.
     At pi Shepperd's forms may give the other sign of the quaternion (the rotation is the same),
     where its ``w`` is rounding noise: that one is compared there (and not the gradients)."""
     e = torch.finfo(dtype).eps
-    for name, fn, args, nd in _matrix_form_ops(dtype):
+    for forms, fn, args, nd in _matrix_form_ops(dtype):
+        name = forms[0]
         calls = _counted(monkeypatch)
         count = len(_pieces(args[0]))
         pieces = list(zip(*(_pieces(a) if a.dim() > 1 else [a] * count for a in args), strict=True))
         formed = [_values_and_grads(fn, *piece) for piece in pieces]
-        assert calls[name] == len(pieces), name
+        assert all(calls[form] == len(pieces) for form in forms), forms
         monkeypatch.setattr(_small, "MATRIX_ROWS", 0)
         plain = [_values_and_grads(fn, *piece) for piece in pieces]
-        assert calls[name] == len(pieces), name
+        assert all(calls[form] == len(pieces) for form in forms), forms
         monkeypatch.setattr(_small, "MATRIX_ROWS", 1024)
         for (y1, g1), (y2, g2), piece in zip(formed, plain, pieces, strict=True):
             assert y1.shape == y2.shape
@@ -186,7 +199,7 @@ def test_matrix_forms_agree_with_the_component_kernels(dtype, monkeypatch):
                 flipped = near & (err_other < err)
                 err = torch.where(flipped, err_other, err)
                 g1, g2 = ([g[~flipped] for g in grads] for grads in (g1, g2))
-            assert float(err.max()) <= (2 if name == "exp_float32" else 3) * e, name
+            assert float(err.max()) <= (2 if "exp" in name else 3) * e, name
             for a, b in zip(g1, g2, strict=True):
                 assert float((a - b).abs().max()) <= 8 * e * max(1.0, float(b.abs().max())), name
 
@@ -205,6 +218,8 @@ def test_matrix_forms_taken_only_where_meant(monkeypatch):
         quaternion.to_matrix(q)
         so3.exp(w)
         so3.exp(w.double())
+        se3.exp(torch.cat((w, w), -1))
+        se3.exp(torch.cat((w, w), -1).double())
         quaternion.from_matrix(R)
         so3.log(R)
         return se3.log(T)
@@ -217,9 +232,9 @@ def test_matrix_forms_taken_only_where_meant(monkeypatch):
 
     for rows, taken in ((_small.MATRIX_ROWS - 1, 1), (_small.MATRIX_ROWS, 0)):
         run(*inputs(rows))
-        assert calls == dict.fromkeys(MATRIX_FORMS, taken)
+        assert calls == dict.fromkeys(MATRIX_FORMS, taken) | dict.fromkeys(BACKWARD_FORMS, 0)
     torch.func.vmap(run)(*inputs(5))
-    assert calls == dict.fromkeys(MATRIX_FORMS, 0)
+    assert not any(calls.values())
     monkeypatch.setattr(_layout, "_is_compiling", lambda: True)
     assert not _small.matrix_form(x, 1)
 
@@ -232,12 +247,17 @@ def test_matrix_forms_at_the_edges():
     w = torch.randn(6, 3, generator=g)
     assert torch.equal(quaternion.multiply(q[2], q[3]), quaternion.multiply(q, q[[3]])[2])
     assert torch.equal(quaternion.to_matrix(q[2]), quaternion.to_matrix(q)[2])
+    xi = torch.cat((torch.randn(6, 3, generator=g), w), -1)
     assert torch.equal(so3.exp(w[2]), so3.exp(w)[2])
+    assert torch.equal(se3.exp(xi[2]), se3.exp(xi)[2])
+    assert torch.equal(se3.exp(torch.zeros(6)), torch.eye(4))
     assert quaternion.to_matrix(q[:0]).shape == (0, 3, 3) and so3.exp(w[:0]).shape == (0, 3, 3)
+    assert se3.exp(xi[:0]).shape == (0, 4, 4)
     q[2, 1] = float("nan")
     w[2, 1] = float("nan")
+    xi[2, 4] = float("nan")
     q[4] = 0.0
-    for out in (quaternion.multiply(q, q), quaternion.to_matrix(q), so3.exp(w)):
+    for out in (quaternion.multiply(q, q), quaternion.to_matrix(q), so3.exp(w), se3.exp(xi)[:, :3]):
         assert out[2].isnan().all()
         assert out[[0, 1, 3, 5]].isfinite().all()
     assert quaternion.to_matrix(q)[4].isnan().all()
@@ -246,3 +266,22 @@ def test_matrix_forms_at_the_edges():
     R = so3.exp(big)
     assert float((R @ R.mT - torch.eye(3)).abs().max()) <= 4 * torch.finfo(torch.float32).eps
     torch.testing.assert_close(R, so3.exp(big.double()).float(), atol=2e-7, rtol=0)
+
+
+def test_backward_forms_taken_only_where_meant(monkeypatch):
+    """Plain backward passes of batches below MATRIX_ROWS; not at MATRIX_ROWS, nor with
+    ``create_graph`` (the differentiable backward, for higher derivatives)."""
+    calls = _counted(monkeypatch)
+    g = torch.Generator().manual_seed(16)
+    for rows, taken, create_graph in ((5, 1, False), (_small.MATRIX_ROWS, 0, False), (5, 0, True)):
+        w = torch.randn(rows, 3, generator=g, dtype=torch.float64)
+        R = so3.exp(w)
+        calls.update(dict.fromkeys(calls, 0))
+        for fn, x in (
+            (so3.exp, w),
+            (so3.log, R),
+            (quaternion.to_matrix, quaternion.from_matrix(R)),
+        ):
+            leaf = x.clone().requires_grad_()
+            torch.autograd.grad(fn(leaf).sum(), leaf, create_graph=create_graph)
+        assert {k: calls[k] for k in BACKWARD_FORMS} == dict.fromkeys(BACKWARD_FORMS, taken)

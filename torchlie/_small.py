@@ -113,6 +113,7 @@ _SOURCES = {
     "multiply": _hamilton_forms,
     "to_matrix": lambda: _quadratic_forms(1.0),
     "exp": lambda: _quadratic_forms(2.0)[:, :9],
+    "bottom": lambda: torch.tensor([[0.0, 0.0, 0.0, 1.0]]),
 }
 
 
@@ -143,15 +144,46 @@ def to_matrix(q: Tensor) -> Tensor:
     return (forms[..., :9] / forms[..., 9:]).to(q.dtype).view(q.shape[:-1] + (3, 3))
 
 
+def _half_angle(w: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """``(h, sin(h) / h, cos h)`` in float64, ``h = |w| / 2`` clamped at :data:`_H_MIN` (where
+    ``sin(h) / h`` is 1)."""
+    h = torch.linalg.vector_norm(w, dim=-1, keepdim=True, dtype=_F64).mul_(0.5)
+    h.clamp_min_(_H_MIN)
+    return h, torch.sin(h).div_(h), torch.cos(h)
+
+
+def _exp_float64(w: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """``Exp(w)`` in float64 as ``(..., 9)`` entries, row by row: the matrix of the unit
+    quaternion ``(cos h, sin(h) w / t)``, ``t = |w|``, ``h = t / 2`` (sine and cosine of the same
+    ``h``, so that the quaternion stays a unit one at every angle); with ``h`` (clamped at
+    :data:`_H_MIN`), ``sin(h) / h`` and ``cos h``."""
+    h, s, c = _half_angle(w)  # s = sin(h) / h = 2 sin(h) / t: the vector part is twice q's
+    q = torch.cat((c, s * w), -1)  # float64 (s) times float32 (w): float64
+    return torch.matmul(_outer(q), _constant("exp", _F64)), h, s, c
+
+
 def exp_float32(w: Tensor) -> Tensor:
-    """``Exp(w)`` of float32 rotation vectors, evaluated in float64 and rounded once: the matrix
-    of the unit quaternion ``(cos h, sin(h) w / t)``, ``t = |w|``, ``h = t / 2`` (sine and cosine
-    of the same ``h``, so that the quaternion stays a unit one at every angle)."""
-    t = torch.linalg.vector_norm(w, dim=-1, keepdim=True, dtype=_F64)
-    h = t.mul_(0.5).clamp_min_(_H_MIN)
-    s = torch.sin(h).div_(h)  # sin(h) / h = 2 sin(h) / t: the vector part is twice q's
-    q = torch.cat((torch.cos(h), s * w), -1)  # float64 (s) times float32 (w): float64
-    return torch.matmul(_outer(q), _constant("exp", _F64)).to(w.dtype).view(w.shape[:-1] + (3, 3))
+    """``Exp(w)`` of float32 rotation vectors, evaluated in float64 and rounded once."""
+    R, _, _, _ = _exp_float64(w)
+    return R.to(w.dtype).view(w.shape[:-1] + (3, 3))
+
+
+def se3_exp_float32(xi: Tensor) -> Tensor:
+    """``[[Exp(phi), Jl(phi) rho], [0, 1]]`` of float32 twists ``(rho, phi)``, evaluated in
+    float64 and rounded once; the rotation block is :func:`exp_float32`'s, bit for bit.
+    ``Jl(phi) rho = a rho + b phi x rho + c (phi . rho) phi`` with ``a = sin(t) / t``,
+    ``b = (1 - cos t) / t^2`` (from ``h``: ``s cos h`` and ``s^2 / 2``, ``s = sin(h) / h``) and
+    ``c = (1 - a) / t^2``, whose absolute error of about ``eps / t^2`` is that of
+    :func:`torchlie._coeffs.rodrigues_values` (``c`` enters only ``c (phi . rho) phi``)."""
+    rho, phi = xi[..., :3].double(), xi[..., 3:]
+    R, h, s, cos_h = _exp_float64(phi)
+    a = s * cos_h
+    c = torch.rsub(a, 1.0).div_(h.square_().mul_(4.0))
+    t = _jl(phi.double(), rho, a, s.square_().mul_(0.5), c)
+    batch = xi.shape[:-1]
+    top = torch.cat((R.view(batch + (3, 3)), t.unsqueeze(-1)), -1)
+    bottom = _constant("bottom", _F64).expand(batch + (1, 4))
+    return torch.cat((top, bottom), -2).to(xi.dtype)
 
 
 def _shepperd_map() -> Tensor:
@@ -266,6 +298,78 @@ def se3_log(T: Tensor) -> Tensor:
     phi, theta, ratio = _log_of_candidate(shepperd(M[:, :3, :3]))
     e = ratio.mul_(theta).mul_(0.5)
     d = torch.rsub(e, 1.0).div_(theta.square_().clamp_min_(_H_MIN))
-    rho = torch.mul(e, t).add_(torch.linalg.cross(phi, t), alpha=-0.5)
-    rho.addcmul_(d.mul_((phi * t).sum(-1, keepdim=True)), phi)
+    rho = _jl(phi, t, e, -0.5, d)
     return _batch(torch.cat((rho, phi), -1), T, 2, T.dtype)
+
+
+def _jl(w: Tensor, v: Tensor, a: Tensor, b: Tensor | float, c: Tensor) -> Tensor:
+    """``a v + b w x v + c (w . v) w`` of ``(rows, 3)`` vectors: ``Jl(w) v``, ``Jr(w) v`` and
+    their inverses by their coefficients (``c`` is overwritten)."""
+    out = (
+        torch.add(a * v, torch.linalg.cross(w, v), alpha=b)
+        if isinstance(b, float)
+        else (torch.addcmul(a * v, b, torch.linalg.cross(w, v)))
+    )
+    return out.addcmul_(c.mul_((w * v).sum(-1, keepdim=True)), w)
+
+
+# ----------------------------------------------------------------------------------------------
+# Backward passes (closed forms, no autograd graph)
+# ----------------------------------------------------------------------------------------------
+
+
+def _vee_map() -> Tensor:
+    """``(9, 3)``: the entries of ``M`` (row by row) to ``vee(M - M^T)``."""
+    forms = torch.zeros(3, 3, 3, dtype=_F64)
+    for k, (i, j) in enumerate(((2, 1), (0, 2), (1, 0))):
+        forms[i, j, k], forms[j, i, k] = 1.0, -1.0
+    return forms.reshape(9, 3)
+
+
+_SOURCES["vee"] = _vee_map
+_SOURCES["pure"] = lambda: _hamilton_forms().view(4, 4, 4)[:, 1:].reshape(12, 4)
+
+
+def _vee_rt_g(R: Tensor, G: Tensor) -> Tensor:
+    """``(rows, 3)``: ``vee(R^T G - G^T R)`` of ``(rows, 3, 3)`` matrices."""
+    return torch.mm(torch.bmm(R.mT, G).view(-1, 9), _constant("vee", R.dtype))
+
+
+def _r_hat(R: Tensor, u: Tensor) -> Tensor:
+    """``R hat(u)`` (row ``i``: ``R_i x u``) of ``(rows, 3, 3)`` matrices and ``(rows, 3)``."""
+    return torch.linalg.cross(R, u.unsqueeze(1).expand_as(R))
+
+
+def _result(y: Tensor, like: Tensor) -> Tensor:
+    """``y`` in the dtype and shape of ``like``."""
+    return y.to(like.dtype).view(like.shape)
+
+
+def exp_backward(w: Tensor, R: Tensor, G: Tensor) -> Tensor:
+    """Gradient of :func:`torchlie.so3.exp`: ``Jl(w) vee(R^T G - G^T R)`` (float32 in float64)."""
+    M, g = _compute(_rows(R, (3, 3))), _compute(_rows(G, (3, 3)))
+    v = _rows(w, (3,))
+    h, s, cos_h = _half_angle(v)
+    a = s * cos_h
+    c = torch.rsub(a, 1.0).div_(h.square().mul_(4.0))
+    return _result(_jl(_compute(v), _vee_rt_g(M, g), a, s.square_().mul_(0.5), c), w)
+
+
+def log_backward(R: Tensor, w: Tensor, g: Tensor) -> Tensor:
+    """Gradient of :func:`torchlie.so3.log`: ``R hat(Jl(w)^-1 g) / 2``, ``Jl(w)^-1 = e I -
+    hat(w) / 2 + D w w^T`` with ``e = h cot h`` and ``D = (1 - e) / t^2`` (float32 in float64)."""
+    v = _rows(w, (3,))
+    h, s, cos_h = _half_angle(v)
+    e = cos_h.div_(s)
+    d = torch.rsub(e, 1.0).div_(h.square().mul_(4.0))
+    u = _jl(_compute(v), _compute(_rows(g, (3,))).mul(0.5), e, -0.5, d)
+    return _result(_r_hat(_compute(_rows(R, (3, 3))), u), R)
+
+
+def to_matrix_backward(q: Tensor, R: Tensor, G: Tensor) -> Tensor:
+    """Gradient of :func:`torchlie.quaternion.to_matrix`: ``2 q (0, a) / |q|^2`` with
+    ``a = vee(R^T G - G^T R)`` (float32 in float64)."""
+    v = _compute(_rows(q, (4,)))
+    a = _vee_rt_g(_compute(_rows(R, (3, 3))), _compute(_rows(G, (3, 3))))
+    out = torch.mm(_outer(v, a), _constant("pure", v.dtype)).mul_(2.0)
+    return _result(out.div_((v * v).sum(-1, keepdim=True)), q)

@@ -398,6 +398,8 @@ def _to_matrix_backward(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor]:
         a = _skew_vee(R.transpose(-1, -2) @ G)
         k = 2.0 / (q * q).sum(-1, keepdim=True)
         return (k * _multiply(q, torch.nn.functional.pad(a, (1, 0))),)
+    if _small.matrix_form(q, q.shape[:-1].numel()):
+        return (_small.to_matrix_backward(q, R, G),)
     return (_to_matrix_grad_values(q, R, G),)
 
 

@@ -532,13 +532,14 @@ def _exp_forward(xi: Tensor, *, dest: Tensor | None = None) -> Tensor:
     """``[[Exp(phi), Jl(phi) rho], [0, 1]]`` from components, one set of coefficients for both
     blocks (runs without autograd: forward-only coefficients); the rotation block is
     :func:`torchlie.so3.exp`'s, bit for bit (in float64 its compensated kernel, on small float32
-    batches its matrix form)."""
+    batches its matrix form, with which the whole of it is a matrix form,
+    :func:`torchlie._small.se3_exp_float32`)."""
     phi = xi[..., 3:]
     R = None  # the rotation block from a kernel of its own, or entry by entry below
     if xi.dtype == torch.float64:
         R = _compensated.exp_entries(phi)
     elif dest is None and _small.matrix_form(xi, xi.shape[:-1].numel()):
-        R = _small.exp_float32(phi).flatten(-2).unbind(-1)
+        return _small.se3_exp_float32(xi)
     xyz, coeffs = so3._rodrigues(phi, "abcd" if R is None else "abc")  # d: for the entries
     a, b, c = coeffs[:3]
     o, top = _top_outputs(xyz[0], dest=dest)

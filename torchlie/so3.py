@@ -213,6 +213,8 @@ def _exp_backward(saved, g: Tensor):
     if torch.is_grad_enabled():  # create_graph: differentiable ops
         M = R.transpose(-1, -2) @ g
         return (_jl_apply(w, 2.0 * _vee(M)),)
+    if _small.matrix_form(w, w.shape[:-1].numel()):
+        return (_small.exp_backward(w, R, g),)
     return (_exp_grad_values(w, R, g),)
 
 
@@ -260,6 +262,8 @@ def _log_backward(saved, g: Tensor):
     # Gradient of log o polar: G = R hat(Jl^-1(w) g) / 2 (tangent part only).
     if torch.is_grad_enabled():  # create_graph: differentiable ops
         return (0.5 * (R @ _hat(_jl_inv_apply(w, g))),)
+    if _small.matrix_form(w, w.shape[:-1].numel()):
+        return (_small.log_backward(R, w, g),)
     return (_log_grad_values(R, w, g),)
 
 
