@@ -124,7 +124,8 @@ def _norm_error(a, b, nd):
 
 
 def _matrix_form_ops(dtype):
-    """(the forms taken, forward first, op, inputs, trailing dims of the result)"""
+    """(the forms taken, forward first, each as often as it is taken; op, inputs, trailing dims
+    of the result)"""
     w, q, p = _sampled(dtype)
     g = torch.Generator().manual_seed(14)
     R = so3.exp(w)
@@ -132,9 +133,11 @@ def _matrix_form_ops(dtype):
     Rp = R + 1e-3 * torch.randn(R.shape, generator=g, dtype=dtype)
     xi = torch.cat((torch.randn(w.shape, generator=g, dtype=dtype), w), -1)
     ops = [
-        (("multiply",), quaternion.multiply, (q, p), 1),
-        (("multiply",), quaternion.multiply, (q, p[5]), 1),  # batch shapes broadcast
+        # the backward: two products
+        (("multiply",) * 3, quaternion.multiply, (q, p), 1),
+        (("multiply",) * 3, quaternion.multiply, (q, p[5]), 1),  # batch shapes broadcast
         (("to_matrix", "to_matrix_backward"), quaternion.to_matrix, (q,), 2),
+        ((), quaternion.apply, (q, w), 1),  # its backward: fewer calls, no form of its own
         (("from_matrix",), quaternion.from_matrix, (R,), 1),
         (("from_matrix",), quaternion.from_matrix, (Rp,), 1),
         (("log", "log_backward"), so3.log, (R,), 1),
@@ -180,15 +183,15 @@ def test_matrix_forms_agree_with_the_component_kernels(dtype, monkeypatch):
     where its ``w`` is rounding noise: that one is compared there (and not the gradients)."""
     e = torch.finfo(dtype).eps
     for forms, fn, args, nd in _matrix_form_ops(dtype):
-        name = forms[0]
+        name = forms[0] if forms else fn.__name__
         calls = _counted(monkeypatch)
         count = len(_pieces(args[0]))
         pieces = list(zip(*(_pieces(a) if a.dim() > 1 else [a] * count for a in args), strict=True))
         formed = [_values_and_grads(fn, *piece) for piece in pieces]
-        assert all(calls[form] == len(pieces) for form in forms), forms
+        assert all(calls[f] == forms.count(f) * len(pieces) for f in forms), forms
         monkeypatch.setattr(_small, "MATRIX_ROWS", 0)
         plain = [_values_and_grads(fn, *piece) for piece in pieces]
-        assert all(calls[form] == len(pieces) for form in forms), forms
+        assert all(calls[f] == forms.count(f) * len(pieces) for f in forms), forms
         monkeypatch.setattr(_small, "MATRIX_ROWS", 1024)
         for (y1, g1), (y2, g2), piece in zip(formed, plain, pieces, strict=True):
             assert y1.shape == y2.shape

@@ -223,7 +223,8 @@ def _multiply_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Te
     # d(a b) = da b + a db: dL/da = g conj(b), dL/db = conj(a) g (two products instead of
     # autograd's graph of 16 multiply-adds, each with two products in its backward).
     a, b = saved
-    if torch.is_grad_enabled():  # create_graph: differentiable ops
+    # create_graph: differentiable ops, which small batches take too (fewer calls)
+    if torch.is_grad_enabled() or _small.matrix_form(g, g.shape[:-1].numel()):
         da, db = _multiply(g, _conjugate(b)), _multiply(_conjugate(a), g)
     else:
         da, db = _multiply_grads(a, b, g)
@@ -562,7 +563,8 @@ def _from_matrix_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]
     # step).  So dL/dd = u = vec(conj(q) g) / 2 and G = R hat(u) / 2, the gradient that
     # autograd gives through the step and Shepperd's formula at a rotation.
     R, q = saved
-    if torch.is_grad_enabled():  # create_graph: differentiable ops
+    # create_graph: differentiable ops, which small batches take too (fewer calls)
+    if torch.is_grad_enabled() or _small.matrix_form(g, g.shape[:-1].numel()):
         u = 0.25 * _conj_product_vec(q, g)
         return (torch.linalg.cross(R, u.unsqueeze(-2).expand_as(R), dim=-1),)
     w, x, y, z = _planes(q, 4)
@@ -782,7 +784,8 @@ def _apply_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tenso
     # change dq turns R into R Exp(d), d = 2 vec(conj(q) dq) / |q|^2, so dy = R (d x p) and
     # <g, dy> = <p x R^T g, d>: dL/dq = 2 q (0, p x R^T g) / |q|^2 (orthogonal to q).
     q, p = saved
-    if torch.is_grad_enabled():  # create_graph: differentiable ops
+    # create_graph: differentiable ops, which small batches take too (fewer calls)
+    if torch.is_grad_enabled() or _small.matrix_form(g, g.shape[:-1].numel()):
         dp = _apply(_conjugate(q), g)
         a = torch.linalg.cross(p.expand_as(dp), dp, dim=-1)
         # q (0, a) spelled out, not _multiply: its complex form on large batches rounds
