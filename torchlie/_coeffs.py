@@ -284,6 +284,13 @@ def step(x: Tensor) -> Tensor:
     return torch.sign(x).clamp_min_(0.0)
 
 
+def q_series(t2: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """``(c1, c2, c3) = (sinc3, cosc4, (cosc4 - 3 sinc5)/2)`` of ``t2``, each to a few ulp of
+    ``t2``'s dtype: the coefficients of the top-right block ``Q`` of the SE(3) Jacobian."""
+    c2 = cosc4(t2)
+    return sinc3(t2), c2, 0.5 * (c2 - 3.0 * sinc5(t2))
+
+
 #: ``t2`` below which :func:`q_values` takes its series.
 Q_VALUES_T2 = 1e-2
 #: Three terms of each series of :func:`q_values`: ``sinc3``, ``cosc4`` and ``c3`` (whose

@@ -40,7 +40,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from torchlie import _layout
+from torchlie import _coeffs, _layout
 
 # ----------------------------------------------------------------------------------------------
 # Matrix forms
@@ -114,6 +114,7 @@ _SOURCES = {
     "to_matrix": lambda: _quadratic_forms(1.0),
     "exp": lambda: _quadratic_forms(2.0)[:, :9],
     "bottom": lambda: torch.tensor([[0.0, 0.0, 0.0, 1.0]]),
+    "zero_row": lambda: torch.zeros(1, 4),
 }
 
 
@@ -176,10 +177,8 @@ def se3_exp_float32(xi: Tensor) -> Tensor:
     ``c = (1 - a) / t^2``, whose absolute error of about ``eps / t^2`` is that of
     :func:`torchlie._coeffs.rodrigues_values` (``c`` enters only ``c (phi . rho) phi``)."""
     rho, phi = xi[..., :3].double(), xi[..., 3:]
-    R, h, s, cos_h = _exp_float64(phi)
-    a = s * cos_h
-    c = torch.rsub(a, 1.0).div_(h.square_().mul_(4.0))
-    t = _jl(phi.double(), rho, a, s.square_().mul_(0.5), c)
+    R, *half = _exp_float64(phi)
+    t = _jl(phi.double(), rho, *_jl_coefficients(*half))
     batch = xi.shape[:-1]
     top = torch.cat((R.view(batch + (3, 3)), t.unsqueeze(-1)), -1)
     bottom = _constant("bottom", _F64).expand(batch + (1, 4))
@@ -302,15 +301,14 @@ def se3_log(T: Tensor) -> Tensor:
     return _batch(torch.cat((rho, phi), -1), T, 2, T.dtype)
 
 
-def _jl(w: Tensor, v: Tensor, a: Tensor, b: Tensor | float, c: Tensor) -> Tensor:
+def _jl(w: Tensor, v: Tensor, a: Tensor, b: Tensor | float | None, c: Tensor) -> Tensor:
     """``a v + b w x v + c (w . v) w`` of ``(rows, 3)`` vectors: ``Jl(w) v``, ``Jr(w) v`` and
-    their inverses by their coefficients (``c`` is overwritten)."""
-    out = (
-        torch.add(a * v, torch.linalg.cross(w, v), alpha=b)
-        if isinstance(b, float)
-        else (torch.addcmul(a * v, b, torch.linalg.cross(w, v)))
-    )
-    return out.addcmul_(c.mul_((w * v).sum(-1, keepdim=True)), w)
+    their inverses by their coefficients (``b = None``: no cross product term)."""
+    out = a * v
+    if b is not None:
+        cross = torch.linalg.cross(w, v)
+        out = out.add_(cross, alpha=b) if isinstance(b, float) else out.addcmul_(b, cross)
+    return out.addcmul_(c * (w * v).sum(-1, keepdim=True), w)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -349,19 +347,14 @@ def exp_backward(w: Tensor, R: Tensor, G: Tensor) -> Tensor:
     """Gradient of :func:`torchlie.so3.exp`: ``Jl(w) vee(R^T G - G^T R)`` (float32 in float64)."""
     M, g = _compute(_rows(R, (3, 3))), _compute(_rows(G, (3, 3)))
     v = _rows(w, (3,))
-    h, s, cos_h = _half_angle(v)
-    a = s * cos_h
-    c = torch.rsub(a, 1.0).div_(h.square().mul_(4.0))
-    return _result(_jl(_compute(v), _vee_rt_g(M, g), a, s.square_().mul_(0.5), c), w)
+    return _result(_jl(_compute(v), _vee_rt_g(M, g), *_jl_coefficients(*_half_angle(v))), w)
 
 
 def log_backward(R: Tensor, w: Tensor, g: Tensor) -> Tensor:
     """Gradient of :func:`torchlie.so3.log`: ``R hat(Jl(w)^-1 g) / 2``, ``Jl(w)^-1 = e I -
     hat(w) / 2 + D w w^T`` with ``e = h cot h`` and ``D = (1 - e) / t^2`` (float32 in float64)."""
     v = _rows(w, (3,))
-    h, s, cos_h = _half_angle(v)
-    e = cos_h.div_(s)
-    d = torch.rsub(e, 1.0).div_(h.square().mul_(4.0))
+    e, d = _jl_inv_coefficients(v)
     u = _jl(_compute(v), _compute(_rows(g, (3,))).mul(0.5), e, -0.5, d)
     return _result(_r_hat(_compute(_rows(R, (3, 3))), u), R)
 
@@ -373,3 +366,68 @@ def to_matrix_backward(q: Tensor, R: Tensor, G: Tensor) -> Tensor:
     a = _vee_rt_g(_compute(_rows(R, (3, 3))), _compute(_rows(G, (3, 3))))
     out = torch.mm(_outer(v, a), _constant("pure", v.dtype)).mul_(2.0)
     return _result(out.div_((v * v).sum(-1, keepdim=True)), q)
+
+
+def _jl_coefficients(h: Tensor, s: Tensor, cos_h: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """``(a, b, c)`` of ``Jl(phi) = a I + b hat(phi) + c phi phi^T`` from :func:`_half_angle`:
+    ``sin(t) / t = s cos h``, ``(1 - cos t) / t^2 = s^2 / 2`` and ``(1 - a) / t^2`` (see
+    :func:`se3_exp_float32`)."""
+    a = s * cos_h
+    return a, s.square().mul_(0.5), torch.rsub(a, 1.0).div_(h.square().mul_(4.0))
+
+
+def _jl_inv_coefficients(phi: Tensor) -> tuple[Tensor, Tensor]:
+    """``(e, D)`` of ``Jl(phi)^-1 = e I - hat(phi) / 2 + D phi phi^T`` in float64: ``h cot h``
+    and ``(1 - e) / t^2`` (see :func:`se3_log`)."""
+    h, s, cos_h = _half_angle(phi)
+    e = cos_h.div_(s)
+    return e, torch.rsub(e, 1.0).div_(h.square_().mul_(4.0))
+
+
+def _q(rho: Tensor, phi: Tensor, v: Tensor, dtype: torch.dtype) -> Tensor:
+    """``Q(rho, phi) v``, the top-right block of the SE(3) left Jacobian, of ``(rows, 3)``
+    vectors (``dtype``: the input's, which picks the coefficients' series as
+    ``torchlie.se3._q_values`` does).  With ``a = phi x v``, ``b = phi x a`` and
+    ``r(x) = rho x x``: ``r(v)/2 + c1 r(a) + c2 r(b) + phi x (c1 r(v) + (c1 - 3 c2) r(a) +
+    c3 r(b) + phi x (c2 r(v) + c3 r(a)))``."""
+    t2 = (phi * phi).sum(-1, keepdim=True)
+    series = _coeffs.q_values if dtype == torch.float32 else _coeffs.q_series
+    c1, c2, c3 = series(t2)
+    cross = torch.linalg.cross
+    a = cross(phi, v)
+    rv, ra, rb = cross(rho, v), cross(rho, a), cross(rho, cross(phi, a))
+    mid = cross(phi, torch.addcmul(c2 * rv, c3, ra)).addcmul_(c1, rv)
+    mid.addcmul_(c1 - 3.0 * c2, ra).addcmul_(c3, rb)
+    return cross(phi, mid).add_(rv, alpha=0.5).addcmul_(c1, ra).addcmul_(c2, rb)
+
+
+def se3_exp_backward(xi: Tensor, T: Tensor, G: Tensor) -> Tensor:
+    """Gradient of :func:`torchlie.se3.exp`: ``g_rho = Jr(phi) g_t`` and ``g_phi = Jl(phi) u +
+    Jr(phi) (t x g_t) + Q(-rho, -phi) g_t`` with ``u = vee(R^T G_R - G_R^T R)`` (float32 in
+    float64)."""
+    x, M, g = (_compute(_rows(y, e)) for y, e in ((xi, (6,)), (T, (4, 4)), (G, (4, 4))))
+    rho, phi = x[:, :3], x[:, 3:]
+    g_t = g[:, :3, 3]
+    a, b, c = _jl_coefficients(*_half_angle(phi))
+    g_rho = _jl(phi, g_t, a, -b, c)
+    # Jl(phi) u + Jr(phi) w = a (u + w) + b phi x (u - w) + c (phi . (u + w)) phi
+    u = _vee_rt_g(M[:, :3, :3], g[:, :3, :3])
+    w = torch.linalg.cross(M[:, :3, 3], g_t)
+    g_phi = _jl(phi, u + w, a, None, c).addcmul_(b, torch.linalg.cross(phi, u - w))
+    g_phi += _q(-rho, -phi, g_t, xi.dtype)
+    return _result(torch.cat((g_rho, g_phi), -1), xi)
+
+
+def se3_log_backward(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
+    """Gradient of :func:`torchlie.se3.log`: ``G_t = R h_rho`` and ``G_R = R hat(u)`` with
+    ``h_rho = Jl(phi)^-1 g_rho`` and ``u = Jl(phi)^-1 (g_phi - Q(rho, phi) h_rho) / 2``, the
+    bottom row 0 (float32 in float64)."""
+    M, x, gg = (_compute(_rows(y, e)) for y, e in ((T, (4, 4)), (xi, (6,)), (g, (6,))))
+    rho, phi = x[:, :3], x[:, 3:]
+    e, d = _jl_inv_coefficients(phi)
+    h_rho = _jl(phi, gg[:, :3], e, -0.5, d)
+    v = (gg[:, 3:] - _q(rho, phi, h_rho, xi.dtype)).mul_(0.5)
+    R = M[:, :3, :3]
+    top = torch.cat((_r_hat(R, _jl(phi, v, e, -0.5, d)), torch.bmm(R, h_rho.unsqueeze(-1))), -1)
+    zeros = _constant("zero_row", M.dtype).expand(M.shape[0], 1, 4)
+    return _result(torch.cat((top, zeros), -2), T)

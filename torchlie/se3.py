@@ -123,9 +123,8 @@ def _q_coeffs(phi: Tensor) -> tuple[Tensor, Tensor, Tensor]:
 
 
 def _q_of_t2(t2: Tensor, dtype: torch.dtype) -> tuple[Tensor, Tensor, Tensor]:
-    c2 = _coeffs.cosc4(t2)
-    c3 = 0.5 * (c2 - 3.0 * _coeffs.sinc5(t2))
-    return _coeffs.sinc3(t2).to(dtype), c2.to(dtype), c3.to(dtype)
+    c1, c2, c3 = _coeffs.q_series(t2)
+    return c1.to(dtype), c2.to(dtype), c3.to(dtype)
 
 
 def _q_values(xyz: Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
@@ -556,6 +555,8 @@ def _exp_backward(saved, G: Tensor):
     #     g_phi = Jl(phi) vee(R^T G_R - G_R^T R) + Jr(phi) (t x g_t) + Q(-rho, -phi) g_t.
     xi, T = saved
     if not torch.is_grad_enabled():
+        if _small.matrix_form(xi, xi.shape[:-1].numel()):
+            return (_small.se3_exp_backward(xi, T, G),)
         return (_exp_grad_values(xi, T, G),)
     rho, phi = xi[..., :3], xi[..., 3:]  # create_graph: differentiable ops
     R, t = _rot(T), _trans(T)
@@ -632,6 +633,8 @@ def _log_backward(saved, g: Tensor):
     # so G_t = R h_rho and G_R = R hat(h_phi) / 2.
     T, xi = saved
     if not torch.is_grad_enabled():
+        if _small.matrix_form(xi, xi.shape[:-1].numel()):
+            return (_small.se3_log_backward(T, xi, g),)
         return (_log_grad_values(T, xi, g),)
     R = _rot(T)  # create_graph: differentiable ops
     rho, phi = xi[..., :3], xi[..., 3:]
