@@ -83,6 +83,7 @@ MATRIX_FORMS = (
     "se3_log",
 )
 BACKWARD_FORMS = (
+    "multiply_backward",
     "exp_backward",
     "log_backward",
     "to_matrix_backward",
@@ -139,9 +140,9 @@ def _matrix_form_ops(dtype):
     Rp = R + 1e-3 * torch.randn(R.shape, generator=g, dtype=dtype)
     xi = torch.cat((torch.randn(w.shape, generator=g, dtype=dtype), w), -1)
     ops = [
-        # the backward: two products
-        (("multiply",) * 3, quaternion.multiply, (q, p), 1),
-        (("multiply",) * 3, quaternion.multiply, (q, p[5]), 1),  # batch shapes broadcast
+        (("multiply", "multiply_backward"), quaternion.multiply, (q, p), 1),
+        # batch shapes broadcast
+        (("multiply", "multiply_backward"), quaternion.multiply, (q, p[5]), 1),
         (("to_matrix", "to_matrix_backward"), quaternion.to_matrix, (q,), 2),
         ((), quaternion.apply, (q, w), 1),  # its backward: fewer calls, no form of its own
         (("from_matrix",), quaternion.from_matrix, (R,), 1),
@@ -302,6 +303,7 @@ def test_backward_forms_taken_only_where_meant(monkeypatch):
             (quaternion.to_matrix, quaternion.from_matrix(R)),
             (se3.exp, xi),
             (se3.log, T),
+            (lambda x: quaternion.multiply(x, x.flip(-1)), quaternion.from_matrix(R)),
         ):
             leaf = x.clone().requires_grad_()
             torch.autograd.grad(fn(leaf).sum(), leaf, create_graph=create_graph)

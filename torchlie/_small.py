@@ -140,9 +140,10 @@ def multiply(a: Tensor, b: Tensor) -> Tensor:
 def to_matrix(q: Tensor) -> Tensor:
     """Rotation matrix of ``q / |q|``: ``q q^T`` mapped to the entries of ``|q|^2 R`` and to
     ``|q|^2`` by one product, then one division (float32 input evaluated in float64)."""
-    v = q.to(_F64) if q.dtype == torch.float32 else q
+    v = _compute(q)
     forms = torch.matmul(_outer(v), _constant("to_matrix", v.dtype))
-    return (forms[..., :9] / forms[..., 9:]).to(q.dtype).view(q.shape[:-1] + (3, 3))
+    R = forms[..., :9] / forms[..., 9:]
+    return (R.float() if q.dtype == torch.float32 else R).unflatten(-1, (3, 3))
 
 
 def _half_angle(w: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -166,7 +167,7 @@ def _exp_float64(w: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
 def exp_float32(w: Tensor) -> Tensor:
     """``Exp(w)`` of float32 rotation vectors, evaluated in float64 and rounded once."""
     R, _, _, _ = _exp_float64(w)
-    return R.to(w.dtype).view(w.shape[:-1] + (3, 3))
+    return R.float().unflatten(-1, (3, 3))
 
 
 def se3_exp_float32(xi: Tensor) -> Tensor:
@@ -324,7 +325,21 @@ def _vee_map() -> Tensor:
     return forms.reshape(9, 3)
 
 
+def _conjugated_forms(side: int) -> Tensor:
+    """``(16, 4)``: :func:`_hamilton_forms` with the vector part of the left (``side = 0``) or
+    the right (``side = 1``) factor negated: the products ``a_j b_k`` to ``conj(a) b`` or
+    ``a conj(b)``."""
+    forms = _hamilton_forms().view(4, 4, 4).clone()
+    if side == 0:
+        forms[1:] *= -1.0
+    else:
+        forms[:, 1:] *= -1.0
+    return forms.reshape(16, 4)
+
+
 _SOURCES["vee"] = _vee_map
+_SOURCES["conj_left"] = lambda: _conjugated_forms(0)
+_SOURCES["conj_right"] = lambda: _conjugated_forms(1)
 _SOURCES["pure"] = lambda: _hamilton_forms().view(4, 4, 4)[:, 1:].reshape(12, 4)
 
 
@@ -431,3 +446,12 @@ def se3_log_backward(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
     top = torch.cat((_r_hat(R, _jl(phi, v, e, -0.5, d)), torch.bmm(R, h_rho.unsqueeze(-1))), -1)
     zeros = _constant("zero_row", M.dtype).expand(M.shape[0], 1, 4)
     return _result(torch.cat((top, zeros), -2), T)
+
+
+def multiply_backward(a: Tensor, b: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
+    """Gradients of :func:`multiply` at the broadcast batch shape: ``g conj(b)`` and
+    ``conj(a) g``, one product with a constant map each."""
+    return (
+        torch.matmul(_outer(g, b), _constant("conj_right", g.dtype)),
+        torch.matmul(_outer(a, g), _constant("conj_left", g.dtype)),
+    )

@@ -223,9 +223,10 @@ def _multiply_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Te
     # d(a b) = da b + a db: dL/da = g conj(b), dL/db = conj(a) g (two products instead of
     # autograd's graph of 16 multiply-adds, each with two products in its backward).
     a, b = saved
-    # create_graph: differentiable ops, which small batches take too (fewer calls)
-    if torch.is_grad_enabled() or _small.matrix_form(g, g.shape[:-1].numel()):
+    if torch.is_grad_enabled():  # create_graph: differentiable ops
         da, db = _multiply(g, _conjugate(b)), _multiply(_conjugate(a), g)
+    elif _small.matrix_form(g, g.shape[:-1].numel()):
+        da, db = _small.multiply_backward(a, b, g)
     else:
         da, db = _multiply_grads(a, b, g)
     return da.sum_to_size(a.shape), db.sum_to_size(b.shape)
