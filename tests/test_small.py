@@ -308,3 +308,58 @@ def test_backward_forms_taken_only_where_meant(monkeypatch):
             leaf = x.clone().requires_grad_()
             torch.autograd.grad(fn(leaf).sum(), leaf, create_graph=create_graph)
         assert {k: calls[k] for k in BACKWARD_FORMS} == dict.fromkeys(BACKWARD_FORMS, taken)
+
+
+def _group_ops(dtype):
+    """(name, op, inputs) of the ops with a small-batch path: matrix forms or batched products."""
+    g = torch.Generator().manual_seed(17)
+    w = torch.randn(7, 3, generator=g, dtype=dtype)
+    xi = torch.randn(7, 6, generator=g, dtype=dtype)
+    p = torch.randn(7, 3, generator=g, dtype=dtype)
+    q, R, T, T2 = quaternion.from_rotvec(w), so3.exp(w), se3.exp(xi), se3.exp(xi.flip(0))
+    return [
+        ("so3.exp", so3.exp, (w,)),
+        ("so3.log", so3.log, (R,)),
+        ("so3.act", so3.act, (R, p)),
+        ("quaternion.multiply", quaternion.multiply, (q, q.flip(0))),
+        ("quaternion.apply", quaternion.apply, (q, p)),
+        ("quaternion.to_matrix", quaternion.to_matrix, (q,)),
+        ("quaternion.from_matrix", quaternion.from_matrix, (R,)),
+        ("se3.exp", se3.exp, (xi,)),
+        ("se3.log", se3.log, (T,)),
+        ("se3.compose", se3.compose, (T, T2)),
+        ("se3.inverse", se3.inverse, (T,)),
+        ("se3.act", se3.act, (T, p)),
+    ]
+
+
+def _with_upstream(fn, args, gy):
+    """``fn(*args)`` and its gradients for the upstream gradient ``gy`` (reshaped to it)."""
+    leaves = [a.clone().requires_grad_() for a in args]
+    y = fn(*leaves)
+    return y.detach(), torch.autograd.grad(y, leaves, gy.reshape(y.shape))
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_an_element_alone_and_in_a_batch(dtype):
+    """Each element's value and gradients are the same, bit for bit, alone (no batch dim), in a
+    batch of one, in the whole batch and in a batch of two dims, and with the other operand
+    shared (broadcast): small batches never hand their products to a kernel that sums in
+    another order."""
+    for name, fn, args in _group_ops(dtype):
+        y0 = fn(*args)
+        gy = torch.randn(y0.shape, generator=torch.Generator().manual_seed(18), dtype=dtype)
+        y, grads = _with_upstream(fn, args, gy)
+        y2, grads2 = _with_upstream(fn, [a.unflatten(0, (7, 1)) for a in args], gy)
+        assert torch.equal(y2.flatten(0, 1), y), name
+        assert all(torch.equal(a.flatten(0, 1), b) for a, b in zip(grads2, grads, strict=True))
+        for i in range(7):
+            for part in ([a[i] for a in args], [a[i : i + 1] for a in args]):
+                one, one_grads = _with_upstream(fn, part, gy[i])
+                assert torch.equal(one.reshape(y[i].shape), y[i]), (name, i)
+                for a, b in zip(one_grads, grads, strict=True):
+                    assert torch.equal(a.reshape(b[i].shape), b[i]), (name, i)
+            if len(args) == 2:  # the second operand shared by the batch
+                shared, (d_first, _) = _with_upstream(fn, (args[0], args[1][i]), gy)
+                alone, (d_alone, _) = _with_upstream(fn, (args[0][3], args[1][i]), gy[3])
+                assert torch.equal(shared[3], alone) and torch.equal(d_first[3], d_alone), name

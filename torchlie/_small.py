@@ -64,6 +64,24 @@ def matrix_form(x: Tensor, rows: int) -> bool:
     return rows < MATRIX_ROWS and _layout.eager_cpu(x)
 
 
+def matmul(A: Tensor, B: Tensor) -> Tensor:
+    """``A @ B`` (batch shapes broadcast); on small eager CPU batches as one batched product of
+    operands expanded to the broadcast batch, whatever their shapes: torch's batched product of
+    small matrices is a plain loop per element, so that each element's result is the same in
+    any batch (``torch.matmul`` hands a product of 2-D operands, or of a batch with one shared
+    matrix, to the BLAS as one matrix product, which may sum in another order)."""
+    if A.dim() == 3 and B.dim() == 3 and A.shape[0] == B.shape[0]:
+        return torch.bmm(A, B)
+    batch = _layout.broadcast(A.shape[:-2], B.shape[:-2])
+    if not matrix_form(A, batch.numel()):
+        return torch.matmul(A, B)
+    a, b = A.expand(batch + A.shape[-2:]), B.expand(batch + B.shape[-2:])
+    if len(batch) == 1:  # a batch dimension of stride 0 is one bmm takes as it is
+        return torch.bmm(a, b)
+    a, b = a.reshape((-1,) + A.shape[-2:]), b.reshape((-1,) + B.shape[-2:])
+    return torch.bmm(a, b).view(batch + (A.shape[-2], B.shape[-1]))
+
+
 def _hamilton_forms() -> Tensor:
     """``(16, 4)``: the products ``a_j b_k`` (row ``4 j + k``) to the components of the Hamilton
     product ``a b``."""

@@ -335,7 +335,7 @@ def _entry_by_entry(T: Tensor) -> bool:
 def _compose_fwd(A: Tensor, B: Tensor, *, dest: Tensor | None = None) -> Tensor:
     if _entry_by_entry(A):
         return _compose_entries(A, B, dest)
-    top = torch.matmul(A[..., :3, :3], B[..., :3, :])  # [R1 R2, R1 t2]
+    top = _small.matmul(A[..., :3, :3], B[..., :3, :])  # [R1 R2, R1 t2]
     top.select(-1, 3).add_(A[..., :3, 3])
     return _with_last_row(top)
 
@@ -346,9 +346,9 @@ def _compose_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor, Tensor]:
         dA, dB = _compose_grads(A, B, G)
         return dA.sum_to_size(A.shape), dB.sum_to_size(B.shape)
     G3 = G[..., :3, :]
-    dR1 = torch.matmul(G3, B[..., :3, :].transpose(-1, -2))  # G_R R2^T + g t2^T
+    dR1 = _small.matmul(G3, B[..., :3, :].transpose(-1, -2))  # G_R R2^T + g t2^T
     dA = _pad_row(torch.cat((dR1, G3[..., 3:]), dim=-1))
-    dB = _pad_row(torch.matmul(A[..., :3, :3].transpose(-1, -2), G3))
+    dB = _pad_row(_small.matmul(A[..., :3, :3].transpose(-1, -2), G3))
     return dA.sum_to_size(A.shape), dB.sum_to_size(B.shape)
 
 
@@ -412,7 +412,7 @@ def _inverse_fwd(T: Tensor, *, dest: Tensor | None = None) -> Tensor:
     if _entry_by_entry(T):
         return _inverse_entries(T, dest)
     Rt = T[..., :3, :3].transpose(-1, -2)
-    return _with_last_row(torch.cat((Rt, torch.matmul(Rt, T[..., :3, 3:]).neg_()), dim=-1))
+    return _with_last_row(torch.cat((Rt, _small.matmul(Rt, T[..., :3, 3:]).neg_()), dim=-1))
 
 
 def _inverse_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor]:
@@ -422,7 +422,7 @@ def _inverse_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor]:
         return (_inverse_grad(T, G),)
     h = -G[..., :3, 3:]
     dR = torch.addcmul(G[..., :3, :3].transpose(-1, -2), T[..., :3, 3:], h.transpose(-1, -2))
-    dt = torch.matmul(T[..., :3, :3], h)
+    dt = _small.matmul(T[..., :3, :3], h)
     return (_pad_row(torch.cat((dR, dt), dim=-1)),)
 
 
@@ -465,7 +465,7 @@ def _homogeneous(p: Tensor) -> Tensor:
 
 
 def _act_fwd(T: Tensor, p: Tensor) -> Tensor:
-    return torch.matmul(T[..., :3, :], _homogeneous(p).unsqueeze(-1)).squeeze(-1)
+    return _small.matmul(T[..., :3, :], _homogeneous(p).unsqueeze(-1)).squeeze(-1)
 
 
 def _act_bwd(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]:
@@ -475,7 +475,7 @@ def _act_bwd(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]:
         dT, dp = _act_grads(T, p, g)
         return dT.sum_to_size(T.shape), dp.sum_to_size(p.shape)
     dT = _pad_row(g.unsqueeze(-1) * _homogeneous(p).unsqueeze(-2))
-    dp = torch.matmul(T[..., :3, :3].transpose(-1, -2), g.unsqueeze(-1)).squeeze(-1)
+    dp = _small.matmul(T[..., :3, :3].transpose(-1, -2), g.unsqueeze(-1)).squeeze(-1)
     return dT.sum_to_size(T.shape), dp.sum_to_size(p.shape)
 
 

@@ -408,7 +408,7 @@ def act(R: Float[Tensor, "*b1 3 3"], points: Float[Tensor, "*b2 3"]) -> Float[Te
 
 def _mv(M: Tensor, v: Tensor) -> Tensor:
     """``M @ v`` for a batch of matrices and vectors (batch shapes broadcast)."""
-    return (M @ v.unsqueeze(-1)).squeeze(-1)
+    return _small.matmul(M, v.unsqueeze(-1)).squeeze(-1)
 
 
 def _act_grad_components(
