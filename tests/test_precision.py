@@ -80,7 +80,7 @@ def _sign_free_near_pi(out, expected, theta, nd):
 
 def _in_rows(fn, x: torch.Tensor, rows: int | None) -> torch.Tensor:
     """``fn(x)`` over the whole sample set, or in batches of ``rows`` (small batches take the
-    small-batch forms of torchlie._small)."""
+    matrix forms of torchlie._small)."""
     return fn(x) if rows is None else torch.cat([fn(part) for part in x.split(rows)])
 
 

@@ -70,8 +70,8 @@ def _eye(dtype: torch.dtype, n: int) -> Tensor:
 
 def eager_cpu(x: Tensor) -> bool:
     """Whether ``x`` is on CPU and the op runs in eager mode outside ``torch.func`` transforms:
-    where the CPU-specific eager kernels (blocks, transpositions by product, the large- and
-    small-batch forms) apply."""
+    where the CPU-specific eager kernels (blocks, transpositions by product, the large-batch
+    kernels and the matrix forms of small batches) apply."""
     return x.device.type == "cpu" and not (_is_compiling() or _transforms_active())
 
 
