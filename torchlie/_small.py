@@ -11,25 +11,31 @@ which are not the component-wise operations:
   matrix product;
 * ``quaternion.to_matrix`` as the products ``q q^T`` mapped to the nine entries of ``|q|^2 R``
   and to ``|q|^2`` by one matrix product;
-* float32 ``so3.exp`` (with it the rotation block of float32 ``se3.exp``) as the matrix of the
-  unit quaternion ``(cos(t/2), sin(t/2) w / t)``, in float64;
+* float32 ``so3.exp`` as the matrix of the unit quaternion ``(cos(t/2), sin(t/2) w / t)``, in
+  float64, and float32 ``se3.exp`` whole (``Jl(phi) rho`` in float64 too);
 * Shepperd's method (``quaternion.from_matrix``, ``so3.log``, ``se3.log``): the
   orthogonalisation step as two products of ``3 x 3`` matrices, the four candidates and their
   pivots ``4 q_k^2`` as one product of the nine entries with a constant ``(9, 20)`` map, the
-  candidate by ``argmax`` and ``gather``; float32 input evaluated in float64.
+  candidate by ``argmax`` and ``gather``; float32 input evaluated in float64;
+* the plain backward passes (no ``create_graph``) of ``quaternion.multiply`` (two products with
+  constant maps), ``quaternion.to_matrix``, ``so3.exp``, ``so3.log``, ``se3.exp`` and
+  ``se3.log`` (whole ``(rows, 3)`` vectors: ``Jl``, ``Jl^-1`` and ``Q(rho, phi)`` applied by
+  their coefficients), float32 in float64; the other ops' backwards are a few whole-tensor
+  calls already (``quaternion.apply`` and ``quaternion.from_matrix`` take their differentiable
+  formulas on small batches).
 
 They agree with the component-wise kernels to a few ulp, not bit for bit: float32 ``so3.exp``,
 ``quaternion.to_matrix``, ``quaternion.from_matrix`` and ``so3.log`` are evaluated in float64
 and rounded once (within 0.34, 0.32, 0.36 and 0.41 eps of the 60-digit references, against
 0.92, 1.17, 1.06 and 1.29 for the component kernels), float64 ``quaternion.to_matrix`` and
-``quaternion.from_matrix`` within 1.21 and 1.23 eps (1.24, 1.15).  Each element's result is the
-same whatever batch below :data:`MATRIX_ROWS` it is in (tested): the batched products of
-``3 x 3`` matrices are plain loops, element by element, and every other product is one with a
-constant map, each row summed alike whatever the number of rows (``addmm``, which adds the
-constant inside the sum, does not, nor does a product of one element's ``(4, 4)`` and
-``(4, 1)`` matrices against the batched one).  float64
-``so3.exp`` keeps its compensated kernel (:mod:`torchlie._compensated`), which a plain formula
-in float64 cannot match.  The backwards are the ops' own closed forms at every size.
+``quaternion.from_matrix`` within 1.21 and 1.23 eps (1.24, 1.15).  Each element's value and
+gradient is the same whatever batch below :data:`MATRIX_ROWS` it is in (tested): the batched
+products of small matrices are plain loops, element by element, and every other product is one
+with a constant map, each row summed alike whatever the number of rows (``addmm``, which adds
+the constant inside the sum, does not, nor does ``torch.matmul`` of 2-D operands or of a batch
+with a shared operand, which goes to the BLAS as one matrix product: :func:`matmul` keeps the
+batched kernel for the group ops).  float64 ``so3.exp`` keeps its compensated kernel
+(:mod:`torchlie._compensated`), which a plain formula in float64 cannot match.
 
 Taken on CPU tensors, in eager mode outside ``torch.func`` transforms (``torch.compile`` fuses
 the component-wise form into one loop, which is faster at every size).
