@@ -161,6 +161,11 @@ def multiply(a: Tensor, b: Tensor) -> Tensor:
     return torch.matmul(_outer(a, b), _constant("multiply", a.dtype))
 
 
+def _compute(x: Tensor) -> Tensor:
+    """``x`` in the dtype the forms compute in: float64 for float32 (rounded once at the end)."""
+    return x.double() if x.dtype == torch.float32 else x
+
+
 def to_matrix(q: Tensor) -> Tensor:
     """Rotation matrix of ``q / |q|``: ``q q^T`` mapped to the entries of ``|q|^2 R`` and to
     ``|q|^2`` by one product, then one division (float32 input evaluated in float64)."""
@@ -248,11 +253,6 @@ _SOURCES["shepperd_bias"] = lambda: _shepperd_map()[0]
 _SOURCES["shepperd"] = lambda: _shepperd_map()[1:]
 
 
-def _compute(x: Tensor) -> Tensor:
-    """``x`` in the dtype of the Shepperd forms: float64 for float32."""
-    return x.double() if x.dtype == torch.float32 else x
-
-
 def shepperd(M: Tensor) -> Tensor:
     """``(rows, 4)``: Shepperd's candidate of the largest ``d_k`` (the first on ties), ``c``
     proportional to the quaternion of each ``(rows, 3, 3)`` matrix, after the orthogonalisation
@@ -269,14 +269,14 @@ def shepperd(M: Tensor) -> Tensor:
 
 
 def _rows(x: Tensor, event: tuple[int, ...]) -> Tensor:
-    """``x`` as ``(rows, *event)``."""
-    return x if x.dim() == len(event) + 1 else x.reshape((-1,) + event)
+    """``x`` as ``(rows, *event)``, in the dtype the forms compute in (:func:`_compute`)."""
+    return _compute(x if x.dim() == len(event) + 1 else x.reshape((-1,) + event))
 
 
-def _batch(y: Tensor, x: Tensor, dims: int, dtype: torch.dtype) -> Tensor:
-    """``(rows, k)`` result ``y`` in ``dtype`` with the batch shape of ``x`` (``dims`` trailing
-    dimensions of ``x`` are not batch)."""
-    y = y.float() if dtype == torch.float32 else y.to(dtype)
+def _result(y: Tensor, x: Tensor, dims: int) -> Tensor:
+    """The ``(rows, ...)`` result ``y`` in the dtype of ``x`` and with its batch shape (``dims``
+    trailing dimensions of ``x`` are not batch)."""
+    y = y.float() if x.dtype == torch.float32 else y.to(x.dtype)
     return y if x.dim() == dims + 1 else y.view(x.shape[: x.dim() - dims] + y.shape[1:])
 
 
@@ -288,8 +288,8 @@ def _signed(c: Tensor, x: Tensor) -> Tensor:
 
 def from_matrix(R: Tensor) -> Tensor:
     """Canonical unit quaternion of each matrix: Shepperd's candidate, normalised and signed."""
-    c = shepperd(_compute(_rows(R, (3, 3))))
-    return _batch(c / _signed(c, torch.linalg.vector_norm(c, dim=-1, keepdim=True)), R, 2, R.dtype)
+    c = shepperd(_rows(R, (3, 3)))
+    return _result(c / _signed(c, torch.linalg.vector_norm(c, dim=-1, keepdim=True)), R, 2)
 
 
 def _log_of_candidate(c: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -307,8 +307,8 @@ def _log_of_candidate(c: Tensor) -> tuple[Tensor, Tensor, Tensor]:
 
 def log(R: Tensor) -> Tensor:
     """Rotation vector of each matrix (:func:`torchlie.so3.log`)."""
-    phi, _, _ = _log_of_candidate(shepperd(_compute(_rows(R, (3, 3)))))
-    return _batch(phi, R, 2, R.dtype)
+    phi, _, _ = _log_of_candidate(shepperd(_rows(R, (3, 3))))
+    return _result(phi, R, 2)
 
 
 def se3_log(T: Tensor) -> Tensor:
@@ -317,13 +317,13 @@ def se3_log(T: Tensor) -> Tensor:
     ``e = (theta/2) cot(theta/2)`` (from the candidate: ``|c_w| / |c_v|`` times half the angle)
     and ``D = (1 - e) / theta^2``, whose absolute error of about ``eps / theta^2`` is that of
     :func:`torchlie._coeffs.jl_inv_values` (``D`` enters only ``D (phi . t) phi``)."""
-    M = _compute(_rows(T, (4, 4)))
+    M = _rows(T, (4, 4))
     t = M[:, :3, 3]
     phi, theta, ratio = _log_of_candidate(shepperd(M[:, :3, :3]))
     e = ratio.mul_(theta).mul_(0.5)
     d = torch.rsub(e, 1.0).div_(theta.square_().clamp_min_(_H_MIN))
     rho = _jl(phi, t, e, -0.5, d)
-    return _batch(torch.cat((rho, phi), -1), T, 2, T.dtype)
+    return _result(torch.cat((rho, phi), -1), T, 2)
 
 
 def _jl(w: Tensor, v: Tensor, a: Tensor, b: Tensor | float | None, c: Tensor) -> Tensor:
@@ -377,16 +377,11 @@ def _r_hat(R: Tensor, u: Tensor) -> Tensor:
     return torch.linalg.cross(R, u.unsqueeze(1).expand_as(R))
 
 
-def _result(y: Tensor, like: Tensor) -> Tensor:
-    """``y`` in the dtype and shape of ``like``."""
-    return y.to(like.dtype).view(like.shape)
-
-
 def exp_backward(w: Tensor, R: Tensor, G: Tensor) -> Tensor:
     """Gradient of :func:`torchlie.so3.exp`: ``Jl(w) vee(R^T G - G^T R)`` (float32 in float64)."""
-    M, g = _compute(_rows(R, (3, 3))), _compute(_rows(G, (3, 3)))
+    M, g = _rows(R, (3, 3)), _rows(G, (3, 3))
     v = _rows(w, (3,))
-    return _result(_jl(_compute(v), _vee_rt_g(M, g), *_jl_coefficients(*_half_angle(v))), w)
+    return _result(_jl(v, _vee_rt_g(M, g), *_jl_coefficients(*_half_angle(v))), w, 1)
 
 
 def log_backward(R: Tensor, w: Tensor, g: Tensor) -> Tensor:
@@ -394,17 +389,17 @@ def log_backward(R: Tensor, w: Tensor, g: Tensor) -> Tensor:
     hat(w) / 2 + D w w^T`` with ``e = h cot h`` and ``D = (1 - e) / t^2`` (float32 in float64)."""
     v = _rows(w, (3,))
     e, d = _jl_inv_coefficients(v)
-    u = _jl(_compute(v), _compute(_rows(g, (3,))).mul(0.5), e, -0.5, d)
-    return _result(_r_hat(_compute(_rows(R, (3, 3))), u), R)
+    u = _jl(v, _rows(g, (3,)).mul(0.5), e, -0.5, d)
+    return _result(_r_hat(_rows(R, (3, 3)), u), R, 2)
 
 
 def to_matrix_backward(q: Tensor, R: Tensor, G: Tensor) -> Tensor:
     """Gradient of :func:`torchlie.quaternion.to_matrix`: ``2 q (0, a) / |q|^2`` with
     ``a = vee(R^T G - G^T R)`` (float32 in float64)."""
-    v = _compute(_rows(q, (4,)))
-    a = _vee_rt_g(_compute(_rows(R, (3, 3))), _compute(_rows(G, (3, 3))))
+    v = _rows(q, (4,))
+    a = _vee_rt_g(_rows(R, (3, 3)), _rows(G, (3, 3)))
     out = torch.mm(_outer(v, a), _constant("pure", v.dtype)).mul_(2.0)
-    return _result(out.div_((v * v).sum(-1, keepdim=True)), q)
+    return _result(out.div_((v * v).sum(-1, keepdim=True)), q, 1)
 
 
 def _jl_coefficients(h: Tensor, s: Tensor, cos_h: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -444,7 +439,7 @@ def se3_exp_backward(xi: Tensor, T: Tensor, G: Tensor) -> Tensor:
     """Gradient of :func:`torchlie.se3.exp`: ``g_rho = Jr(phi) g_t`` and ``g_phi = Jl(phi) u +
     Jr(phi) (t x g_t) + Q(-rho, -phi) g_t`` with ``u = vee(R^T G_R - G_R^T R)`` (float32 in
     float64)."""
-    x, M, g = (_compute(_rows(y, e)) for y, e in ((xi, (6,)), (T, (4, 4)), (G, (4, 4))))
+    x, M, g = (_rows(y, e) for y, e in ((xi, (6,)), (T, (4, 4)), (G, (4, 4))))
     rho, phi = x[:, :3], x[:, 3:]
     g_t = g[:, :3, 3]
     a, b, c = _jl_coefficients(*_half_angle(phi))
@@ -454,14 +449,14 @@ def se3_exp_backward(xi: Tensor, T: Tensor, G: Tensor) -> Tensor:
     w = torch.linalg.cross(M[:, :3, 3], g_t)
     g_phi = _jl(phi, u + w, a, None, c).addcmul_(b, torch.linalg.cross(phi, u - w))
     g_phi += _q(-rho, -phi, g_t, xi.dtype)
-    return _result(torch.cat((g_rho, g_phi), -1), xi)
+    return _result(torch.cat((g_rho, g_phi), -1), xi, 1)
 
 
 def se3_log_backward(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
     """Gradient of :func:`torchlie.se3.log`: ``G_t = R h_rho`` and ``G_R = R hat(u)`` with
     ``h_rho = Jl(phi)^-1 g_rho`` and ``u = Jl(phi)^-1 (g_phi - Q(rho, phi) h_rho) / 2``, the
     bottom row 0 (float32 in float64)."""
-    M, x, gg = (_compute(_rows(y, e)) for y, e in ((T, (4, 4)), (xi, (6,)), (g, (6,))))
+    M, x, gg = (_rows(y, e) for y, e in ((T, (4, 4)), (xi, (6,)), (g, (6,))))
     rho, phi = x[:, :3], x[:, 3:]
     e, d = _jl_inv_coefficients(phi)
     h_rho = _jl(phi, gg[:, :3], e, -0.5, d)
@@ -469,7 +464,7 @@ def se3_log_backward(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
     R = M[:, :3, :3]
     top = torch.cat((_r_hat(R, _jl(phi, v, e, -0.5, d)), torch.bmm(R, h_rho.unsqueeze(-1))), -1)
     zeros = _constant("zero_row", M.dtype).expand(M.shape[0], 1, 4)
-    return _result(torch.cat((top, zeros), -2), T)
+    return _result(torch.cat((top, zeros), -2), T, 2)
 
 
 def multiply_backward(a: Tensor, b: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
