@@ -13,10 +13,15 @@ from torchlie import _layout, _small, quaternion, se3, so3
 DTYPES = [torch.float32, torch.float64]
 
 
-def _values_and_grads(fn, *xs):
+def _values_and_grads(fn, *xs, upstream=None):
+    """``fn(*xs)`` and its gradients for the upstream gradient ``upstream`` (reshaped to the
+    result; a seeded normal draw without it)."""
     leaves = [x.clone().requires_grad_() for x in xs]
     y = fn(*leaves)
-    g = torch.randn(y.shape, generator=torch.Generator().manual_seed(8), dtype=y.dtype)
+    if upstream is None:
+        g = torch.randn(y.shape, generator=torch.Generator().manual_seed(8), dtype=y.dtype)
+    else:
+        g = upstream.reshape(y.shape)
     return y.detach(), torch.autograd.grad(y, leaves, g)
 
 
@@ -333,13 +338,6 @@ def _group_ops(dtype):
     ]
 
 
-def _with_upstream(fn, args, gy):
-    """``fn(*args)`` and its gradients for the upstream gradient ``gy`` (reshaped to it)."""
-    leaves = [a.clone().requires_grad_() for a in args]
-    y = fn(*leaves)
-    return y.detach(), torch.autograd.grad(y, leaves, gy.reshape(y.shape))
-
-
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_an_element_alone_and_in_a_batch(dtype):
     """Each element's value and gradients are the same, bit for bit, alone (no batch dim), in a
@@ -349,17 +347,17 @@ def test_an_element_alone_and_in_a_batch(dtype):
     for name, fn, args in _group_ops(dtype):
         y0 = fn(*args)
         gy = torch.randn(y0.shape, generator=torch.Generator().manual_seed(18), dtype=dtype)
-        y, grads = _with_upstream(fn, args, gy)
-        y2, grads2 = _with_upstream(fn, [a.unflatten(0, (7, 1)) for a in args], gy)
+        y, grads = _values_and_grads(fn, *args, upstream=gy)
+        y2, grads2 = _values_and_grads(fn, *(a.unflatten(0, (7, 1)) for a in args), upstream=gy)
         assert torch.equal(y2.flatten(0, 1), y), name
         assert all(torch.equal(a.flatten(0, 1), b) for a, b in zip(grads2, grads, strict=True))
         for i in range(7):
             for part in ([a[i] for a in args], [a[i : i + 1] for a in args]):
-                one, one_grads = _with_upstream(fn, part, gy[i])
+                one, one_grads = _values_and_grads(fn, *part, upstream=gy[i])
                 assert torch.equal(one.reshape(y[i].shape), y[i]), (name, i)
                 for a, b in zip(one_grads, grads, strict=True):
                     assert torch.equal(a.reshape(b[i].shape), b[i]), (name, i)
             if len(args) == 2:  # the second operand shared by the batch
-                shared, (d_first, _) = _with_upstream(fn, (args[0], args[1][i]), gy)
-                alone, (d_alone, _) = _with_upstream(fn, (args[0][3], args[1][i]), gy[3])
+                shared, (d_first, _) = _values_and_grads(fn, args[0], args[1][i], upstream=gy)
+                alone, (d_alone, _) = _values_and_grads(fn, args[0][3], args[1][i], upstream=gy[3])
                 assert torch.equal(shared[3], alone) and torch.equal(d_first[3], d_alone), name

@@ -420,13 +420,12 @@ def _jl_inv_coefficients(phi: Tensor) -> tuple[Tensor, Tensor]:
 
 def _q(rho: Tensor, phi: Tensor, v: Tensor, dtype: torch.dtype) -> Tensor:
     """``Q(rho, phi) v``, the top-right block of the SE(3) left Jacobian, of ``(rows, 3)``
-    vectors (``dtype``: the input's, which picks the coefficients' series as
-    ``torchlie.se3._q_values`` does).  With ``a = phi x v``, ``b = phi x a`` and
+    vectors (``dtype``: the input's, which picks the coefficients' series, see
+    :func:`torchlie._coeffs.q_plain`).  With ``a = phi x v``, ``b = phi x a`` and
     ``r(x) = rho x x``: ``r(v)/2 + c1 r(a) + c2 r(b) + phi x (c1 r(v) + (c1 - 3 c2) r(a) +
     c3 r(b) + phi x (c2 r(v) + c3 r(a)))``."""
     t2 = (phi * phi).sum(-1, keepdim=True)
-    series = _coeffs.q_values if dtype == torch.float32 else _coeffs.q_series
-    c1, c2, c3 = series(t2)
+    c1, c2, c3 = _coeffs.q_plain(t2, dtype)
     cross = torch.linalg.cross
     a = cross(phi, v)
     rv, ra, rb = cross(rho, v), cross(rho, a), cross(rho, cross(phi, a))

@@ -130,10 +130,8 @@ def _q_of_t2(t2: Tensor, dtype: torch.dtype) -> tuple[Tensor, Tensor, Tensor]:
 def _q_values(xyz: Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
     """:func:`_q_coeffs` from the components of ``phi``, forward-only (the plain backward
     passes): for float32, :func:`_coeffs.q_values` (a third of the operations)."""
-    t2, dtype = _coeffs.theta2(xyz), xyz[0].dtype
-    if dtype != torch.float32:
-        return _q_of_t2(t2, dtype)
-    c1, c2, c3 = _coeffs.q_values(t2)
+    dtype = xyz[0].dtype
+    c1, c2, c3 = _coeffs.q_plain(_coeffs.theta2(xyz), dtype)
     return c1.to(dtype), c2.to(dtype), c3.to(dtype)
 
 
