@@ -6,7 +6,7 @@ import pytest
 import torch
 from samplers import rotvecs
 
-from torchlie import _autograd, _layout, conversions, quaternion, se3, so3
+from torchlie import _autograd, _layout, _rows, conversions, quaternion, se3, so3
 
 DTYPES = [torch.float32, torch.float64]
 DEFAULT_MIN_ROWS = _layout.MIN_ROWS
@@ -141,9 +141,10 @@ def test_ops_equal_with_copies_only(dtype, monkeypatch):
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
-def test_entry_by_entry_kernels_equal_the_matmuls(dtype, monkeypatch):
-    """The ops that switch to entry-by-entry kernels on large CPU batches agree with their
-    batched-matmul (and cross-product) forms."""
+def test_large_batch_kernels_of_the_group_ops_equal_the_matmuls(dtype, monkeypatch):
+    """The ops that switch to other kernels on large CPU batches (torchlie._rows for the group
+    ops, entry by entry for quaternion.apply) agree with their batched-matmul (and
+    cross-product) forms."""
     g = torch.Generator().manual_seed(6)
     xi = torch.randn(3, 400, 6, generator=g, dtype=dtype)
     T, p = se3.exp(xi), torch.randn(3, 400, 3, generator=g, dtype=dtype)
@@ -159,13 +160,27 @@ def test_entry_by_entry_kernels_equal_the_matmuls(dtype, monkeypatch):
         (quaternion.apply, (q, p)),
         (quaternion.apply, (q[0, 0], p)),
     ]
-    assert se3._entry_by_entry(T)
-    entries = _values_and_grads(cases)
+    calls = []
+    for name in ("act", "act_grads", "compose", "compose_grads", "inverse", "inverse_grads"):
+        kernel = getattr(_rows, name)
+
+        def spy(*args, _name=name, _kernel=kernel):
+            calls.append(_name)
+            return _kernel(*args)
+
+        monkeypatch.setattr(_rows, name, spy)
+    large = _values_and_grads(cases)
+    # every group op's forward and backward (pose_act_grads goes through act_grads)
+    assert sorted(set(calls)) == sorted(
+        ["act", "act_grads", "compose", "compose_grads", "inverse", "inverse_grads"]
+    )
+    assert calls.count("act") == 4 and calls.count("compose") == 2
     monkeypatch.setattr(_layout, "MIN_ROWS", 10**12)
-    assert not se3._entry_by_entry(T)
+    calls.clear()
     matmuls = _values_and_grads(cases)
+    assert not calls
     eps = torch.finfo(dtype).eps
-    for (name, y1, g1), (_, y2, g2) in zip(entries, matmuls, strict=True):
+    for (name, y1, g1), (_, y2, g2) in zip(large, matmuls, strict=True):
         # rounding differs: a few eps of the largest input scale (|p| up to ~4 here)
         scale = 4 * eps * y2.abs().max()
         torch.testing.assert_close(y1, y2, rtol=0, atol=scale, msg=name)

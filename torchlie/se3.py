@@ -33,7 +33,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, _compensated, _layout, _small, so3
+from . import _checks, _coeffs, _compensated, _layout, _rows, _small, so3
 from . import quaternion as _quat
 from ._autograd import _blocked, custom_function
 from ._typing import Bool, Float
@@ -221,10 +221,12 @@ def _between(A: Tensor, B: Tensor) -> Tensor:
 # ----------------------------------------------------------------------------------------------
 # compose / inverse / act kernels (private)
 #
-# Each op is one forward that allocates its result once (a tiny batched matmul for the 3x3 and
-# 3x4 products, a few strided writes; entry by entry where that is faster, see
-# `_entry_by_entry`) and a custom backward in the same style: autograd's own graph of the
-# slices, matmuls and concatenations costs about twice as many passes over memory.
+# Each op is one forward that allocates its result once and a custom backward in the same
+# style (autograd's own graph of the slices, matmuls and concatenations costs about twice as
+# many passes over memory): a tiny batched matmul for the 3x3 and 3x4 products and a few
+# strided writes; on large eager CPU batches the kernels of `torchlie._rows`; while compiling,
+# entry by entry (one fused loop, where the batched matmul is a library call of its own with
+# a copy on each side).
 # ----------------------------------------------------------------------------------------------
 
 
@@ -293,11 +295,10 @@ def _stack_rows(
     return _stack_top(rows, 0.0, out, dest)
 
 
-def _compose_entries(A: Tensor, B: Tensor, dest: Tensor | None = None) -> Tensor:
-    """:func:`_compose_fwd` entry by entry: one fused loop when compiled, where the batched
-    matmul is a library call of its own with a copy on each side."""
+def _compose_entries(A: Tensor, B: Tensor) -> Tensor:
+    """:func:`_compose_fwd` entry by entry (the compiled path)."""
     a, b = _top_entries(A), _top_entries(B)
-    o, top = _top_outputs((a[0][0], b[0][0]), dest=dest)  # batches may broadcast
+    o, top = _top_outputs((a[0][0], b[0][0]))  # batches may broadcast
     rows = []
     for ai, oi in zip(a, top, strict=True):
         row = [
@@ -306,33 +307,26 @@ def _compose_entries(A: Tensor, B: Tensor, dest: Tensor | None = None) -> Tensor
         ]
         t = torch.addcmul(torch.addcmul(ai[0] * b[0][3], ai[1], b[1][3]), ai[2], b[2][3])
         rows.append([*row, torch.add(t, ai[3], out=oi[3])])
-    return _stack_top(rows, out=o, dest=dest)
+    return _stack_top(rows, out=o)
 
 
-def _inverse_entries(T: Tensor, dest: Tensor | None = None) -> Tensor:
-    """:func:`_inverse_fwd` entry by entry (for the compiled path, as :func:`_compose_entries`)."""
+def _inverse_entries(T: Tensor) -> Tensor:
+    """:func:`_inverse_fwd` entry by entry (the compiled path)."""
     r = _top_entries(T)
-    o, top = _top_outputs(r[0][0], dest=dest)
+    o, top = _top_outputs(r[0][0])
     rows = []
     for i in range(3):
         col = [r[0][i], r[1][i], r[2][i]]
         t = torch.addcmul(torch.addcmul(col[0] * r[0][3], col[1], r[1][3]), col[2], r[2][3])
         rows.append([*col, torch.neg(t, out=top[i][3])])
-    return _stack_top(rows, out=o, dest=dest)
+    return _stack_top(rows, out=o)
 
 
-def _entry_by_entry(T: Tensor) -> bool:
-    """Whether the ops of this section are written entry by entry rather than with a batched
-    matmul: while compiling (one fused loop) and where the eager planes are transposed by
-    matrix product (large CPU batches: measured float32, N = 10^6, one thread, forward
-    (backward) ns per element: compose 116-139 -> 88-98 (245-266 -> 153-166), inverse
-    110-117 -> 58-62 (158-166 -> 67-68))."""
-    return torch.compiler.is_compiling() or _layout.by_product(T, 2)
-
-
-def _compose_fwd(A: Tensor, B: Tensor, *, dest: Tensor | None = None) -> Tensor:
-    if _entry_by_entry(A):
-        return _compose_entries(A, B, dest)
+def _compose_fwd(A: Tensor, B: Tensor) -> Tensor:
+    if torch.compiler.is_compiling():
+        return _compose_entries(A, B)
+    if _rows.taken((A, B), max(A.numel(), B.numel()) // 16):
+        return _rows.compose(A, B)
     top = _small.matmul(A[..., :3, :3], B[..., :3, :])  # [R1 R2, R1 t2]
     top.select(-1, 3).add_(A[..., :3, 3])
     return _with_last_row(top)
@@ -340,26 +334,24 @@ def _compose_fwd(A: Tensor, B: Tensor, *, dest: Tensor | None = None) -> Tensor:
 
 def _compose_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor, Tensor]:
     A, B = saved
-    if _entry_by_entry(G):
-        dA, dB = _compose_grads(A, B, G)
-        return dA.sum_to_size(A.shape), dB.sum_to_size(B.shape)
-    G3 = G[..., :3, :]
-    dR1 = _small.matmul(G3, B[..., :3, :].transpose(-1, -2))  # G_R R2^T + g t2^T
-    dA = _pad_row(torch.cat((dR1, G3[..., 3:]), dim=-1))
-    dB = _pad_row(_small.matmul(A[..., :3, :3].transpose(-1, -2), G3))
+    if torch.compiler.is_compiling():
+        dA, dB = _compose_bwd_entries(A, B, G)
+    elif _rows.taken((A, B, G), G.numel() // 16):
+        dA, dB = _rows.compose_grads(A, B, G)
+    else:
+        G3 = G[..., :3, :]
+        dR1 = _small.matmul(G3, B[..., :3, :].transpose(-1, -2))  # G_R R2^T + g t2^T
+        dA = _pad_row(torch.cat((dR1, G3[..., 3:]), dim=-1))
+        dB = _pad_row(_small.matmul(A[..., :3, :3].transpose(-1, -2), G3))
     return dA.sum_to_size(A.shape), dB.sum_to_size(B.shape)
 
 
-def _compose_bwd_entries(
-    A: Tensor, B: Tensor, G: Tensor, *, dest: _layout.Dest2 = (None, None)
-) -> tuple[Tensor, Tensor]:
-    """:func:`_compose_bwd` entry by entry (for the compiled path, as :func:`_compose_entries`;
-    differentiable): ``dA_ij = sum_k G_ik B_jk`` (``j < 3``), ``dA_i3 = G_i3``,
-    ``dB_kj = sum_i A_ik G_ij``."""
+def _compose_bwd_entries(A: Tensor, B: Tensor, G: Tensor) -> tuple[Tensor, Tensor]:
+    """:func:`_compose_bwd` entry by entry (the compiled path; differentiable):
+    ``dA_ij = sum_k G_ik B_jk`` (``j < 3``), ``dA_i3 = G_i3``, ``dB_kj = sum_i A_ik G_ij``."""
     a, b, g = _top_entries(A), _top_entries(B), _top_entries(G)
-    da_dest, db_dest = dest
-    oa, top_a = _top_outputs(g[0][0], A, B, G, dest=da_dest)
-    ob, top_b = _top_outputs(g[0][0], A, B, G, dest=db_dest)
+    oa, top_a = _top_outputs(g[0][0], A, B, G)
+    ob, top_b = _top_outputs(g[0][0], A, B, G)
     da = [
         [
             torch.addcmul(
@@ -382,10 +374,7 @@ def _compose_bwd_entries(
         ]
         for k, ok in zip(range(3), top_b, strict=True)
     ]
-    return _stack_rows(da, oa, da_dest), _stack_rows(db, ob, db_dest)
-
-
-_compose_grads = _blocked(_compose_bwd_entries, (2, 2, 2))
+    return _stack_rows(da, oa), _stack_rows(db, ob)
 
 
 def _compose_jvp(saved: tuple[Tensor, ...], dA: Tensor, dB: Tensor) -> Tensor:
@@ -403,12 +392,15 @@ _ComposeFn = custom_function(
     backward=_compose_bwd,
     jvp=_compose_jvp,
     event_dims=(2, 2),
+    blocked=False,
 )
 
 
-def _inverse_fwd(T: Tensor, *, dest: Tensor | None = None) -> Tensor:
-    if _entry_by_entry(T):
-        return _inverse_entries(T, dest)
+def _inverse_fwd(T: Tensor) -> Tensor:
+    if torch.compiler.is_compiling():
+        return _inverse_entries(T)
+    if _rows.inverse_taken(T):
+        return _rows.inverse(T)
     Rt = T[..., :3, :3].transpose(-1, -2)
     return _with_last_row(torch.cat((Rt, _small.matmul(Rt, T[..., :3, 3:]).neg_()), dim=-1))
 
@@ -416,28 +408,27 @@ def _inverse_fwd(T: Tensor, *, dest: Tensor | None = None) -> Tensor:
 def _inverse_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor]:
     # out = [R^T, -R^T t]: dR = G_R^T - t g^T and dt = -R g (g = the translation column of G).
     (T,) = saved
-    if _entry_by_entry(G):
-        return (_inverse_grad(T, G),)
+    if torch.compiler.is_compiling():
+        return (_inverse_bwd_entries(T, G),)
+    if _rows.taken((T, G), G.numel() // 16):
+        return (_rows.inverse_grads(T, G),)
     h = -G[..., :3, 3:]
     dR = torch.addcmul(G[..., :3, :3].transpose(-1, -2), T[..., :3, 3:], h.transpose(-1, -2))
     dt = _small.matmul(T[..., :3, :3], h)
     return (_pad_row(torch.cat((dR, dt), dim=-1)),)
 
 
-def _inverse_bwd_entries(T: Tensor, G: Tensor, *, dest: Tensor | None = None) -> Tensor:
-    """:func:`_inverse_bwd` entry by entry (for the compiled path, as :func:`_compose_entries`;
-    differentiable): ``dR_ij = G_ji - t_i G_j3``, ``dt_i = -sum_j R_ij G_j3``."""
+def _inverse_bwd_entries(T: Tensor, G: Tensor) -> Tensor:
+    """:func:`_inverse_bwd` entry by entry (the compiled path; differentiable):
+    ``dR_ij = G_ji - t_i G_j3``, ``dt_i = -sum_j R_ij G_j3``."""
     r, g = _top_entries(T), _top_entries(G)
-    o, top = _top_outputs(g[0][0], T, G, dest=dest)
+    o, top = _top_outputs(g[0][0], T, G)
     rows = []
     for i, oi in zip(range(3), top, strict=True):
         dR = [torch.addcmul(g[j][i], r[i][3], g[j][3], value=-1.0, out=oi[j]) for j in range(3)]
         dt = torch.addcmul(torch.addcmul(r[i][0] * g[0][3], r[i][1], g[1][3]), r[i][2], g[2][3])
         rows.append([*dR, torch.neg(dt, out=oi[3])])
-    return _stack_rows(rows, o, dest)
-
-
-_inverse_grad = _blocked(_inverse_bwd_entries, (2, 2))
+    return _stack_rows(rows, o)
 
 
 def _inverse_jvp(saved: tuple[Tensor, ...], dT: Tensor) -> Tensor:
@@ -455,6 +446,7 @@ _InverseFn = custom_function(
     backward=_inverse_bwd,
     jvp=_inverse_jvp,
     event_dims=(2,),
+    blocked=False,
 )
 
 
@@ -463,37 +455,20 @@ def _homogeneous(p: Tensor) -> Tensor:
 
 
 def _act_fwd(T: Tensor, p: Tensor) -> Tensor:
+    if _rows.taken((T, p), max(T.numel() // 16, p.numel() // 3)):
+        return _rows.act(T[..., :3, :3], p, T[..., :3, 3])
     return _small.matmul(T[..., :3, :], _homogeneous(p).unsqueeze(-1)).squeeze(-1)
 
 
 def _act_bwd(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]:
     # out = [R, t] (p, 1): d[R, t] = g (p, 1)^T and dp = R^T g.
     T, p = saved
-    if _layout.by_product(g, 1):
-        dT, dp = _act_grads(T, p, g)
-        return dT.sum_to_size(T.shape), dp.sum_to_size(p.shape)
-    dT = _pad_row(g.unsqueeze(-1) * _homogeneous(p).unsqueeze(-2))
-    dp = _small.matmul(T[..., :3, :3].transpose(-1, -2), g.unsqueeze(-1)).squeeze(-1)
+    if _rows.taken((T, p, g), g.numel() // 3):
+        dT, dp = _rows.pose_act_grads(T, p, g)
+    else:
+        dT = _pad_row(g.unsqueeze(-1) * _homogeneous(p).unsqueeze(-2))
+        dp = _small.matmul(T[..., :3, :3].transpose(-1, -2), g.unsqueeze(-1)).squeeze(-1)
     return dT.sum_to_size(T.shape), dp.sum_to_size(p.shape)
-
-
-def _act_grads_block(
-    T: Tensor, p: Tensor, g: Tensor, *, dest: _layout.Dest2 = (None, None)
-) -> tuple[Tensor, Tensor]:
-    """:func:`_act_bwd` entry by entry (one block of rows; differentiable)."""
-    r, gc = _top_entries(T), _quat._planes(g, 3)
-    dT_dest, dp_dest = dest
-    o, top = _top_outputs(gc[0], T, p, g, dest=dT_dest)
-    out_p = _layout.outputs(gc[0], 3, T, p, g, dest=dp_dest)
-    R9 = [r[i][j] for i in range(3) for j in range(3)]
-    dR9, dp = so3._act_grad_components(
-        R9, _quat._planes(p, 3), gc, [e for row in top for e in row[:3]], out_p
-    )
-    dT = _stack_rows([(*dR9[3 * i : 3 * i + 3], gc[i]) for i in range(3)], o, dT_dest)
-    return dT, _layout.interleave(dp, out_p, dp_dest)
-
-
-_act_grads = _blocked(_act_grads_block, (2, 1, 1))
 
 
 def _act_jvp(saved: tuple[Tensor, ...], dT: Tensor, dp: Tensor) -> Tensor:
@@ -517,6 +492,7 @@ _ActFn = custom_function(
     backward=_act_bwd,
     jvp=_act_jvp,
     event_dims=(2, 1),
+    blocked=False,
 )
 
 

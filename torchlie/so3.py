@@ -17,12 +17,11 @@ Jacobians (``Jr(w)`` = ``jac_right``, ``Jl(w)`` = ``jac_left``)::
 from __future__ import annotations
 
 from collections.abc import Sequence
-from itertools import product
 
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, _compensated, _layout, _small
+from . import _checks, _coeffs, _compensated, _layout, _rows, _small
 from . import quaternion as _quat
 from ._autograd import _blocked, custom_function
 from ._typing import Bool, Float
@@ -411,48 +410,18 @@ def _mv(M: Tensor, v: Tensor) -> Tensor:
     return _small.matmul(M, v.unsqueeze(-1)).squeeze(-1)
 
 
-def _act_grad_components(
-    r: Sequence[Tensor],
-    p: Sequence[Tensor],
-    g: Sequence[Tensor],
-    out_r: Sequence[Tensor | None] = (None,) * 9,
-    out_p: Sequence[Tensor | None] = (None,) * 3,
-) -> tuple[list[Tensor], list[Tensor]]:
-    """The 9 entries of ``g p^T`` (row by row) and the 3 components of ``R^T g``, from the
-    components of ``R`` (row by row), ``p`` and ``g``: the backward of ``R p`` (written to
-    ``out_r`` and ``out_p``)."""
-    dR = [torch.mul(gi, pj, out=o) for (gi, pj), o in zip(product(g, p), out_r, strict=True)]
-    dp = [
-        torch.addcmul(torch.addcmul(r[j] * g[0], r[3 + j], g[1]), r[6 + j], g[2], out=out_p[j])
-        for j in range(3)
-    ]
-    return dR, dp
-
-
-def _act_grads_block(
-    R: Tensor, p: Tensor, g: Tensor, *, dest: _layout.Dest2 = (None, None)
-) -> tuple[Tensor, Tensor]:
-    """``(g p^T, R^T g)`` entry by entry (one block of rows; differentiable: the backward of
-    the backward)."""
-    planes, like = _quat._planes, g[..., 0]
-    dR_dest, dp_dest = dest
-    out_r = _layout.outputs(like, 9, R, p, g, dest=dR_dest)
-    out_p = _layout.outputs(like, 3, R, p, g, dest=dp_dest)
-    dR9, dp3 = _act_grad_components(planes(R, 9), planes(p, 3), planes(g, 3), out_r, out_p)
-    dR = _layout.interleave(dR9, out_r, dR_dest).unflatten(-1, (3, 3))
-    return dR, _layout.interleave(dp3, out_p, dp_dest)
-
-
-_act_grads = _blocked(_act_grads_block, (2, 1, 1))
+def _act_fwd(R: Tensor, p: Tensor) -> Tensor:
+    if _rows.taken((R, p), max(R.numel() // 9, p.numel() // 3)):
+        return _rows.act(R, p)
+    return _mv(R, p)
 
 
 def _act_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]:
-    """``dR = g p^T``, ``dp = R^T g``: entry by entry on large CPU batches (float32, N = 10^6,
-    one thread, forward+backward 100-140 ns per element with autograd's batched matmuls, 85-95
-    entry by entry), batched products elsewhere."""
+    """``dR = g p^T``, ``dp = R^T g``."""
     R, p = saved
-    if _layout.by_product(g, 1):  # planes transposed by matrix product, see _layout
-        dR, dp = _act_grads(R, p, g)
+    if _rows.taken((R, p, g), g.numel() // 3):
+        dR = g.new_empty(g.shape + (3,))
+        dp = _rows.act_grads(R, p, g, dR)
     else:
         dR, dp = g.unsqueeze(-1) * p.unsqueeze(-2), _mv(R.transpose(-1, -2), g)
     return dR.sum_to_size(R.shape), dp.sum_to_size(p.shape)
@@ -460,7 +429,7 @@ def _act_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]
 
 _ActFn = custom_function(
     "So3Act",
-    forward=_mv,
+    forward=_act_fwd,
     save=lambda inputs, out: (inputs[0], inputs[1]),
     backward=_act_backward,
     jvp=lambda saved, dR, dp: _mv(dR, saved[1]) + _mv(saved[0], dp),

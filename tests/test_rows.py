@@ -1,0 +1,196 @@
+"""The large-batch kernels of the group operations (torchlie._rows)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from torchlie import _layout, _rows, se3, so3
+
+DTYPES = [torch.float32, torch.float64]
+KERNELS = ("act", "act_grads", "compose", "compose_grads", "inverse", "inverse_grads")
+
+
+@pytest.fixture(autouse=True)
+def small_threshold(monkeypatch):
+    """Batches of 512 elements or more are large (the tests' batches are small)."""
+    monkeypatch.setattr(_layout, "MIN_ROWS", 512)
+
+
+@pytest.fixture
+def calls(monkeypatch):
+    """The names of the kernels of torchlie._rows called, in order."""
+    out = []
+    for name in KERNELS:
+        kernel = getattr(_rows, name)
+
+        def spy(*args, _name=name, _kernel=kernel):
+            out.append(_name)
+            return _kernel(*args)
+
+        monkeypatch.setattr(_rows, name, spy)
+    return out
+
+
+def _bits(x):
+    ints = {torch.float32: torch.int32, torch.float64: torch.int64}[x.dtype]
+    return x.view(ints)
+
+
+def _poses(n, dtype, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    xi = torch.randn(n, 6, generator=g, dtype=dtype)
+    return se3.exp(xi), se3.exp(xi.flip(0) * 2), torch.randn(n, 3, generator=g, dtype=dtype)
+
+
+def _cases(A, B, p):
+    return [
+        (se3.compose, (A, B)),
+        (se3.inverse, (A,)),
+        (se3.act, (A, p)),
+        (so3.act, (A[..., :3, :3].contiguous(), p)),
+    ]
+
+
+def _run(fn, args, upstream=None):
+    leaves = [a.clone().requires_grad_() for a in args]
+    y = fn(*leaves)
+    g = torch.ones_like(y) if upstream is None else upstream
+    return y.detach(), torch.autograd.grad(y, leaves, g)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_taken_forward_and_backward(dtype, calls):
+    A, B, p = _poses(700, dtype)
+    for fn, args in _cases(A, B, p):
+        _run(fn, args)
+    assert calls == [
+        "compose",
+        "compose_grads",
+        "inverse",
+        "inverse_grads",
+        "act",
+        "act_grads",  # se3.act's backward, through pose_act_grads
+        "act",
+        "act_grads",
+    ]
+    calls.clear()
+    A, B, p = _poses(500, dtype)  # below MIN_ROWS
+    for fn, args in _cases(A, B, p):
+        _run(fn, args)
+    assert calls == []
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_blocks_equal_one_pass_bit_for_bit(dtype, monkeypatch):
+    """compose and inverse go over blocks of ROWS rows (a short last one here): the same bits
+    as one pass, forward and backward, for a batch of two dimensions."""
+    A, B, p = _poses(1400, dtype, seed=1)
+    A, B = A.view(2, 700, 4, 4), B.view(2, 700, 4, 4)
+    ops = [(se3.compose, (A, B)), (se3.inverse, (A,))]
+    g = torch.randn(2, 700, 4, 4, generator=torch.Generator().manual_seed(2), dtype=dtype)
+    monkeypatch.setattr(_rows, "ROWS", 10**9)
+    whole = [_run(fn, args, g) for fn, args in ops]
+    monkeypatch.setattr(_rows, "ROWS", 100)  # float32 100 rows a block, float64 50
+    blocked = [_run(fn, args, g) for fn, args in ops]
+    for (y1, g1), (y2, g2) in zip(blocked, whole, strict=True):
+        assert torch.equal(_bits(y1), _bits(y2))
+        assert all(torch.equal(_bits(a), _bits(b)) for a, b in zip(g1, g2, strict=True))
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_bottom_rows_not_read_and_exact(dtype):
+    """Whatever the inputs' bottom rows, and the upstream gradient's, hold: the result's bottom
+    row is exactly (0, 0, 0, 1) and the gradients' are zero."""
+    A, B, p = _poses(700, dtype, seed=3)
+    bad_A, bad_B = A.clone(), B.clone()
+    bad_A[..., 3, :] = torch.nan
+    bad_B[..., 3, :] = torch.tensor([1.0, -2.0, 3.0, 7.0], dtype=dtype)
+    g = torch.randn(700, 4, 4, generator=torch.Generator().manual_seed(4), dtype=dtype)
+    bad_g = g.clone()
+    bad_g[..., 3, :] = torch.nan
+    last = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=dtype)
+    for fn, good, bad in (
+        (se3.compose, (A, B), (bad_A, bad_B)),
+        (se3.inverse, (A,), (bad_A,)),
+    ):
+        y1, g1 = _run(fn, good, g)
+        y2, g2 = _run(fn, bad, bad_g)
+        assert torch.equal(y1, y2) and bool((y2[..., 3, :] == last).all())
+        for a, b in zip(g1, g2, strict=True):
+            assert torch.equal(a, b) and bool((b[..., 3, :] == 0).all())
+    y1, g1 = _run(se3.act, (A, p))
+    y2, g2 = _run(se3.act, (bad_A, p))
+    assert torch.equal(y1, y2) and torch.equal(g1[1], g2[1])
+    assert torch.equal(g1[0], g2[0]) and bool((g2[0][..., 3, :] == 0).all())
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_nan_stays_in_its_element(dtype):
+    A, B, p = _poses(700, dtype, seed=5)
+    clean = [_run(fn, args) for fn, args in _cases(A, B, p)]
+    A2, p2 = A.clone(), p.clone()
+    A2[10, 0, 1] = torch.nan  # a rotation entry
+    A2[20, 2, 3] = torch.nan  # a translation entry
+    p2[30, 1] = torch.nan
+    dirty = [_run(fn, args) for fn, args in _cases(A2, B, p2)]
+    keep = torch.ones(700, dtype=torch.bool)
+    keep[[10, 20, 30]] = False
+    for (y1, g1), (y2, g2) in zip(clean, dirty, strict=True):
+        assert torch.equal(y1[keep], y2[keep])
+        assert all(torch.equal(a[keep], b[keep]) for a, b in zip(g1, g2, strict=True))
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_strided_inputs(dtype, calls):
+    """Slices and column-major poses give what their contiguous copies give."""
+    A, B, p = _poses(1400, dtype, seed=6)
+    column_major = A[:700].transpose(-1, -2).contiguous().transpose(-1, -2)
+    for strided in (A[::2], column_major):
+        want = [_run(fn, args) for fn, args in _cases(strided.contiguous(), B[:700], p[::2])]
+        got = [_run(fn, args) for fn, args in _cases(strided, B[:700], p[::2])]
+        for (y1, g1), (y2, g2) in zip(got, want, strict=True):
+            assert torch.equal(y1, y2)
+            assert all(torch.equal(a, b) for a, b in zip(g1, g2, strict=True))
+    assert "compose" in calls and "inverse" in calls
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_not_taken_where_autograd_records(dtype, calls, monkeypatch):
+    """Double backward and forward mode take the differentiable batched matmuls (out= is not
+    differentiable): their results equal those of small batches of the same elements."""
+    A, B, p = _poses(700, dtype, seed=7)
+    for fn, args in _cases(A, B, p):
+        leaves = [a.clone().requires_grad_() for a in args]
+        y = fn(*leaves)
+        grads = torch.autograd.grad(y, leaves, torch.ones_like(y), create_graph=True)
+        assert all(g.requires_grad for g in grads)
+        calls.clear()  # the forward above took them
+        second = torch.autograd.grad(sum(g.square().sum() for g in grads), leaves)
+        assert calls == []
+        with monkeypatch.context() as m:
+            m.setattr(_layout, "MIN_ROWS", 10**12)
+            leaves_s = [a.clone().requires_grad_() for a in args]
+            y_s = fn(*leaves_s)
+            grads_s = torch.autograd.grad(y_s, leaves_s, torch.ones_like(y_s), create_graph=True)
+            second_s = torch.autograd.grad(sum(g.square().sum() for g in grads_s), leaves_s)
+        eps = torch.finfo(dtype).eps
+        for a, b in zip(second, second_s, strict=True):
+            torch.testing.assert_close(a, b, rtol=8 * eps, atol=8 * eps * 4)
+        with torch.autograd.forward_ad.dual_level():
+            duals = [torch.autograd.forward_ad.make_dual(a, torch.ones_like(a)) for a in args]
+            out = torch.autograd.forward_ad.unpack_dual(fn(*duals))
+        assert calls == []
+        torch.testing.assert_close(out.primal, fn(*args), rtol=0, atol=8 * eps * 4)
+
+
+def test_inverse_only_at_full_float32_matmul_precision(calls, monkeypatch):
+    A, _, _ = _poses(700, torch.float32, seed=8)
+    want = se3.inverse(A)
+    assert calls == ["inverse"]
+    monkeypatch.setattr(torch, "get_float32_matmul_precision", lambda: "medium")
+    calls.clear()
+    got = se3.inverse(A)
+    assert calls == []
+    torch.testing.assert_close(got, want, rtol=0, atol=4 * torch.finfo(torch.float32).eps * 8)
+    assert se3.compose(A, A).shape == A.shape and calls == ["compose"]  # no product there
