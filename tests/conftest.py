@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from torchlie import _small
+from torchlie import _rows, _small
 
 torch.set_num_threads(1)
 
@@ -39,3 +39,18 @@ def component_kernels(monkeypatch) -> None:
     takes the matrix forms of :mod:`torchlie._small` (they agree with those kernels to a few
     ulp, test_small.py): for the tests that compare vmap with eager mode bit for bit."""
     monkeypatch.setattr(_small, "MATRIX_ROWS", 0)
+
+
+@pytest.fixture
+def rows_calls(monkeypatch) -> list[str]:
+    """The names of the large-batch kernels of :mod:`torchlie._rows` called, in order."""
+    out: list[str] = []
+    for name in ("act", "act_grads", "compose", "compose_grads", "inverse", "inverse_grads"):
+        kernel = getattr(_rows, name)
+
+        def spy(*args, _name=name, _kernel=kernel):
+            out.append(_name)
+            return _kernel(*args)
+
+        monkeypatch.setattr(_rows, name, spy)
+    return out
