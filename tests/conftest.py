@@ -45,7 +45,8 @@ def component_kernels(monkeypatch) -> None:
 def rows_calls(monkeypatch) -> list[str]:
     """The names of the large-batch kernels of :mod:`torchlie._rows` called, in order."""
     out: list[str] = []
-    for name in ("act", "act_grads", "compose", "compose_grads", "inverse", "inverse_grads"):
+    names = ("act", "act_grads", "pose_act_grads", "compose", "compose_grads", "inverse")
+    for name in (*names, "inverse_grads"):
         kernel = getattr(_rows, name)
 
         def spy(*args, _name=name, _kernel=kernel):

@@ -54,7 +54,7 @@ def test_taken_forward_and_backward(dtype, rows_calls):
         "inverse",
         "inverse_grads",
         "act",
-        "act_grads",  # se3.act's backward, through pose_act_grads
+        "pose_act_grads",  # se3.act's backward
         "act",
         "act_grads",
     ]
@@ -67,16 +67,19 @@ def test_taken_forward_and_backward(dtype, rows_calls):
 
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_blocks_equal_one_pass_bit_for_bit(dtype, monkeypatch):
-    """compose and inverse go over blocks of ROWS rows (a short last one here): the same bits
-    as one pass, forward and backward, for a batch of two dimensions."""
+    """compose and inverse (forward and backward) and the backward of act go over blocks of
+    ROWS rows (a short last one here): the same bits as one pass, for a batch of two
+    dimensions."""
     A, B, p = _poses(1400, dtype, seed=1)
-    A, B = A.view(2, 700, 4, 4), B.view(2, 700, 4, 4)
-    ops = [(se3.compose, (A, B)), (se3.inverse, (A,))]
-    g = torch.randn(2, 700, 4, 4, generator=torch.Generator().manual_seed(2), dtype=dtype)
+    A, B, p = A.view(2, 700, 4, 4), B.view(2, 700, 4, 4), p.view(2, 700, 3)
+    gen = torch.Generator().manual_seed(2)
+    g, h = (torch.randn(2, 700, *s, generator=gen, dtype=dtype) for s in ((4, 4), (3,)))
+    ops = [(se3.compose, (A, B), g), (se3.inverse, (A,), g), (se3.act, (A, p), h)]
+    ops.append((so3.act, (A[..., :3, :3].contiguous(), p), h))
     monkeypatch.setattr(_rows, "ROWS", 10**9)
-    whole = [_run(fn, args, g) for fn, args in ops]
+    whole = [_run(fn, args, up) for fn, args, up in ops]
     monkeypatch.setattr(_rows, "ROWS", 100)  # float32 100 rows a block, float64 50
-    blocked = [_run(fn, args, g) for fn, args in ops]
+    blocked = [_run(fn, args, up) for fn, args, up in ops]
     for (y1, g1), (y2, g2) in zip(blocked, whole, strict=True):
         assert torch.equal(_bits(y1), _bits(y2))
         assert all(torch.equal(_bits(a), _bits(b)) for a, b in zip(g1, g2, strict=True))

@@ -10,9 +10,10 @@ small products per element, slower than these few passes.  ``se3.inverse`` write
 block ``R^T`` and the constant last row by one product of the top ``3 x 4`` block with a
 constant ``(12, 16)`` map (plus the last row as the constant term; exact, but ``-0.0`` becomes
 ``+0.0`` and an infinite entry makes the rest of its pose NaN, as for the transpositions by
-product).  ``se3.compose`` and ``se3.inverse`` go over blocks of :data:`ROWS` rows, so that the
-operands' cache lines are read from the cache by the passes after the first; ``act`` reads each
-line about three times and runs over the whole batch.
+product).  ``se3.compose`` and ``se3.inverse`` (forward and backward) and the backward of
+``act`` go over blocks of :data:`ROWS` rows, so that the operands' cache lines are read from the
+cache by the passes after the first; the forward of ``act`` reads each line about three times
+and runs over the whole batch.
 
 Measured on a 2-core Intel Xeon VM (AVX-512), one thread, N = 10^6, ns per element, float32
 (float64), against the kernels these replace (a batched matmul for ``act``, the 4x4 matrices split
@@ -20,6 +21,12 @@ into 16 planes by product and written entry by entry for ``compose`` and ``inver
 ``so3.act`` 16.8 -> 10.3 (22.7 -> 17.3), ``se3.act`` 29.1 -> 14.0 (38.6 -> 29.1),
 ``se3.inverse`` 58.7 -> 30.7 (121 -> 59), ``se3.compose`` 82 -> 64 (178 -> 114); backward
 ``se3.act`` 70 -> 58, ``se3.inverse`` 76 -> 59, ``se3.compose`` 159 -> 134, ``so3.act`` 36 -> 38.
+The outer product ``g p^T`` of the backward of ``act`` written column by column (three products
+of a vector by a broadcast entry) instead of as one broadcast product of ``(3, 1)`` by ``(1, 3)``
+per element, and in blocks with the rest of that backward; the rotation block's gradient in
+``se3.inverse``'s backward column by column likewise, instead of one broadcast ``G_R^T - t g^T``
+(forward+backward, in alternation, later, in a slower phase of the VM): ``so3.act`` 62 -> 49
+(93 -> 80), ``se3.act`` 104 -> 71 (167 -> 122), ``se3.inverse`` 108 -> 94 (161 -> 164).
 Blocks of 1024 rows cost more in calls than they save (``se3.compose`` 102), of 16 384 or more
 the operands no longer stay in the 2 MB L2 (83-99).  Each entry is summed in the same order as
 the entry-by-entry kernels under ``torch.compile`` (bit for bit on this CPU), not as a matmul.
@@ -64,19 +71,21 @@ def _batch(*operands: tuple[Tensor, int]) -> torch.Size:
 def _in_blocks(
     kernel: Callable[..., None],
     inputs: Sequence[tuple[Tensor, int]],
-    outs: Sequence[Tensor],
-    event_dims: int,
+    outs: Sequence[tuple[Tensor, int]],
 ) -> None:
     """``kernel(*inputs, *outs)`` block by block when every input has the batch shape of the
-    results (``outs``, contiguous, ``event_dims`` trailing dimensions each), else at once."""
-    batch = outs[0].shape[: outs[0].dim() - event_dims]
+    results, else at once.  Each operand comes with its number of trailing (non-batch)
+    dimensions; the results are written in place (contiguous, or views whose batch dimensions
+    flatten, such as a block of a contiguous pose)."""
+    first, k0 = outs[0]
+    batch = first.shape[: first.dim() - k0]
     if any(x.shape[: x.dim() - k] != batch for x, k in inputs):
-        kernel(*(x for x, _ in inputs), *outs)
+        kernel(*(x for x, _ in inputs), *(o for o, _ in outs))
         return
     n = batch.numel()
     flat_in = [x.reshape((n,) + x.shape[x.dim() - k :]) for x, k in inputs]
-    flat_out = [o.view((n,) + o.shape[o.dim() - event_dims :]) for o in outs]
-    step = ROWS * 4 // outs[0].element_size()
+    flat_out = [o.view((n,) + o.shape[o.dim() - k :]) for o, k in outs]
+    step = ROWS * 4 // first.element_size()
     for start in range(0, n, step):
         block = slice(start, start + step)
         kernel(*(x[block] for x in flat_in), *(o[block] for o in flat_out))
@@ -120,19 +129,32 @@ def act(R: Tensor, p: Tensor, t: Tensor | None = None) -> Tensor:
     return _rotate(R, p, out, t)
 
 
+def _act_grads_kernel(R: Tensor, p: Tensor, g: Tensor, dR: Tensor, dp: Tensor) -> None:
+    # g p^T column by column (column j is g p_j): one broadcast product of (3, 1) by (1, 3)
+    # per element costs three times as much (float32, 25 against 7 ns per element)
+    for j in range(3):
+        torch.mul(g, p[..., j : j + 1], out=dR[..., :, j])
+    _rotate(R.transpose(-1, -2), g, dp)
+
+
 def act_grads(R: Tensor, p: Tensor, g: Tensor, dR: Tensor) -> Tensor:
     """The backward of :func:`act`: ``g p^T`` written to ``dR`` (a ``(..., 3, 3)`` view of the
     broadcast batch), and ``R^T g`` returned (``g`` has the broadcast batch)."""
-    torch.mul(g.unsqueeze(-1), p.unsqueeze(-2), out=dR)
-    return _rotate(R.transpose(-1, -2), g, torch.empty_like(g))
+    dp = torch.empty_like(g)
+    _in_blocks(_act_grads_kernel, ((R, 2), (p, 1), (g, 1)), ((dR, 2), (dp, 1)))
+    return dp
+
+
+def _pose_act_grads_kernel(T: Tensor, p: Tensor, g: Tensor, dT: Tensor, dp: Tensor) -> None:
+    _act_grads_kernel(T[..., :3, :3], p, g, dT[..., :3, :3], dp)
+    dT[..., :3, 3].copy_(g)
+    dT[..., 3, :].zero_()
 
 
 def pose_act_grads(T: Tensor, p: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
     """The backward of ``se3.act``: ``[[g p^T, g], [0, 0]]`` and ``R^T g``."""
-    dT = g.new_empty(g.shape[:-1] + (4, 4))
-    dp = act_grads(T[..., :3, :3], p, g, dT[..., :3, :3])
-    dT[..., :3, 3].copy_(g)
-    dT[..., 3, :].zero_()
+    dT, dp = g.new_empty(g.shape[:-1] + (4, 4)), torch.empty_like(g)
+    _in_blocks(_pose_act_grads_kernel, ((T, 2), (p, 1), (g, 1)), ((dT, 2), (dp, 1)))
     return dT, dp
 
 
@@ -148,7 +170,7 @@ def _compose_kernel(A: Tensor, B: Tensor, out: Tensor) -> None:
 def compose(A: Tensor, B: Tensor) -> Tensor:
     """``A B`` of two poses (batch shapes broadcast; the bottom rows are not read)."""
     out = A.new_empty(_batch((A, 2), (B, 2)) + (4, 4))
-    _in_blocks(_compose_kernel, ((A, 2), (B, 2)), (out,), 2)
+    _in_blocks(_compose_kernel, ((A, 2), (B, 2)), ((out, 2),))
     return out
 
 
@@ -171,7 +193,7 @@ def _compose_grads_kernel(A: Tensor, B: Tensor, G: Tensor, dA: Tensor, dB: Tenso
 def compose_grads(A: Tensor, B: Tensor, G: Tensor) -> tuple[Tensor, Tensor]:
     """The backward of :func:`compose` over the broadcast batch (``G``'s)."""
     dA, dB = torch.empty_like(G), torch.empty_like(G)
-    _in_blocks(_compose_grads_kernel, ((A, 2), (B, 2), (G, 2)), (dA, dB), 2)
+    _in_blocks(_compose_grads_kernel, ((A, 2), (B, 2), (G, 2)), ((dA, 2), (dB, 2)))
     return dA, dB
 
 
@@ -188,20 +210,15 @@ def inverse(T: Tensor) -> Tensor:
     """``[[R^T, -R^T t], [0, 1]]`` (the bottom row is not read); see :func:`inverse_taken`."""
     out = T.new_empty(T.shape)
     flat = T.reshape((-1, 4, 4))
-    _in_blocks(_inverse_kernel, ((flat, 2),), (out.view(flat.shape),), 2)
+    _in_blocks(_inverse_kernel, ((flat, 2),), ((out.view(flat.shape), 2),))
     return out
 
 
 def _inverse_grads_kernel(T: Tensor, G: Tensor, dT: Tensor) -> None:
     # dR_ij = G_ji - t_i G_j3, dt_i = -sum_j R_ij G_j3; bottom row zero
     g = G[..., :3, 3]
-    torch.addcmul(
-        G[..., :3, :3].transpose(-1, -2),
-        T[..., :3, 3:],
-        g.unsqueeze(-2),
-        value=-1.0,
-        out=dT[..., :3, :3],
-    )
+    for j in range(3):  # column j of dR: row j of G_R minus t G_j3
+        torch.addcmul(G[..., j, :3], T[..., :3, 3], G[..., j, 3:], value=-1.0, out=dT[..., :3, j])
     _rotate(T[..., :3, :3], g, dT[..., :3, 3]).neg_()
     dT[..., 3, :].zero_()
 
@@ -209,5 +226,5 @@ def _inverse_grads_kernel(T: Tensor, G: Tensor, dT: Tensor) -> None:
 def inverse_grads(T: Tensor, G: Tensor) -> Tensor:
     """The backward of :func:`inverse`."""
     dT = torch.empty_like(G)
-    _in_blocks(_inverse_grads_kernel, ((T, 2), (G, 2)), (dT,), 2)
+    _in_blocks(_inverse_grads_kernel, ((T, 2), (G, 2)), ((dT, 2),))
     return dT
