@@ -143,6 +143,36 @@ def test_strided_inputs(dtype, rows_calls):
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
+def test_upstream_gradients_with_any_strides(dtype, rows_calls, monkeypatch):
+    """An upstream gradient whose batch dimensions are stored transposed (dense, not
+    contiguous) gives the gradients of its contiguous copy, in blocks and at once."""
+    A, B, p = _poses(800, dtype, seed=9)
+    A, B, p = A.view(20, 40, 4, 4), B.view(20, 40, 4, 4), p.view(20, 40, 3)
+    gen = torch.Generator().manual_seed(10)
+    for rows in (10**9, 100):
+        monkeypatch.setattr(_rows, "ROWS", rows)
+        for fn, args in _cases(A, B, p):
+            y = fn(*args)
+            g = torch.randn(y.shape, generator=gen, dtype=dtype)
+            transposed = g.transpose(0, 1).contiguous().transpose(0, 1)
+            assert not transposed.is_contiguous()
+            _, want = _run(fn, args, g)
+            _, got = _run(fn, args, transposed)
+            assert all(torch.equal(a, b) for a, b in zip(got, want, strict=True))
+    assert sorted(set(rows_calls)) == sorted(
+        [
+            "act",
+            "act_grads",
+            "pose_act_grads",
+            "compose",
+            "compose_grads",
+            "inverse",
+            "inverse_grads",
+        ]
+    )
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
 def test_not_taken_where_autograd_records(dtype, rows_calls, monkeypatch):
     """Double backward and forward mode take the differentiable batched matmuls (out= is not
     differentiable): their results equal those of small batches of the same elements."""

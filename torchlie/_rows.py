@@ -140,7 +140,7 @@ def _act_grads_kernel(R: Tensor, p: Tensor, g: Tensor, dR: Tensor, dp: Tensor) -
 def act_grads(R: Tensor, p: Tensor, g: Tensor, dR: Tensor) -> Tensor:
     """The backward of :func:`act`: ``g p^T`` written to ``dR`` (a ``(..., 3, 3)`` view of the
     broadcast batch), and ``R^T g`` returned (``g`` has the broadcast batch)."""
-    dp = torch.empty_like(g)
+    dp = g.new_empty(g.shape)  # contiguous, whatever g's strides: its blocks are views
     _in_blocks(_act_grads_kernel, ((R, 2), (p, 1), (g, 1)), ((dR, 2), (dp, 1)))
     return dp
 
@@ -153,7 +153,7 @@ def _pose_act_grads_kernel(T: Tensor, p: Tensor, g: Tensor, dT: Tensor, dp: Tens
 
 def pose_act_grads(T: Tensor, p: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
     """The backward of ``se3.act``: ``[[g p^T, g], [0, 0]]`` and ``R^T g``."""
-    dT, dp = g.new_empty(g.shape[:-1] + (4, 4)), torch.empty_like(g)
+    dT, dp = g.new_empty(g.shape[:-1] + (4, 4)), g.new_empty(g.shape)
     _in_blocks(_pose_act_grads_kernel, ((T, 2), (p, 1), (g, 1)), ((dT, 2), (dp, 1)))
     return dT, dp
 
@@ -192,7 +192,7 @@ def _compose_grads_kernel(A: Tensor, B: Tensor, G: Tensor, dA: Tensor, dB: Tenso
 
 def compose_grads(A: Tensor, B: Tensor, G: Tensor) -> tuple[Tensor, Tensor]:
     """The backward of :func:`compose` over the broadcast batch (``G``'s)."""
-    dA, dB = torch.empty_like(G), torch.empty_like(G)
+    dA, dB = G.new_empty(G.shape), G.new_empty(G.shape)
     _in_blocks(_compose_grads_kernel, ((A, 2), (B, 2), (G, 2)), ((dA, 2), (dB, 2)))
     return dA, dB
 
@@ -225,6 +225,6 @@ def _inverse_grads_kernel(T: Tensor, G: Tensor, dT: Tensor) -> None:
 
 def inverse_grads(T: Tensor, G: Tensor) -> Tensor:
     """The backward of :func:`inverse`."""
-    dT = torch.empty_like(G)
+    dT = G.new_empty(G.shape)
     _in_blocks(_inverse_grads_kernel, ((T, 2), (G, 2)), ((dT, 2),))
     return dT
