@@ -67,8 +67,8 @@ def test_taken_forward_and_backward(dtype, rows_calls):
 
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_blocks_equal_one_pass_bit_for_bit(dtype, monkeypatch):
-    """compose and inverse (forward and backward) and the backward of act go over blocks of
-    ROWS rows (a short last one here): the same bits as one pass, for a batch of two
+    """The kernels go over blocks of ROWS rows (act: ACT_BLOCKS times as many; a short last
+    one here): the same bits as one pass, forward and backward, for a batch of two
     dimensions."""
     A, B, p = _poses(1400, dtype, seed=1)
     A, B, p = A.view(2, 700, 4, 4), B.view(2, 700, 4, 4), p.view(2, 700, 3)

@@ -10,10 +10,9 @@ small products per element, slower than these few passes.  ``se3.inverse`` write
 block ``R^T`` and the constant last row by one product of the top ``3 x 4`` block with a
 constant ``(12, 16)`` map (plus the last row as the constant term; exact, but ``-0.0`` becomes
 ``+0.0`` and an infinite entry makes the rest of its pose NaN, as for the transpositions by
-product).  ``se3.compose`` and ``se3.inverse`` (forward and backward) and the backward of
-``act`` go over blocks of :data:`ROWS` rows, so that the operands' cache lines are read from the
-cache by the passes after the first; the forward of ``act`` reads each line about three times
-and runs over the whole batch.
+product).  All of them, forward and backward, go over blocks of :data:`ROWS` rows
+(``act``: :data:`ACT_BLOCKS` times as many), so that the operands' cache lines are read from the
+cache by the passes after the first.
 
 Measured on a 2-core Intel Xeon VM (AVX-512), one thread, N = 10^6, ns per element, float32
 (float64), against the kernels these replace (a batched matmul for ``act``, the 4x4 matrices split
@@ -27,6 +26,11 @@ per element, and in blocks with the rest of that backward; the rotation block's 
 ``se3.inverse``'s backward column by column likewise, instead of one broadcast ``G_R^T - t g^T``
 (forward+backward, in alternation, later, in a slower phase of the VM): ``so3.act`` 62 -> 49
 (93 -> 80), ``se3.act`` 104 -> 71 (167 -> 122), ``se3.inverse`` 108 -> 94 (161 -> 164).
+``act`` over blocks of 8192 rows (float64 4096) rather than the whole batch, forward (forward+
+backward), same phase: ``so3.act`` 19.5 -> 14.3 (50 -> 42), ``se3.act`` 27.0 -> 19.9 (71 -> 63);
+float64 31.0 -> 21.9 (84 -> 69), 42.0 -> 29.7 (129 -> 112); blocks of 4096, 16 384 and 32 768
+rows took 16.5, 15.5 and 16.0 for ``so3.act`` (float64, 8192 to 32 768 rows: 22.9-24.0).  In an
+earlier, faster phase of the VM (``so3.act`` 9 over the whole batch) blocks were no faster.
 Blocks of 1024 rows cost more in calls than they save (``se3.compose`` 102), of 16 384 or more
 the operands no longer stay in the 2 MB L2 (83-99).  Each entry is summed in the same order as
 the entry-by-entry kernels under ``torch.compile`` (bit for bit on this CPU), not as a matmul.
@@ -72,11 +76,13 @@ def _in_blocks(
     kernel: Callable[..., None],
     inputs: Sequence[tuple[Tensor, int]],
     outs: Sequence[tuple[Tensor, int]],
+    blocks: int = 1,
 ) -> None:
     """``kernel(*inputs, *outs)`` block by block when every input has the batch shape of the
     results, else at once.  Each operand comes with its number of trailing (non-batch)
     dimensions; the results are written in place (contiguous, or views whose batch dimensions
-    flatten, such as a block of a contiguous pose)."""
+    flatten, such as a block of a contiguous pose).  Blocks of ``blocks * ROWS`` rows (4-byte
+    elements; in proportion for others)."""
     first, k0 = outs[0]
     batch = first.shape[: first.dim() - k0]
     if any(x.shape[: x.dim() - k] != batch for x, k in inputs):
@@ -85,7 +91,7 @@ def _in_blocks(
     n = batch.numel()
     flat_in = [x.reshape((n,) + x.shape[x.dim() - k :]) for x, k in inputs]
     flat_out = [o.view((n,) + o.shape[o.dim() - k :]) for o, k in outs]
-    step = ROWS * 4 // first.element_size()
+    step = blocks * ROWS * 4 // first.element_size()
     for start in range(0, n, step):
         block = slice(start, start + step)
         kernel(*(x[block] for x in flat_in), *(o[block] for o in flat_out))
@@ -122,11 +128,24 @@ def _rotate(R: Tensor, p: Tensor, out: Tensor, t: Tensor | None = None) -> Tenso
     return out.addcmul_(R[..., :, 1], p[..., 1:2]).addcmul_(R[..., :, 2], p[..., 2:])
 
 
+#: ``act`` and its backward go over blocks of ``ACT_BLOCKS * ROWS`` rows: their operands take
+#: fewer bytes per row than a pose product's.
+ACT_BLOCKS = 2
+
+
+def _pose_act_kernel(R: Tensor, p: Tensor, t: Tensor, out: Tensor) -> None:
+    _rotate(R, p, out, t)
+
+
 def act(R: Tensor, p: Tensor, t: Tensor | None = None) -> Tensor:
     """``R p`` (``so3.act``), or ``R p + t`` with ``R`` and ``t`` the blocks of a pose
     (``se3.act``); batch shapes broadcast."""
     out = p.new_empty(_batch((R, 2), (p, 1)) + (3,))
-    return _rotate(R, p, out, t)
+    if t is None:
+        _in_blocks(_rotate, ((R, 2), (p, 1)), ((out, 1),), ACT_BLOCKS)
+    else:
+        _in_blocks(_pose_act_kernel, ((R, 2), (p, 1), (t, 1)), ((out, 1),), ACT_BLOCKS)
+    return out
 
 
 def _act_grads_kernel(R: Tensor, p: Tensor, g: Tensor, dR: Tensor, dp: Tensor) -> None:
@@ -141,7 +160,7 @@ def act_grads(R: Tensor, p: Tensor, g: Tensor, dR: Tensor) -> Tensor:
     """The backward of :func:`act`: ``g p^T`` written to ``dR`` (a ``(..., 3, 3)`` view of the
     broadcast batch), and ``R^T g`` returned (``g`` has the broadcast batch)."""
     dp = g.new_empty(g.shape)  # contiguous, whatever g's strides: its blocks are views
-    _in_blocks(_act_grads_kernel, ((R, 2), (p, 1), (g, 1)), ((dR, 2), (dp, 1)))
+    _in_blocks(_act_grads_kernel, ((R, 2), (p, 1), (g, 1)), ((dR, 2), (dp, 1)), ACT_BLOCKS)
     return dp
 
 
@@ -154,7 +173,7 @@ def _pose_act_grads_kernel(T: Tensor, p: Tensor, g: Tensor, dT: Tensor, dp: Tens
 def pose_act_grads(T: Tensor, p: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
     """The backward of ``se3.act``: ``[[g p^T, g], [0, 0]]`` and ``R^T g``."""
     dT, dp = g.new_empty(g.shape[:-1] + (4, 4)), g.new_empty(g.shape)
-    _in_blocks(_pose_act_grads_kernel, ((T, 2), (p, 1), (g, 1)), ((dT, 2), (dp, 1)))
+    _in_blocks(_pose_act_grads_kernel, ((T, 2), (p, 1), (g, 1)), ((dT, 2), (dp, 1)), ACT_BLOCKS)
     return dT, dp
 
 
