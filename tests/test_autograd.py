@@ -426,6 +426,29 @@ def test_blocks_hold_the_same_bytes_in_every_dtype():
         assert calls[0] == (dtype, rows) and sum(c[1] for c in calls) == n
 
 
+def test_blocks_scale_with_the_threads():
+    """A block of BLOCK rows per intra-op thread (torch splits a kernel between its threads only
+    above 32 768 elements), and the same result."""
+    calls = []
+
+    def fwd(a):
+        calls.append(a.shape[0])
+        return a * 2.0
+
+    run = _autograd._blocked(fwd, (1,))
+    n = 4 * _autograd.BLOCK + 5
+    a = torch.randn(n, 3)
+    threads = torch.get_num_threads()
+    try:
+        for k in (1, 2):
+            torch.set_num_threads(k)
+            calls.clear()
+            assert torch.equal(run(a), a * 2.0)
+            assert calls[0] == k * _autograd.BLOCK and sum(calls) == n
+    finally:
+        torch.set_num_threads(threads)
+
+
 def test_blocked_plain_backward_equals_unblocked(monkeypatch):
     g = torch.Generator().manual_seed(41)
     q = (1.3 * torch.randn(5, 23, 4, generator=g, dtype=F64)).requires_grad_()

@@ -86,6 +86,35 @@ def test_blocks_equal_one_pass_bit_for_bit(dtype, monkeypatch):
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
+def test_blocks_per_thread_equal_one_thread(dtype, monkeypatch):
+    """With two intra-op threads the blocks hold twice the rows (one block's worth per thread):
+    the same bits as with one, forward and backward."""
+    A, B, p = _poses(1400, dtype, seed=11)
+    monkeypatch.setattr(_rows, "ROWS", 100)
+    threads = torch.get_num_threads()
+    seen = []
+    kernel = _rows._compose_kernel
+
+    def spy(A, B, out):
+        seen.append(out.shape[0])
+        kernel(A, B, out)
+
+    monkeypatch.setattr(_rows, "_compose_kernel", spy)
+    try:
+        results = []
+        for k in (1, 2):
+            torch.set_num_threads(k)
+            results.append([_run(fn, args) for fn, args in _cases(A, B, p)])
+    finally:
+        torch.set_num_threads(threads)
+    rows = 100 * 4 // A.element_size()
+    assert seen[0] == rows and rows * 2 in seen
+    for (y1, g1), (y2, g2) in zip(*results, strict=True):
+        assert torch.equal(_bits(y1), _bits(y2))
+        assert all(torch.equal(_bits(a), _bits(b)) for a, b in zip(g1, g2, strict=True))
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
 def test_bottom_rows_not_read_and_exact(dtype):
     """Whatever the inputs' bottom rows, and the upstream gradient's, hold: the result's bottom
     row is exactly (0, 0, 0, 1) and the gradients' are zero."""

@@ -49,6 +49,7 @@ _C_APPLY = torch._C._FunctionBase.__dict__["apply"]
 _transforms_active = torch._C._are_functorch_transforms_active
 _grad_enabled = torch.is_grad_enabled
 _is_compiling = torch.compiler.is_compiling
+_threads = torch.get_num_threads
 _unwrap_if_dead = torch._C._functorch.unwrap_if_dead
 # ``torch.autograd.forward_ad._current_level``: the dual level last entered (-1: none).  Every
 # dual level, ``torch.func.jvp``'s included, is entered through that module, which keeps it.
@@ -57,8 +58,25 @@ _unwrap_if_dead = torch._C._functorch.unwrap_if_dead
 _Out = TypeVar("_Out", Tensor, tuple[Tensor, ...])
 
 #: Rows per block of the blocked passes (see :func:`_blocked`) for 4-byte elements (float32);
-#: in proportion for other sizes (float64: half as many), so that each plane is 128 kB.
+#: in proportion for other sizes (float64: half as many), so that each plane is 128 kB; times
+#: the number of intra-op threads (:func:`block_rows`).
 BLOCK = 32768
+
+
+def block_rows(rows: int, x: Tensor) -> int:
+    """``rows`` (a block for 4-byte elements, one thread) scaled to the element size of ``x``
+    and to ``torch.get_num_threads()``.
+
+    torch splits an element-wise kernel between its threads only above 32 768 elements, in
+    equal contiguous parts, the same for every kernel of a block: a block of ``rows`` per thread
+    keeps each thread's part in its own core's cache from one kernel to the next, where blocks
+    of a fixed size would run every kernel on one thread.  Measured with 2 threads on the 2-core
+    Intel Xeon VM, N = 10^6, float32 forward, ns per element, fixed blocks -> blocks per thread
+    (the whole batch at once): so3.exp 37.7 -> 22.0 (27.0), so3.log 49.0 -> 31.3 (43.9),
+    quaternion.to_matrix 28.6 -> 16.1 (18.7), se3.exp 90.9 -> 49.2 (62.5), so3.act 15.0 -> 8.2
+    (5.2), se3.compose 67.7 -> 65.1 (56.4); se3.act forward+backward 64.9 -> 36.0 (49.7).
+    """
+    return rows * 4 // x.element_size() * _threads()
 
 
 def _blocked(forward: Callable[..., _Out], event_dims: tuple[int, ...]) -> Callable[..., _Out]:
@@ -97,7 +115,7 @@ def _blocked(forward: Callable[..., _Out], event_dims: tuple[int, ...]) -> Calla
             return forward(*inputs)
         batch = first.shape[: first.dim() - event_dims[0]]
         n = batch.numel()
-        rows = BLOCK * 4 // first.element_size()  # the same bytes per plane in every dtype
+        rows = block_rows(BLOCK, first)  # the same bytes per plane and thread in every dtype
         if n < 2 * rows or not _layout.eager_cpu(first):
             return forward(*inputs)
         flat = []

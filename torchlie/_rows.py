@@ -48,6 +48,7 @@ import torch
 from torch import Tensor
 
 from . import _layout
+from ._autograd import block_rows
 
 #: Rows per block of :func:`compose` and :func:`inverse` (forward and backward) for 4-byte
 #: elements; half as many for float64: 256 kB of poses per operand.
@@ -82,7 +83,7 @@ def _in_blocks(
     results, else at once.  Each operand comes with its number of trailing (non-batch)
     dimensions; the results are written in place (contiguous, or views whose batch dimensions
     flatten, such as a block of a contiguous pose).  Blocks of ``blocks * ROWS`` rows (4-byte
-    elements; in proportion for others)."""
+    elements, one thread; see :func:`torchlie._autograd.block_rows`)."""
     first, k0 = outs[0]
     batch = first.shape[: first.dim() - k0]
     if any(x.shape[: x.dim() - k] != batch for x, k in inputs):
@@ -91,7 +92,7 @@ def _in_blocks(
     n = batch.numel()
     flat_in = [x.reshape((n,) + x.shape[x.dim() - k :]) for x, k in inputs]
     flat_out = [o.view((n,) + o.shape[o.dim() - k :]) for o, k in outs]
-    step = blocks * ROWS * 4 // first.element_size()
+    step = block_rows(blocks * ROWS, first)
     for start in range(0, n, step):
         block = slice(start, start + step)
         kernel(*(x[block] for x in flat_in), *(o[block] for o in flat_out))
