@@ -426,9 +426,12 @@ def test_blocks_hold_the_same_bytes_in_every_dtype():
         assert calls[0] == (dtype, rows) and sum(c[1] for c in calls) == n
 
 
-def test_blocks_scale_with_the_threads():
+@pytest.mark.parametrize("passive", [False, True])
+def test_blocks_scale_with_the_threads(passive, monkeypatch):
     """A block of BLOCK rows per intra-op thread (torch splits a kernel between its threads only
-    above 32 768 elements), and the same result."""
+    above 32 768 elements), and the same result; under OMP_WAIT_POLICY=PASSIVE one thread's
+    block whatever the threads."""
+    monkeypatch.setattr(_autograd, "PASSIVE", passive)
     calls = []
 
     def fwd(a):
@@ -444,7 +447,7 @@ def test_blocks_scale_with_the_threads():
             torch.set_num_threads(k)
             calls.clear()
             assert torch.equal(run(a), a * 2.0)
-            assert calls[0] == k * _autograd.BLOCK and sum(calls) == n
+            assert calls[0] == (1 if passive else k) * _autograd.BLOCK and sum(calls) == n
     finally:
         torch.set_num_threads(threads)
 

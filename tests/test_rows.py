@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from torchlie import _layout, _rows, se3, so3
+from torchlie import _autograd, _layout, _rows, se3, so3
 
 DTYPES = [torch.float32, torch.float64]
 
@@ -91,6 +91,7 @@ def test_blocks_per_thread_equal_one_thread(dtype, monkeypatch):
     the same bits as with one, forward and backward."""
     A, B, p = _poses(1400, dtype, seed=11)
     monkeypatch.setattr(_rows, "ROWS", 100)
+    monkeypatch.setattr(_autograd, "PASSIVE", False)
     threads = torch.get_num_threads()
     seen = []
     kernel = _rows._compose_kernel

@@ -33,6 +33,7 @@ takes one of three paths, each decided from flags and ``requires_grad`` only:
 from __future__ import annotations
 
 import inspect
+import os
 from collections.abc import Callable, Sequence
 from typing import TypeVar
 
@@ -50,6 +51,10 @@ _transforms_active = torch._C._are_functorch_transforms_active
 _grad_enabled = torch.is_grad_enabled
 _is_compiling = torch.compiler.is_compiling
 _threads = torch.get_num_threads
+
+#: Whether OpenMP's idle threads sleep rather than spin (``OMP_WAIT_POLICY=PASSIVE``, read once,
+#: as the OpenMP runtime reads it when it starts); see :func:`block_rows`.
+PASSIVE = os.environ.get("OMP_WAIT_POLICY", "").strip().upper() == "PASSIVE"
 _unwrap_if_dead = torch._C._functorch.unwrap_if_dead
 # ``torch.autograd.forward_ad._current_level``: the dual level last entered (-1: none).  Every
 # dual level, ``torch.func.jvp``'s included, is entered through that module, which keeps it.
@@ -75,8 +80,13 @@ def block_rows(rows: int, x: Tensor) -> int:
     (the whole batch at once): so3.exp 37.7 -> 22.0 (27.0), so3.log 49.0 -> 31.3 (43.9),
     quaternion.to_matrix 28.6 -> 16.1 (18.7), se3.exp 90.9 -> 49.2 (62.5), so3.act 15.0 -> 8.2
     (5.2), se3.compose 67.7 -> 65.1 (56.4); se3.act forward+backward 64.9 -> 36.0 (49.7).
+
+    Not under ``OMP_WAIT_POLICY=PASSIVE`` (:data:`PASSIVE`): there idle threads sleep, and each
+    kernel split between threads pays for waking them (so3.log with 2 threads: 272 ns per
+    element with blocks per thread, 61 with blocks of one thread's size), so the blocks keep one
+    thread's size and the kernels run on one thread.
     """
-    return rows * 4 // x.element_size() * _threads()
+    return rows * 4 // x.element_size() * (1 if PASSIVE else _threads())
 
 
 def _blocked(forward: Callable[..., _Out], event_dims: tuple[int, ...]) -> Callable[..., _Out]:
