@@ -51,10 +51,6 @@ _transforms_active = torch._C._are_functorch_transforms_active
 _grad_enabled = torch.is_grad_enabled
 _is_compiling = torch.compiler.is_compiling
 _threads = torch.get_num_threads
-
-#: Whether OpenMP's idle threads sleep rather than spin (``OMP_WAIT_POLICY=PASSIVE``, read once,
-#: as the OpenMP runtime reads it when it starts); see :func:`block_rows`.
-PASSIVE = os.environ.get("OMP_WAIT_POLICY", "").strip().upper() == "PASSIVE"
 _unwrap_if_dead = torch._C._functorch.unwrap_if_dead
 # ``torch.autograd.forward_ad._current_level``: the dual level last entered (-1: none).  Every
 # dual level, ``torch.func.jvp``'s included, is entered through that module, which keeps it.
@@ -66,6 +62,10 @@ _Out = TypeVar("_Out", Tensor, tuple[Tensor, ...])
 #: in proportion for other sizes (float64: half as many), so that each plane is 128 kB; times
 #: the number of intra-op threads (:func:`block_rows`).
 BLOCK = 32768
+
+#: Whether OpenMP's idle threads sleep rather than spin (``OMP_WAIT_POLICY=PASSIVE``, read once,
+#: as the OpenMP runtime reads it when it starts); see :func:`block_rows`.
+PASSIVE = os.environ.get("OMP_WAIT_POLICY", "").strip().upper() == "PASSIVE"
 
 
 def block_rows(rows: int, x: Tensor) -> int:
