@@ -41,12 +41,25 @@ def component_kernels(monkeypatch) -> None:
     monkeypatch.setattr(_small, "MATRIX_ROWS", 0)
 
 
+class KernelCalls(list):
+    """Names of kernels called, in order; :attr:`names`: every kernel watched."""
+
+    names: tuple[str, ...] = (
+        "act",
+        "act_grads",
+        "pose_act_grads",
+        "compose",
+        "compose_grads",
+        "inverse",
+        "inverse_grads",
+    )
+
+
 @pytest.fixture
-def rows_calls(monkeypatch) -> list[str]:
+def rows_calls(monkeypatch) -> KernelCalls:
     """The names of the large-batch kernels of :mod:`torchlie._rows` called, in order."""
-    out: list[str] = []
-    names = ("act", "act_grads", "pose_act_grads", "compose", "compose_grads", "inverse")
-    for name in (*names, "inverse_grads"):
+    out = KernelCalls()
+    for name in out.names:
         kernel = getattr(_rows, name)
 
         def spy(*args, _name=name, _kernel=kernel):
