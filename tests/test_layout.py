@@ -128,9 +128,10 @@ def _cases(dtype):
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_ops_equal_with_copies_only(dtype, monkeypatch):
     """Values and gradients of the ops are bitwise those of the copying layout (the component
-    form of ``quaternion.multiply``: large batches take complex arithmetic, tested in
-    test_quaternion.py)."""
+    forms of ``quaternion.multiply`` and ``quaternion.to_matrix``: large batches take complex
+    arithmetic and matrix products, tested in test_quaternion.py)."""
     monkeypatch.setattr(quaternion, "_large_pair", lambda a, b: False)
+    monkeypatch.setattr(quaternion, "_large_matrix", lambda q: False)
     fast = _values_and_grads(_cases(dtype))
     monkeypatch.setattr(_layout, "MIN_ROWS", 10**12)
     slow = _values_and_grads(_cases(dtype))

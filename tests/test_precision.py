@@ -7,8 +7,9 @@ norm-wise relative per element, ``|out - ref| / |ref|`` (absolute where ``ref = 
 Targets: values 4e-16 (float64) / 3e-7 (float32), gradients 1e-15 / 5e-7, all met.  float64
 ``so3.exp`` reaches them through compensated arithmetic (``torchlie._compensated``); the plain
 formula is 3 ulp off near pi, which also carries into ``log(exp(w))`` and its gradient.  The
-values and the plain backward passes are checked over the whole sample set and in batches of
-100 rows, which take the matrix forms of ``torchlie._small``.
+values and the plain backward passes are checked over the whole sample set, in batches of
+100 rows, which take the matrix forms of ``torchlie._small``, and over the sample set repeated
+to a batch large enough for the kernels of large CPU batches (``torchlie._layout``).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import reference as ref
 import torch
 from samplers import ANGLES, PI, rotvecs
 
-from torchlie import quaternion, so3
+from torchlie import _layout, quaternion, so3
 
 pytestmark = pytest.mark.slow
 
@@ -78,13 +79,28 @@ def _sign_free_near_pi(out, expected, theta, nd):
     return torch.where(at_pi, torch.minimum(err, flipped), err)
 
 
+#: ``rows`` of a run over the sample set repeated to a large batch (the kernels of large eager
+#: CPU batches, see torchlie._layout), the first copy kept.
+LARGE = -1
+
+
+def _tiled(x: torch.Tensor) -> torch.Tensor:
+    """``x`` repeated along its first dimension to at least ``_layout.MIN_ROWS`` rows."""
+    copies = -(-_layout.MIN_ROWS // x.shape[0])
+    return x.repeat((copies,) + (1,) * (x.dim() - 1))
+
+
 def _in_rows(fn, x: torch.Tensor, rows: int | None) -> torch.Tensor:
-    """``fn(x)`` over the whole sample set, or in batches of ``rows`` (small batches take the
-    matrix forms of torchlie._small)."""
-    return fn(x) if rows is None else torch.cat([fn(part) for part in x.split(rows)])
+    """``fn(x)`` over the whole sample set, in batches of ``rows`` (small batches take the
+    matrix forms of torchlie._small), or over a large batch (``rows = LARGE``)."""
+    if rows is None:
+        return fn(x)
+    if rows == LARGE:
+        return fn(_tiled(x))[: x.shape[0]]
+    return torch.cat([fn(part) for part in x.split(rows)])
 
 
-BATCHES = pytest.mark.parametrize("rows", [None, 100], ids=["whole", "rows100"])
+BATCHES = pytest.mark.parametrize("rows", [None, 100, LARGE], ids=["whole", "rows100", "large"])
 
 
 @BATCHES
@@ -178,15 +194,17 @@ def _rows_of_plain_backward(out: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
 
 def _plain_jacobian(fn, x: torch.Tensor, *rest: torch.Tensor, rows: int | None) -> torch.Tensor:
     """:func:`_rows_of_plain_backward` of ``fn(x, *rest)`` with respect to ``x``, over the whole
-    sample set or in batches of ``rows`` (small batches take the matrix forms of
-    torchlie._small, backward passes included)."""
+    sample set, in batches of ``rows`` (small batches take the matrix forms of
+    torchlie._small, backward passes included) or over a large batch (``rows = LARGE``)."""
     whole = [(x, *rest)]
-    parts = whole if rows is None else zip(*(t.split(rows) for t in whole[0]), strict=True)
+    if rows == LARGE:
+        whole = [tuple(_tiled(t) for t in whole[0])]
+    parts = whole if rows in (None, LARGE) else zip(*(t.split(rows) for t in whole[0]), strict=True)
     out = []
     for first, *others in parts:
         leaf = first.clone().requires_grad_()
         out.append(_rows_of_plain_backward(fn(leaf, *others), leaf))
-    return torch.cat(out)
+    return torch.cat(out)[: x.shape[0]]
 
 
 @BATCHES

@@ -247,6 +247,55 @@ def test_multiply_of_large_batches_in_complex_arithmetic(dtype, monkeypatch):
     assert out[3].isnan().all() and not out[torch.arange(100) != 3].isnan().any()
 
 
+def test_to_matrix_of_large_batches_by_products(dtype, monkeypatch):
+    """Large CPU batches take the matrix of the scaled products ``q_a q_b`` (two matrix
+    products): within four ulp of the entry-by-entry form, every sampler angle, any scale, batch
+    shapes and strides, each element's bits the same wherever it is in the batch (blocks and
+    threads included), a NaN stays in its element, and not where float32 products are reduced
+    precision."""
+    from torchlie import _layout
+
+    monkeypatch.setattr(_small, "MATRIX_ROWS", 0)  # the small batches below stand for large ones
+    monkeypatch.setattr(_layout, "MIN_ROWS", 64)
+    calls = []
+    form = Q._to_matrix_products
+    monkeypatch.setattr(Q, "_to_matrix_products", lambda q: calls.append(1) or form(q))
+    w, _ = samplers.rotvecs(dtype=dtype)
+    scale = torch.logspace(-3, 3, w.shape[0], dtype=dtype).unsqueeze(-1)
+    q = Q.from_rotvec(w) * scale
+    fast = Q.to_matrix(q)
+    assert calls == [1]
+    with monkeypatch.context() as m:
+        m.setattr(Q, "_large_matrix", lambda q: False)
+        plain = Q.to_matrix(q)
+    assert ((fast - plain).flatten(-2).norm(dim=-1) <= 4 * eps(dtype)).all()
+    assert rel_err(fast, Q.to_matrix(q.double()), 2).max() <= 4 * eps(dtype)
+    for start in (1, 5, 333):
+        assert torch.equal(Q.to_matrix(q[start:]), fast[start:])
+    assert torch.equal(Q.to_matrix(q[:96].unflatten(0, (8, 12))), fast[:96].unflatten(0, (8, 12)))
+    big = q.repeat(25, 1)  # blocks of rows (one thread); the products split between two threads
+    assert torch.equal(Q.to_matrix(big), fast.repeat(25, 1, 1))
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        assert torch.equal(Q.to_matrix(big), fast.repeat(25, 1, 1))
+    finally:
+        torch.set_num_threads(threads)
+    column_major, spaced = q.mT.contiguous().mT, torch.stack((q, q), -1).flatten(-2)[:, ::2]
+    assert torch.equal(Q.to_matrix(column_major), fast) and torch.equal(Q.to_matrix(spaced), fast)
+    assert torch.equal(Q.to_matrix(q[7].expand(100, 4)), fast[7].expand(100, 3, 3))
+    bad = q[:100].clone()
+    bad[3, 2] = float("nan")
+    out = Q.to_matrix(bad)
+    assert out[3].isnan().all() and torch.equal(
+        out[torch.arange(100) != 3], fast[:100][torch.arange(100) != 3]
+    )
+    calls.clear()
+    monkeypatch.setattr(torch, "get_float32_matmul_precision", lambda: "medium")
+    Q.to_matrix(q)
+    assert calls == ([1] if dtype == F64 else [])
+
+
 def test_apply_matches_scipy(dtype):
     q = haar(200, 6, dtype)
     p = torch.randn(200, 3, generator=torch.Generator().manual_seed(0), dtype=F64).to(dtype)

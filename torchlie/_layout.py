@@ -116,11 +116,12 @@ def planes(M: Tensor, n: int | tuple[int, int]) -> tuple[Tensor, ...]:
         if matrix:
             return tuple(M[..., i, j] for i in range(n[0]) for j in range(n[1]))
         return M.unbind(-1)
-    return _stacked(M, n).unbind(0)
+    return stacked(M, n).unbind(0)
 
 
-def _stacked(M: Tensor, n: int | tuple[int, int]) -> Tensor:
-    """:func:`planes` as one contiguous ``(count, *batch)`` tensor (eager mode)."""
+def stacked(M: Tensor, n: int | tuple[int, int]) -> Tensor:
+    """:func:`planes` as one contiguous ``(count, *batch)`` tensor (eager mode; the same
+    transposition)."""
     matrix = isinstance(n, tuple)
     batch = M.shape[: M.dim() - (2 if matrix else 1)]
     rows = batch.numel()

@@ -132,17 +132,27 @@ def _quadratic_forms(scale_vector: float) -> Tensor:
     return forms.reshape(16, 10)
 
 
+def _pair_forms(forms: Tensor) -> Tensor:
+    """``(10, k)``: a ``(16, k)`` map of the products ``q_a q_b`` (row ``4 a + b``) folded onto
+    the ten with ``a <= b``, pairs in row-major order (``(0, 0), (0, 1), ..., (3, 3)``)."""
+    full = forms.view(4, 4, -1)
+    pairs = [(a, b) for a in range(4) for b in range(a, 4)]
+    return torch.stack([full[a, a] if a == b else full[a, b] + full[b, a] for a, b in pairs])
+
+
 _CONSTANTS: dict[tuple[str, torch.dtype], Tensor] = {}
 _SOURCES = {
     "multiply": _hamilton_forms,
     "to_matrix": lambda: _quadratic_forms(1.0),
+    "to_matrix_pairs": lambda: _pair_forms(_quadratic_forms(1.0)[:, :9]),
     "exp": lambda: _quadratic_forms(2.0)[:, :9],
     "bottom": lambda: torch.tensor([[0.0, 0.0, 0.0, 1.0]]),
     "zero_row": lambda: torch.zeros(1, 4),
 }
 
 
-def _constant(name: str, dtype: torch.dtype) -> Tensor:
+def constant(name: str, dtype: torch.dtype) -> Tensor:
+    """The constant map ``name`` (a key of ``_SOURCES``) in ``dtype``, built once."""
     out = _CONSTANTS.get((name, dtype))
     if out is None:
         out = _CONSTANTS[(name, dtype)] = _SOURCES[name]().to(dtype).contiguous()
@@ -158,7 +168,7 @@ def _outer(v: Tensor, u: Tensor | None = None) -> Tensor:
 def multiply(a: Tensor, b: Tensor) -> Tensor:
     """Hamilton product ``a b``: the products ``a_j b_k`` mapped to its components by one matrix
     product (batch shapes broadcast)."""
-    return torch.matmul(_outer(a, b), _constant("multiply", a.dtype))
+    return torch.matmul(_outer(a, b), constant("multiply", a.dtype))
 
 
 def _compute(x: Tensor) -> Tensor:
@@ -170,7 +180,7 @@ def to_matrix(q: Tensor) -> Tensor:
     """Rotation matrix of ``q / |q|``: ``q q^T`` mapped to the entries of ``|q|^2 R`` and to
     ``|q|^2`` by one product, then one division (float32 input evaluated in float64)."""
     v = _compute(q)
-    forms = torch.matmul(_outer(v), _constant("to_matrix", v.dtype))
+    forms = torch.matmul(_outer(v), constant("to_matrix", v.dtype))
     R = forms[..., :9] / forms[..., 9:]
     return (R.float() if q.dtype == torch.float32 else R).unflatten(-1, (3, 3))
 
@@ -190,7 +200,7 @@ def _exp_float64(w: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     :data:`_H_MIN`), ``sin(h) / h`` and ``cos h``."""
     h, s, c = _half_angle(w)  # s = sin(h) / h = 2 sin(h) / t: the vector part is twice q's
     q = torch.cat((c, s * w), -1)  # float64 (s) times float32 (w): float64
-    return torch.matmul(_outer(q), _constant("exp", _F64)), h, s, c
+    return torch.matmul(_outer(q), constant("exp", _F64)), h, s, c
 
 
 def exp_float32(w: Tensor) -> Tensor:
@@ -211,7 +221,7 @@ def se3_exp_float32(xi: Tensor) -> Tensor:
     t = _jl(phi.double(), rho, *_jl_coefficients(*half))
     batch = xi.shape[:-1]
     top = torch.cat((R.view(batch + (3, 3)), t.unsqueeze(-1)), -1)
-    bottom = _constant("bottom", _F64).expand(batch + (1, 4))
+    bottom = constant("bottom", _F64).expand(batch + (1, 4))
     return torch.cat((top, bottom), -2).to(xi.dtype)
 
 
@@ -260,7 +270,7 @@ def shepperd(M: Tensor) -> Tensor:
     :func:`_compute`).  Its ``w`` is never ``-0``: the constant added last is ``+0`` there."""
     E = torch.bmm(M.mT, M)
     P = torch.baddbmm(M, M, E, beta=1.5, alpha=-0.5)
-    bias, forms = _constant("shepperd_bias", M.dtype), _constant("shepperd", M.dtype)
+    bias, forms = constant("shepperd_bias", M.dtype), constant("shepperd", M.dtype)
     # the product, then the constant (addmm fuses them into a sum whose rounding depends on
     # the number of rows)
     values = torch.mm(P.view(-1, 9), forms).add_(bias).view(-1, 5, 4)
@@ -369,7 +379,7 @@ _SOURCES["pure"] = lambda: _hamilton_forms().view(4, 4, 4)[:, 1:].reshape(12, 4)
 
 def _vee_rt_g(R: Tensor, G: Tensor) -> Tensor:
     """``(rows, 3)``: ``vee(R^T G - G^T R)`` of ``(rows, 3, 3)`` matrices."""
-    return torch.mm(torch.bmm(R.mT, G).view(-1, 9), _constant("vee", R.dtype))
+    return torch.mm(torch.bmm(R.mT, G).view(-1, 9), constant("vee", R.dtype))
 
 
 def _r_hat(R: Tensor, u: Tensor) -> Tensor:
@@ -398,7 +408,7 @@ def to_matrix_backward(q: Tensor, R: Tensor, G: Tensor) -> Tensor:
     ``a = vee(R^T G - G^T R)`` (float32 in float64)."""
     v = _rows(q, (4,))
     a = _vee_rt_g(_rows(R, (3, 3)), _rows(G, (3, 3)))
-    out = torch.mm(_outer(v, a), _constant("pure", v.dtype)).mul_(2.0)
+    out = torch.mm(_outer(v, a), constant("pure", v.dtype)).mul_(2.0)
     return _result(out.div_((v * v).sum(-1, keepdim=True)), q, 1)
 
 
@@ -462,7 +472,7 @@ def se3_log_backward(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
     v = (gg[:, 3:] - _q(rho, phi, h_rho, xi.dtype)).mul_(0.5)
     R = M[:, :3, :3]
     top = torch.cat((_r_hat(R, _jl(phi, v, e, -0.5, d)), torch.bmm(R, h_rho.unsqueeze(-1))), -1)
-    zeros = _constant("zero_row", M.dtype).expand(M.shape[0], 1, 4)
+    zeros = constant("zero_row", M.dtype).expand(M.shape[0], 1, 4)
     return _result(torch.cat((top, zeros), -2), T, 2)
 
 
@@ -470,6 +480,6 @@ def multiply_backward(a: Tensor, b: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
     """Gradients of :func:`multiply` at the broadcast batch shape: ``g conj(b)`` and
     ``conj(a) g``, one product with a constant map each."""
     return (
-        torch.matmul(_outer(g, b), _constant("conj_right", g.dtype)),
-        torch.matmul(_outer(a, g), _constant("conj_left", g.dtype)),
+        torch.matmul(_outer(g, b), constant("conj_right", g.dtype)),
+        torch.matmul(_outer(a, g), constant("conj_left", g.dtype)),
     )

@@ -326,9 +326,52 @@ def to_matrix(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 3 3"]:
     return _checks.out(_to_matrix(x), dtype)
 
 
-def _to_matrix_forward(q: Tensor, *, dest: Tensor | None = None) -> Tensor:
-    if dest is None and _small.matrix_form(q, q.shape[:-1].numel()):
+def _to_matrix_forward(q: Tensor) -> Tensor:
+    rows = q.shape[:-1].numel()
+    if _small.matrix_form(q, rows):
         return _small.to_matrix(q)
+    if _large_matrix(q):
+        return _to_matrix_products(q)
+    return _to_matrix_entries(q)
+
+
+def _large_matrix(q: Tensor) -> bool:
+    """Whether :func:`to_matrix` of ``q`` takes :func:`_to_matrix_products_block` (a large
+    eager CPU batch whose matrix products are exact, see :func:`_layout.by_product`)."""
+    return _layout.by_product(q, 1)
+
+
+def _to_matrix_products_block(q: Tensor, *, dest: Tensor | None = None) -> Tensor:
+    """:func:`to_matrix` of a large eager CPU batch (where :func:`_layout.by_product` holds) as
+    two matrix products: the components as planes (a product with the identity), the ten
+    products ``q_a q_b`` (``a <= b``) scaled by ``1 / |q|^2`` (four element-wise calls), and the
+    nine entries from them by one product with a constant ``(10, 9)`` map, written row by row
+    into the result.  Eight calls over planes where :func:`_to_matrix_entries` makes 27 (one
+    thread, N = 10^6, in alternation, ns per element: float32 17.1 against 27.7, float64 32.5
+    against 53.7).  Within four ulp of it; each row of a product is summed alike whatever the
+    rows around it (tested), so an element's bits do not depend on its place in the batch."""
+    batch = q.shape[:-1]
+    rows = batch.numel()
+    p = _layout.stacked(q, 4).view(4, rows)
+    u = p.new_empty(10, rows)  # q_a q_b, pairs a <= b in row-major order
+    torch.mul(p[:1], p, out=u[:4])
+    torch.mul(p[1:2], p[1:], out=u[4:7])
+    torch.mul(p[2:3], p[2:], out=u[7:9])
+    torch.mul(p[3], p[3], out=u[9])
+    n = u[0] + u[4]
+    n += u[7]
+    n += u[9]
+    u *= torch.reciprocal(n, out=n)
+    out = q.new_empty(batch + (3, 3)) if dest is None else dest
+    torch.mm(u.T, _small.constant("to_matrix_pairs", q.dtype), out=out.view(rows, 9))
+    return out
+
+
+_to_matrix_products = _blocked(_to_matrix_products_block, (1,))
+
+
+def _to_matrix_entries_block(q: Tensor, *, dest: Tensor | None = None) -> Tensor:
+    """:func:`to_matrix` entry by entry (one block of rows)."""
     w, x, y, z = _planes(q, 4)
     ww, yy = w * w, y * y
     # Diagonal as (w^2 + x^2 - y^2 - z^2) / |q|^2: two terms bounded by |q|^2, where
@@ -349,6 +392,9 @@ def _to_matrix_forward(q: Tensor, *, dest: Tensor | None = None) -> Tensor:
         fma(xz, w, ys, value=-1.0, out=o[6]), fma(yz, w, xs, out=o[7]), mul(u - v, hs, out=o[8]),
     )  # fmt: skip
     return _layout.interleave(entries, o, dest).unflatten(-1, (3, 3))
+
+
+_to_matrix_entries = _blocked(_to_matrix_entries_block, (1,))
 
 
 def _norm2(w: Tensor, x: Tensor, y: Tensor, z: Tensor) -> Tensor:
@@ -439,6 +485,7 @@ _ToMatrixFn = custom_function(
     backward=_to_matrix_backward,
     jvp=_to_matrix_jvp,
     event_dims=(1,),
+    blocked=False,  # each form is blocked by itself
 )
 
 
