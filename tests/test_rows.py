@@ -94,13 +94,13 @@ def test_blocks_per_thread_equal_one_thread(dtype, monkeypatch):
     monkeypatch.setattr(_autograd, "PASSIVE", False)
     threads = torch.get_num_threads()
     seen = []
-    kernel = _rows._compose_kernel
+    kernel = _rows._compose_planes_kernel
 
     def spy(A, B, out):
         seen.append(out.shape[0])
         kernel(A, B, out)
 
-    monkeypatch.setattr(_rows, "_compose_kernel", spy)
+    monkeypatch.setattr(_rows, "_compose_planes_kernel", spy)
     try:
         results = []
         for k in (1, 2):
@@ -231,3 +231,34 @@ def test_inverse_only_at_full_float32_matmul_precision(rows_calls, monkeypatch):
     assert rows_calls == []
     torch.testing.assert_close(got, want, rtol=0, atol=4 * torch.finfo(torch.float32).eps * 8)
     assert se3.compose(A, A).shape == A.shape and rows_calls == ["compose"]  # no product there
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_compose_in_planes_equals_rows(dtype, monkeypatch):
+    """se3.compose and its backward split operands of one batch shape into planes where matrix
+    products are exact: the bits of the kernels over rows on finite poses; a broadcast batch,
+    and reduced-precision float32 products, take the kernels over rows."""
+    A, B, _ = _poses(1400, dtype, seed=12)
+    A, B = A.view(2, 700, 4, 4), B.view(2, 700, 4, 4)
+    G = torch.randn(2, 700, 4, 4, generator=torch.Generator().manual_seed(13), dtype=dtype)
+    monkeypatch.setattr(_rows, "ROWS", 100)
+    seen = []
+    for name in ("_compose_planes_kernel", "_compose_grads_planes_kernel", "_compose_kernel"):
+        kernel = getattr(_rows, name)
+        spy = lambda *args, _n=name, _k=kernel: seen.append(_n) or _k(*args)  # noqa: E731
+        monkeypatch.setattr(_rows, name, spy)
+    y1, g1 = _run(se3.compose, (A, B), G)
+    assert set(seen) == {"_compose_planes_kernel", "_compose_grads_planes_kernel"}
+    with monkeypatch.context() as m:
+        m.setattr(_rows, "planes_taken", lambda *operands: False)
+        y2, g2 = _run(se3.compose, (A, B), G)
+    assert torch.equal(_bits(y1), _bits(y2))
+    assert all(torch.equal(_bits(a), _bits(b)) for a, b in zip(g1, g2, strict=True))
+    seen.clear()
+    y3, _ = _run(se3.compose, (A, B[0]), G)  # B broadcast over the first dimension
+    assert "_compose_kernel" in seen and "_compose_planes_kernel" not in seen
+    assert torch.equal(y3[0], y1[0])
+    if dtype == torch.float32:
+        seen.clear()
+        monkeypatch.setattr(torch, "get_float32_matmul_precision", lambda: "medium")
+        assert torch.equal(se3.compose(A, B), y1) and seen == ["_compose_kernel"] * 14
