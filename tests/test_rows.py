@@ -234,31 +234,38 @@ def test_inverse_only_at_full_float32_matmul_precision(rows_calls, monkeypatch):
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
-def test_compose_in_planes_equals_rows(dtype, monkeypatch):
-    """se3.compose and its backward split operands of one batch shape into planes where matrix
-    products are exact: the bits of the kernels over rows on finite poses; a broadcast batch,
-    and reduced-precision float32 products, take the kernels over rows."""
+def test_planes_equal_rows(dtype, monkeypatch):
+    """se3.compose and its backward, and the backward of se3.inverse, split operands of one
+    batch shape into planes where matrix products are exact: the bits of the kernels over rows
+    on finite poses; a broadcast batch, and reduced-precision float32 products, take the
+    kernels over rows."""
     A, B, _ = _poses(1400, dtype, seed=12)
     A, B = A.view(2, 700, 4, 4), B.view(2, 700, 4, 4)
     G = torch.randn(2, 700, 4, 4, generator=torch.Generator().manual_seed(13), dtype=dtype)
     monkeypatch.setattr(_rows, "ROWS", 100)
     seen = []
-    for name in ("_compose_planes_kernel", "_compose_grads_planes_kernel", "_compose_kernel"):
+    planes = ("_compose_planes_kernel", "_compose_grads_planes_kernel")
+    planes += ("_inverse_grads_planes_kernel",)
+    for name in planes + ("_compose_kernel", "_inverse_grads_kernel"):
         kernel = getattr(_rows, name)
         spy = lambda *args, _n=name, _k=kernel: seen.append(_n) or _k(*args)  # noqa: E731
         monkeypatch.setattr(_rows, name, spy)
-    y1, g1 = _run(se3.compose, (A, B), G)
-    assert set(seen) == {"_compose_planes_kernel", "_compose_grads_planes_kernel"}
+    cases = [(se3.compose, (A, B)), (se3.inverse, (A,))]
+    fast = [_run(fn, args, G) for fn, args in cases]
+    assert set(seen) == set(planes)
     with monkeypatch.context() as m:
         m.setattr(_rows, "planes_taken", lambda *operands: False)
-        y2, g2 = _run(se3.compose, (A, B), G)
-    assert torch.equal(_bits(y1), _bits(y2))
-    assert all(torch.equal(_bits(a), _bits(b)) for a, b in zip(g1, g2, strict=True))
+        rows = [_run(fn, args, G) for fn, args in cases]
+    for (y1, g1), (y2, g2) in zip(fast, rows, strict=True):
+        assert torch.equal(_bits(y1), _bits(y2))
+        assert all(torch.equal(_bits(a), _bits(b)) for a, b in zip(g1, g2, strict=True))
     seen.clear()
     y3, _ = _run(se3.compose, (A, B[0]), G)  # B broadcast over the first dimension
     assert "_compose_kernel" in seen and "_compose_planes_kernel" not in seen
-    assert torch.equal(y3[0], y1[0])
+    assert torch.equal(y3[0], fast[0][0][0])
     if dtype == torch.float32:
         seen.clear()
         monkeypatch.setattr(torch, "get_float32_matmul_precision", lambda: "medium")
-        assert torch.equal(se3.compose(A, B), y1) and seen == ["_compose_kernel"] * 14
+        for fn, args in cases:
+            _run(fn, args, G)
+        assert seen == ["_compose_kernel"] * 14 + ["_inverse_grads_kernel"] * 14
