@@ -249,51 +249,69 @@ def test_multiply_of_large_batches_in_complex_arithmetic(dtype, monkeypatch):
 
 def test_to_matrix_of_large_batches_by_products(dtype, monkeypatch):
     """Large CPU batches take the matrix of the scaled products ``q_a q_b`` (two matrix
-    products): within four ulp of the entry-by-entry form, every sampler angle, any scale, batch
-    shapes and strides, each element's bits the same wherever it is in the batch (blocks and
-    threads included), a NaN stays in its element, and not where float32 products are reduced
+    products), and its backward products too: within four ulp of the entry-by-entry forms
+    (gradients: eight, relative to |G| / |q|), every sampler angle, any scale, batch shapes and
+    strides, each element's bits the same wherever it is in the batch (blocks and threads
+    included), a NaN stays in its element, and not where float32 products are reduced
     precision."""
     from torchlie import _layout
 
     monkeypatch.setattr(_small, "MATRIX_ROWS", 0)  # the small batches below stand for large ones
     monkeypatch.setattr(_layout, "MIN_ROWS", 64)
     calls = []
-    form = Q._to_matrix_products
-    monkeypatch.setattr(Q, "_to_matrix_products", lambda q: calls.append(1) or form(q))
+    for name in ("_to_matrix_products", "_to_matrix_grad_products"):
+        form = getattr(Q, name)
+        spy = lambda *args, _n=name, _f=form: calls.append(_n) or _f(*args)  # noqa: E731
+        monkeypatch.setattr(Q, name, spy)
     w, _ = samplers.rotvecs(dtype=dtype)
     scale = torch.logspace(-3, 3, w.shape[0], dtype=dtype).unsqueeze(-1)
     q = Q.from_rotvec(w) * scale
-    fast = Q.to_matrix(q)
-    assert calls == [1]
+    G = torch.randn(q.shape[:-1] + (3, 3), generator=torch.Generator().manual_seed(5), dtype=dtype)
+
+    def run(x, g):
+        leaf = x.detach().requires_grad_()  # a view keeps its strides
+        y = Q.to_matrix(leaf)
+        return y.detach(), torch.autograd.grad(y, leaf, g)[0]
+
+    fast, dq = run(q, G)
+    assert calls == ["_to_matrix_products", "_to_matrix_grad_products"]
     with monkeypatch.context() as m:
         m.setattr(Q, "_large_matrix", lambda q: False)
-        plain = Q.to_matrix(q)
+        plain, dq_plain = run(q, G)
     assert ((fast - plain).flatten(-2).norm(dim=-1) <= 4 * eps(dtype)).all()
     assert rel_err(fast, Q.to_matrix(q.double()), 2).max() <= 4 * eps(dtype)
+    bound = 8 * eps(dtype) * G.flatten(-2).norm(dim=-1) / q.norm(dim=-1)
+    assert ((dq - dq_plain).norm(dim=-1) <= bound).all()
     for start in (1, 5, 333):
-        assert torch.equal(Q.to_matrix(q[start:]), fast[start:])
-    assert torch.equal(Q.to_matrix(q[:96].unflatten(0, (8, 12))), fast[:96].unflatten(0, (8, 12)))
-    big = q.repeat(25, 1)  # blocks of rows (one thread); the products split between two threads
-    assert torch.equal(Q.to_matrix(big), fast.repeat(25, 1, 1))
+        y, d = run(q[start:], G[start:])
+        assert torch.equal(y, fast[start:]) and torch.equal(d, dq[start:])
+    y, d = run(q[:96].unflatten(0, (8, 12)), G[:96].unflatten(0, (8, 12)))
+    assert torch.equal(y.flatten(0, 1), fast[:96]) and torch.equal(d.flatten(0, 1), dq[:96])
+    big, G_big = q.repeat(25, 1), G.repeat(25, 1, 1)  # blocks (one thread), two threads
     threads = torch.get_num_threads()
     try:
-        torch.set_num_threads(2)
-        assert torch.equal(Q.to_matrix(big), fast.repeat(25, 1, 1))
+        for k in (1, 2):
+            torch.set_num_threads(k)
+            y, d = run(big, G_big)
+            assert torch.equal(y, fast.repeat(25, 1, 1)) and torch.equal(d, dq.repeat(25, 1))
     finally:
         torch.set_num_threads(threads)
     column_major, spaced = q.mT.contiguous().mT, torch.stack((q, q), -1).flatten(-2)[:, ::2]
-    assert torch.equal(Q.to_matrix(column_major), fast) and torch.equal(Q.to_matrix(spaced), fast)
-    assert torch.equal(Q.to_matrix(q[7].expand(100, 4)), fast[7].expand(100, 3, 3))
+    for x, g in ((column_major, G), (spaced, G.mT.contiguous().mT), (q, G.expand(2, *G.shape)[1])):
+        y, d = run(x, g)
+        assert torch.equal(y, fast) and torch.equal(d, dq)
+    y, d = run(q[7].expand(100, 4), G[7].expand(100, 3, 3))
+    assert torch.equal(y, fast[7].expand(100, 3, 3)) and torch.equal(d, dq[7].expand(100, 4))
     bad = q[:100].clone()
     bad[3, 2] = float("nan")
-    out = Q.to_matrix(bad)
-    assert out[3].isnan().all() and torch.equal(
-        out[torch.arange(100) != 3], fast[:100][torch.arange(100) != 3]
-    )
+    y, d = run(bad, G[:100])
+    keep = torch.arange(100) != 3
+    assert y[3].isnan().all() and torch.equal(y[keep], fast[:100][keep])
+    assert d[3].isnan().all() and torch.equal(d[keep], dq[:100][keep])
     calls.clear()
     monkeypatch.setattr(torch, "get_float32_matmul_precision", lambda: "medium")
-    Q.to_matrix(q)
-    assert calls == ([1] if dtype == F64 else [])
+    run(q, G)
+    assert calls == (["_to_matrix_products", "_to_matrix_grad_products"] if dtype == F64 else [])
 
 
 def test_apply_matches_scipy(dtype):

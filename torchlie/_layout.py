@@ -61,7 +61,8 @@ def _fp32_full_precision() -> bool:
     return getattr(mkldnn, "fp32_precision", "none") in ("none", "ieee")
 
 
-def _eye(dtype: torch.dtype, n: int) -> Tensor:
+def eye(dtype: torch.dtype, n: int) -> Tensor:
+    """The ``n x n`` identity (CPU, built once per dtype and size)."""
     eye = _EYES.get((dtype, n))
     if eye is None:
         eye = _EYES[(dtype, n)] = torch.eye(n, dtype=dtype)
@@ -132,7 +133,7 @@ def stacked(M: Tensor, n: int | tuple[int, int]) -> Tensor:
             flat, columns = _rows_of_matrices(flat)
             select = _selection(M.dtype, flat.shape[1], tuple(columns))
         else:
-            select = _eye(M.dtype, n)
+            select = eye(M.dtype, n)
         return torch.mm(select, flat.T).reshape((count,) + batch)
     if matrix:  # one copy even when M is a strided block
         return M.movedim((-2, -1), (0, 1)).contiguous().flatten(0, 1)
@@ -161,7 +162,7 @@ def _selection(dtype: torch.dtype, k: int, columns: tuple[int, ...]) -> Tensor:
     key = (k, columns, dtype)
     out = _SELECTIONS.get(key)
     if out is None:
-        out = _SELECTIONS[key] = _eye(dtype, k)[list(columns)]
+        out = _SELECTIONS[key] = eye(dtype, k)[list(columns)]
     return out
 
 

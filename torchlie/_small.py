@@ -140,11 +140,19 @@ def _pair_forms(forms: Tensor) -> Tensor:
     return torch.stack([full[a, a] if a == b else full[a, b] + full[b, a] for a, b in pairs])
 
 
+def _symmetrized(forms: Tensor) -> Tensor:
+    """``(16, k)``: ``M + M^T`` of each column ``M`` (a ``4 x 4`` matrix, row ``4 a + b``) of a
+    ``(16, k)`` map of the products ``q_a q_b``: the gradient of ``q^T M q`` is ``(M + M^T) q``."""
+    full = forms.view(4, 4, -1)
+    return (full + full.transpose(0, 1)).reshape(16, -1)
+
+
 _CONSTANTS: dict[tuple[str, torch.dtype], Tensor] = {}
 _SOURCES = {
     "multiply": _hamilton_forms,
     "to_matrix": lambda: _quadratic_forms(1.0),
     "to_matrix_pairs": lambda: _pair_forms(_quadratic_forms(1.0)[:, :9]),
+    "to_matrix_gradient": lambda: _symmetrized(_quadratic_forms(1.0)[:, :9]),
     "exp": lambda: _quadratic_forms(2.0)[:, :9],
     "bottom": lambda: torch.tensor([[0.0, 0.0, 0.0, 1.0]]),
     "zero_row": lambda: torch.zeros(1, 4),
