@@ -314,6 +314,44 @@ def test_to_matrix_of_large_batches_by_products(dtype, monkeypatch):
     assert calls == (["_to_matrix_products", "_to_matrix_grad_products"] if dtype == F64 else [])
 
 
+def test_apply_of_large_batches_over_shifted_planes(dtype, monkeypatch):
+    """Large CPU batches of one batch shape rotate over planes stacked with their cyclic shifts:
+    the bits of the entry-by-entry kernel on finite input, blocks included; broadcast batches
+    and reduced-precision float32 products take the entry-by-entry kernel; a NaN stays in its
+    element."""
+    from torchlie import _autograd, _layout
+
+    monkeypatch.setattr(_layout, "MIN_ROWS", 64)
+    monkeypatch.setattr(_autograd, "BLOCK", 256)  # blocks of 256 rows (float64 128)
+    calls = []
+    form = Q._apply_shifted
+    monkeypatch.setattr(Q, "_apply_shifted", lambda *a, **k: calls.append(1) or form(*a, **k))
+    monkeypatch.setattr(Q, "_apply_shifted_blocked", _autograd._blocked(Q._apply_shifted, (1, 1)))
+    g = torch.Generator().manual_seed(7)
+    q = torch.randn(1000, 4, generator=g, dtype=dtype)
+    p = torch.randn(1000, 3, generator=g, dtype=dtype) * 10.0
+    want = Q._apply_entries(q, p)
+    for a, b in ((q, p), (q.view(10, 100, 4), p.view(10, 100, 3)), (q.mT.contiguous().mT, p)):
+        calls.clear()
+        got = Q.apply(a, b)
+        assert calls and torch.equal(got.reshape(want.shape), want)
+    calls.clear()
+    assert torch.equal(
+        Q.apply(q.view(10, 100, 4), p[:100]), Q._apply_entries(q.view(10, 100, 4), p[:100])
+    )
+    assert calls == []
+    bad = p.clone()
+    bad[3, 1] = float("nan")
+    out = Q.apply(q, bad)
+    keep = torch.arange(1000) != 3
+    assert out[3].isnan().all() and torch.equal(out[keep], want[keep])
+    if dtype == torch.float32:
+        monkeypatch.setattr(torch, "get_float32_matmul_precision", lambda: "medium")
+        calls.clear()
+        torch.testing.assert_close(Q.apply(q, p), want)  # the cross-product formula
+        assert calls == []
+
+
 def test_apply_matches_scipy(dtype):
     q = haar(200, 6, dtype)
     p = torch.randn(200, 3, generator=torch.Generator().manual_seed(0), dtype=F64).to(dtype)

@@ -131,7 +131,7 @@ def stacked(M: Tensor, n: int | tuple[int, int]) -> Tensor:
         flat = M.reshape((rows,) + M.shape[len(batch) :])
         if matrix:
             flat, columns = _rows_of_matrices(flat)
-            select = _selection(M.dtype, flat.shape[1], tuple(columns))
+            select = selection(M.dtype, flat.shape[1], tuple(columns))
         else:
             select = eye(M.dtype, n)
         return torch.mm(select, flat.T).reshape((count,) + batch)
@@ -153,11 +153,11 @@ def matrix_planes(M: Tensor, out: Tensor | None = None) -> Tensor:
     row, as ``(r c, B)`` planes (in ``out`` if given) by one product with a selection, whatever
     ``B``: for kernels that have checked :func:`by_product` for their whole batch."""
     flat, columns = _rows_of_matrices(M)
-    select = _selection(M.dtype, flat.shape[1], tuple(columns))
+    select = selection(M.dtype, flat.shape[1], tuple(columns))
     return torch.mm(select, flat.T, out=out)
 
 
-def _selection(dtype: torch.dtype, k: int, columns: tuple[int, ...]) -> Tensor:
+def selection(dtype: torch.dtype, k: int, columns: tuple[int, ...]) -> Tensor:
     """The rows ``columns`` of the ``k x k`` identity: picks those columns of a matrix."""
     key = (k, columns, dtype)
     out = _SELECTIONS.get(key)

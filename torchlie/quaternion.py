@@ -848,6 +848,8 @@ def apply(q: Float[Tensor, "*b1 4"], points: Float[Tensor, "*b2 3"]) -> Float[Te
 
 
 def _apply_values(q: Tensor, p: Tensor) -> Tensor:
+    if _layout.by_product(q, 1) and q.shape[:-1] == p.shape[:-1]:
+        return _apply_shifted_blocked(q, p)
     if torch.compiler.is_compiling() or _layout.by_product(q, 1) or _layout.by_product(p, 1):
         return _apply_entries_blocked(q, p)
     w = q[..., :1]
@@ -956,6 +958,40 @@ def _apply_entries(q: Tensor, p: Tensor, *, dest: Tensor | None = None) -> Tenso
 
 
 _apply_entries_blocked = _blocked(_apply_entries, (1, 1))
+
+
+def _apply_shifted(q: Tensor, p: Tensor, *, dest: Tensor | None = None) -> Tensor:
+    """:func:`_apply_entries` (the same operations, the same bits on finite input) for ``q`` and
+    ``p`` of one batch shape where matrix products are exact (a large eager CPU batch, see
+    :func:`_layout.by_product`), three planes at a time.
+
+    Each operand is split into planes by one product with a selection that repeats its first
+    planes after the last, ``(w, x, y, z, x, y)`` and ``(p_0, p_1, p_2, p_0, p_1)``, so that the
+    cyclic shifts of a cross product are slices: ``v x p`` is ``v[1:4] p[2:5] - v[2:5] p[1:4]``,
+    two calls over three planes each.  Sixteen calls where :func:`_apply_entries` makes 25, the
+    result's rows by one product with the identity (one thread, N = 10^6, in alternation, ns per
+    element: float32 19.4-19.9 -> 17.9-18.1, float64 36.0 -> 34.9; the same operations written
+    out without blocks took 16.4-17.1 and 31.6, and storing the result's columns strided instead
+    of the product 17.8)."""
+    batch = q.shape[:-1]
+    rows = batch.numel()
+    qs = torch.mm(_layout.selection(q.dtype, 4, (0, 1, 2, 3, 1, 2)), q.reshape(rows, 4).T)
+    ps = torch.mm(_layout.selection(q.dtype, 3, (0, 1, 2, 0, 1)), p.reshape(rows, 3).T)
+    w, v1, v2 = qs[:1], qs[2:5], qs[3:6]  # v shifted by one and by two
+    s = qs[0] * qs[0]  # 2 / |q|^2, multiply-adds in the order of _norm2, in place
+    s.addcmul_(qs[1], qs[1]).addcmul_(qs[2], qs[2]).addcmul_(qs[3], qs[3])
+    s = torch.reciprocal(s, out=s).mul_(2.0)  # = 2 / |q|^2: doubling is exact
+    c = q.new_empty(5, rows)  # v x p, then its first two planes again
+    torch.mul(v1, ps[2:5], out=c[:3]).addcmul_(v2, ps[1:4], value=-1.0)
+    c[3:] = c[:2]
+    e = (v1 * c[2:5]).addcmul_(v2, c[1:4], value=-1.0).addcmul_(w, c[:3])  # v x c + w c
+    out = q.new_empty(batch + (3,)) if dest is None else dest
+    y = torch.addcmul(ps[:3], s, e)  # p + s e
+    torch.mm(y.T, _layout.eye(q.dtype, 3), out=out.view(rows, 3))
+    return out
+
+
+_apply_shifted_blocked = _blocked(_apply_shifted, (1, 1))
 
 
 def exp(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
