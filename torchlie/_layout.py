@@ -148,13 +148,12 @@ def stacked(M: Tensor, n: int | tuple[int, int]) -> Tensor:
     return M.movedim(-1, 0).contiguous()
 
 
-def matrix_planes(M: Tensor, out: Tensor | None = None) -> Tensor:
+def matrix_planes(M: Tensor) -> Tensor:
     """The entries of a ``(B, r, c)`` batch of matrices (or a strided block of one), row by
-    row, as ``(r c, B)`` planes (in ``out`` if given) by one product with a selection, whatever
-    ``B``: for kernels that have checked :func:`by_product` for their whole batch."""
+    row, as ``(r c, B)`` planes by one product with a selection, whatever ``B``: for kernels
+    that have checked :func:`by_product` for their whole batch."""
     flat, columns = _rows_of_matrices(M)
-    select = selection(M.dtype, flat.shape[1], tuple(columns))
-    return torch.mm(select, flat.T, out=out)
+    return torch.mm(selection(M.dtype, flat.shape[1], tuple(columns)), flat.T)
 
 
 def selection(dtype: torch.dtype, k: int, columns: tuple[int, ...]) -> Tensor:

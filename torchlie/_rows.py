@@ -186,14 +186,10 @@ def _compose_kernel(A: Tensor, B: Tensor, out: Tensor) -> None:
     out[..., 3, :].copy_(_last_row(out))
 
 
-def _top_planes(T: Tensor, out: Tensor | None = None) -> Tensor:
+def _top_planes(T: Tensor) -> Tensor:
     """The top ``3 x 4`` blocks of a ``(m, 4, 4)`` block of poses (or of their gradients) as
-    ``(3, 4, m)`` planes, in ``out`` if given (one transposition by product, see
-    :mod:`torchlie._layout`)."""
-    m = T.shape[0]
-    return _layout.matrix_planes(T[:, :3, :], None if out is None else out.view(12, m)).view(
-        3, 4, m
-    )
+    ``(3, 4, m)`` planes (one transposition by product, see :mod:`torchlie._layout`)."""
+    return _layout.matrix_planes(T[:, :3, :]).view(3, 4, T.shape[0])
 
 
 def _map(name: str, dtype: torch.dtype) -> Tensor:
