@@ -978,9 +978,7 @@ def _apply_shifted(q: Tensor, p: Tensor, *, dest: Tensor | None = None) -> Tenso
     qs = torch.mm(_layout.selection(q.dtype, 4, (0, 1, 2, 3, 1, 2)), q.reshape(rows, 4).T)
     ps = torch.mm(_layout.selection(q.dtype, 3, (0, 1, 2, 0, 1)), p.reshape(rows, 3).T)
     w, v1, v2 = qs[:1], qs[2:5], qs[3:6]  # v shifted by one and by two
-    s = qs[0] * qs[0]  # 2 / |q|^2, multiply-adds in the order of _norm2, in place
-    s.addcmul_(qs[1], qs[1]).addcmul_(qs[2], qs[2]).addcmul_(qs[3], qs[3])
-    s = torch.reciprocal(s, out=s).mul_(2.0)  # = 2 / |q|^2: doubling is exact
+    s = 2.0 / _norm2(*qs[:4].unbind(0))
     c = q.new_empty(5, rows)  # v x p, then its first two planes again
     torch.mul(v1, ps[2:5], out=c[:3]).addcmul_(v2, ps[1:4], value=-1.0)
     c[3:] = c[:2]
