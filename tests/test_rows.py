@@ -108,7 +108,7 @@ def test_blocks_per_thread_equal_one_thread(dtype, monkeypatch):
             results.append([_run(fn, args) for fn, args in _cases(A, B, p)])
     finally:
         torch.set_num_threads(threads)
-    rows = 100 * 4 // A.element_size()
+    rows = _rows.PLANE_BLOCKS * 100 * 4 // A.element_size()
     assert seen[0] == rows and rows * 2 in seen
     for (y1, g1), (y2, g2) in zip(*results, strict=True):
         assert torch.equal(_bits(y1), _bits(y2))
