@@ -344,11 +344,11 @@ def _large_matrix(q: Tensor) -> bool:
 def _to_matrix_products_block(q: Tensor, *, dest: Tensor | None = None) -> Tensor:
     """:func:`to_matrix` of a large eager CPU batch (where :func:`_layout.by_product` holds) as
     two matrix products: the components as planes (a product with the identity), the ten
-    products ``q_a q_b`` (``a <= b``) scaled by ``1 / |q|^2`` (four element-wise calls), and the
-    nine entries from them by one product with a constant ``(10, 9)`` map, written row by row
-    into the result.  Eight calls over planes where :func:`_to_matrix_entries` makes 27 (one
-    thread, N = 10^6, in alternation, ns per element: float32 17.1 against 27.7, float64 32.5
-    against 53.7).  Within four ulp of it; each row of a product is summed alike whatever the
+    products ``q_a q_b`` (``a <= b``; four element-wise calls), scaled by ``1 / |q|^2`` (five
+    more), and the nine entries from them by one product with a constant ``(10, 9)`` map,
+    written row by row into the result.  Eleven calls where :func:`_to_matrix_entries` makes 28
+    (one thread, N = 10^6, in alternation, ns per element: float32 17.1 against 27.7, float64
+    32.5 against 53.7).  Within four ulp of it; each row of a product is summed alike whatever the
     rows around it (tested), so an element's bits do not depend on its place in the batch."""
     batch = q.shape[:-1]
     rows = batch.numel()
@@ -968,7 +968,7 @@ def _apply_shifted(q: Tensor, p: Tensor, *, dest: Tensor | None = None) -> Tenso
     Each operand is split into planes by one product with a selection that repeats its first
     planes after the last, ``(w, x, y, z, x, y)`` and ``(p_0, p_1, p_2, p_0, p_1)``, so that the
     cyclic shifts of a cross product are slices: ``v x p`` is ``v[1:4] p[2:5] - v[2:5] p[1:4]``,
-    two calls over three planes each.  Sixteen calls where :func:`_apply_entries` makes 25, the
+    two calls over three planes each.  Fifteen calls where :func:`_apply_entries` makes 27, the
     result's rows by one product with the identity (one thread, N = 10^6, in alternation, ns per
     element: float32 19.4-19.9 -> 17.9-18.1, float64 36.0 -> 34.9; the same operations written
     out without blocks took 16.4-17.1 and 31.6, and storing the result's columns strided instead
