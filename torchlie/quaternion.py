@@ -156,8 +156,12 @@ def _complex_product(
     if A is None or B is None:
         return None
     z1, z2, u1, u2 = A[..., 0], A[..., 1], B[..., 0], B[..., 1]
+    # every form takes conj(u1) and conj(u2): both at once (a product by a conj() view copies
+    # it first; float32 N = 10^6, one thread: forward 13.1 -> 11.8 ns per element, forward+
+    # backward 56.9 -> 55.7)
+    u1c, u2c = torch.conj_physical(B).unbind(-1)
     p1 = z1.conj() if conj_a else z1
-    v1, v1c = (u1.conj(), u1) if conj_b else (u1, u1.conj())
+    v1, v1c = (u1c, u1) if conj_b else (u1, u1c)
     shape = torch.broadcast_shapes(a.shape, b.shape)
     out = torch.empty(shape, dtype=a.dtype, device=a.device) if dest is None else dest.view(shape)
     pairs = _pairs(out)
@@ -165,7 +169,7 @@ def _complex_product(
         return None
     c1, c2 = pairs.unbind(-1)
     # c1 = p1 v1 - s z2 conj(u2), s = (-1 if conj_a) (-1 if conj_b)
-    (torch.add if conj_a != conj_b else torch.sub)(p1 * v1, z2 * u2.conj(), out=c1)
+    (torch.add if conj_a != conj_b else torch.sub)(p1 * v1, z2 * u2c, out=c1)
     # c2 = (-1 if conj_b) p1 u2 + (-1 if conj_a) z2 conj(v1)
     t1, t2 = p1 * u2, z2 * v1c
     if conj_b:
