@@ -60,7 +60,6 @@ from ._autograd import block_rows
 ROWS = 4096
 
 _BIASES: dict[torch.dtype, Tensor] = {}
-_LAST_ROWS: dict[torch.dtype, Tensor] = {}
 _MAPS: dict[tuple[str, torch.dtype], Tensor] = {}
 
 
@@ -102,13 +101,6 @@ def _in_blocks(
     for start in range(0, n, step):
         block = slice(start, start + step)
         kernel(*(x[block] for x in flat_in), *(o[block] for o in flat_out))
-
-
-def _last_row(like: Tensor) -> Tensor:
-    row = _LAST_ROWS.get(like.dtype)
-    if row is None:
-        row = _LAST_ROWS[like.dtype] = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=like.dtype)
-    return row
 
 
 def _bias(dtype: torch.dtype) -> Tensor:
@@ -191,7 +183,7 @@ def _compose_kernel(A: Tensor, B: Tensor, out: Tensor) -> None:
         torch.mul(A[..., i, :1], B[..., 0, :], out=row)
         row.addcmul_(A[..., i, 1:2], B[..., 1, :]).addcmul_(A[..., i, 2:3], B[..., 2, :])
     out[..., :3, 3].add_(A[..., :3, 3])
-    out[..., 3, :].copy_(_last_row(out))
+    out[..., 3, :].copy_(_bias(out.dtype)[12:])  # (0, 0, 0, 1)
 
 
 def _top_planes(T: Tensor) -> Tensor:
@@ -201,7 +193,7 @@ def _top_planes(T: Tensor) -> Tensor:
 
 
 def _map(name: str, dtype: torch.dtype) -> Tensor:
-    """The constant ``(k, 16)`` map ``name`` from ``k`` planes (or entries) to the flattened
+    """The constant ``(12, 16)`` map ``name`` from twelve planes (or entries) to the flattened
     ``4 x 4`` matrix (built once per dtype): ``"top"``, the twelve entries of a top block, row
     by row, to their places; ``"transpose"``, those of ``[R, t]`` to ``[R^T, 0]``;
     ``"inverse_grads"``, the planes of ``dR^T`` (``3 j + i``) and ``dt`` (``9 + i``) to
@@ -224,12 +216,12 @@ def _map(name: str, dtype: torch.dtype) -> Tensor:
 
 
 def _write(planes: Tensor, out: Tensor, name: str, last: bool) -> None:
-    """``(k, ..., m)`` planes into the ``(m, 4, 4)`` rows ``out`` by one product with the
-    constant map ``name`` (see :func:`_map`), the last rows ``(0, 0, 0, 1)`` (``last``) or zero
-    (exact, with the caveats of the transpositions by product, see :mod:`torchlie._layout`)."""
+    """Twelve planes (``(12, m)``, or shaped ``(3, 4, m)``) into the ``(m, 4, 4)`` rows ``out``
+    by one product with the constant map ``name`` (see :func:`_map`), the last rows
+    ``(0, 0, 0, 1)`` (``last``) or zero (exact, with the caveats of the transpositions by
+    product, see :mod:`torchlie._layout`)."""
     m = out.shape[0]
-    forms = _map(name, out.dtype)
-    top = planes.reshape(forms.shape[0], m).T
+    top, forms = planes.reshape(12, m).T, _map(name, out.dtype)
     if last:
         torch.addmm(_bias(out.dtype), top, forms, out=out.view(m, 16))
     else:
