@@ -269,3 +269,52 @@ def test_planes_equal_rows(dtype, monkeypatch):
         for fn, args in cases:
             _run(fn, args, G)
         assert seen == ["_compose_kernel"] * 14 + ["_inverse_grads_kernel"] * 14
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_act_products_forms(dtype, monkeypatch):
+    """so3.act (forward and backward) and se3.act's backward, on operands of one batch shape
+    with contiguous matrices, take the products forms: the sums of the kernels over rows, each
+    product rounded on its own (within an ulp or two of the largest product); a broadcast batch,
+    a rotation block of a pose, and reduced-precision float32 products take the kernels over
+    rows."""
+    A, _, p = _poses(1400, dtype, seed=14)
+    A, p = A.view(2, 700, 4, 4), p.view(2, 700, 3) * 5.0
+    R = A[..., :3, :3].contiguous()
+    h = torch.randn(2, 700, 3, generator=torch.Generator().manual_seed(15), dtype=dtype)
+    monkeypatch.setattr(_rows, "ROWS", 100)
+    products = ["_act_products_kernel", "_act_grads_products_kernel"]
+    products.append("_pose_act_grads_products_kernel")
+    rows = ["_rotate", "_act_grads_kernel", "_pose_act_grads_kernel"]
+    seen = []
+    for name in products + rows:
+        kernel = getattr(_rows, name)
+        spy = lambda *args, _n=name, _k=kernel: seen.append(_n) or _k(*args)  # noqa: E731
+        monkeypatch.setattr(_rows, name, spy)
+    cases = [(so3.act, (R, p)), (se3.act, (A, p))]
+    fast = [_run(fn, args, h) for fn, args in cases]
+    assert set(products) <= set(seen) and "_act_grads_kernel" not in seen
+    assert "_pose_act_grads_kernel" not in seen
+    with monkeypatch.context() as m:
+        m.setattr(_rows, "products_taken", lambda *operands: False)
+        slow = [_run(fn, args, h) for fn, args in cases]
+    eps = torch.finfo(dtype).eps
+    # |R_ij p_j| <= |p| (~ 10 here), |g_i p_j| and |R_ij g_i| <= |g| |p|
+    for (y1, g1), (y2, g2) in zip(fast, slow, strict=True):
+        torch.testing.assert_close(y1, y2, rtol=0, atol=2 * eps * 16)
+        for a, b in zip(g1, g2, strict=True):
+            torch.testing.assert_close(a, b, rtol=0, atol=2 * eps * 16 * 4)
+    assert torch.equal(fast[1][1][0], slow[1][1][0])  # g (p, 1)^T: the same products
+    assert torch.equal(fast[0][1][0], slow[0][1][0])
+    seen.clear()
+    for fn, args in [(so3.act, (R, p[0])), (so3.act, (R[0], p))]:
+        _run(fn, args, h)
+    pose = A.clone().requires_grad_()  # its rotation block: strided, not to be copied by _run
+    torch.autograd.grad(so3.act(pose[..., :3, :3], p), pose, h)
+    assert seen and not set(products) & set(seen)
+    if dtype == torch.float32:
+        seen.clear()
+        monkeypatch.setattr(torch, "get_float32_matmul_precision", lambda: "medium")
+        for fn, args in cases:
+            _run(fn, args, h)
+        assert not set(products) & set(seen) and "_pose_act_grads_kernel" in seen
