@@ -236,8 +236,8 @@ def pose_act_grads(T: Tensor, p: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
 
     In the products form where :func:`products_taken` (``T``'s bottom row is not read; one
     thread, N = 10^6, ns per element, in alternation with the kernel over rows, float32
-    (float64): 40.1 -> 31.7 (79.8 -> 55.5), in blocks of :data:`ROWS` rows, where blocks of
-    ``2 ROWS`` took 35.3 (62.0))."""
+    (float64): 40.1 -> 36.5 (79.7 -> 61.0), in blocks of :data:`ROWS` rows, where blocks of
+    ``2 ROWS`` measured 2-10 % slower)."""
     dT, dp = g.new_empty(g.shape[:-1] + (4, 4)), g.new_empty(g.shape)
     operands, outs = ((T, 2), (p, 1), (g, 1)), ((dT, 2), (dp, 1))
     if products_taken(T, p, g):
