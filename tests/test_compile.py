@@ -15,7 +15,7 @@ import pytest
 import torch
 from samplers import PI
 
-from torchlie import quaternion, so3
+from torchlie import _autograd, quaternion, se3, so3
 
 pytestmark = pytest.mark.compile
 
@@ -89,3 +89,27 @@ def test_quaternion_core_compile_fullgraph():
     compiled = torch.compile(_quaternion_core, fullgraph=True)(q, w)
     for a, b in zip(eager, compiled, strict=True):
         torch.testing.assert_close(b, a, rtol=1e-5, atol=1e-5)
+
+
+def test_large_batches_compile_fullgraph_whatever_the_threads(monkeypatch):
+    """Batches large enough for the eager blocks compile in one graph, forward and backward,
+    where the eager blocks are sized by the thread count (``OMP_WAIT_POLICY`` not ``PASSIVE``):
+    ``torch.get_num_threads()`` would break the graph, and is not called while compiling
+    (``aot_eager``, see above)."""
+    monkeypatch.setattr(_autograd, "PASSIVE", False)
+    g = torch.Generator().manual_seed(1)
+    n = _autograd.BLOCK // 2  # 3 n numbers per batch of vectors: above the eager threshold
+    w, xi = torch.randn(n, 3, generator=g), torch.randn(n, 6, generator=g)
+
+    def ops(w, xi):
+        R, T = so3.exp(w), se3.exp(xi)
+        return so3.log(R), quaternion.from_matrix(R), quaternion.to_matrix(xi[..., :4]), se3.log(T)
+
+    results = []
+    for fn in (ops, torch.compile(ops, fullgraph=True, backend="aot_eager")):
+        leaves = [w.clone().requires_grad_(), xi.clone().requires_grad_()]
+        ys = fn(*leaves)
+        results.append((ys, torch.autograd.grad(sum(y.sum() for y in ys), leaves)))
+    for want, got in zip(*results, strict=True):
+        for a, b in zip(want, got, strict=True):
+            torch.testing.assert_close(b, a, rtol=1e-5, atol=1e-4)

@@ -121,12 +121,14 @@ def _blocked(forward: Callable[..., _Out], event_dims: tuple[int, ...]) -> Calla
 
     def run(*inputs: Tensor) -> _Out:
         first = inputs[0]
-        if first.numel() < BLOCK // 2:  # below two blocks in every dtype (elements up to 16 B)
+        # below two blocks in every dtype (elements up to 16 B); not while compiling, before the
+        # thread count is read (torch.get_num_threads() would break the graph)
+        if first.numel() < BLOCK // 2 or not _layout.eager_cpu(first):
             return forward(*inputs)
         batch = first.shape[: first.dim() - event_dims[0]]
         n = batch.numel()
         rows = block_rows(BLOCK, first)  # the same bytes per plane and thread in every dtype
-        if n < 2 * rows or not _layout.eager_cpu(first):
+        if n < 2 * rows:
             return forward(*inputs)
         flat = []
         for x, k in zip(inputs, event_dims, strict=True):
