@@ -266,24 +266,23 @@ def _top_planes(T: Tensor) -> Tensor:
 
 def _pairs(name: str) -> tuple[tuple[int, int], list[tuple[int, int]]]:
     """The shape of the constant map ``name`` and its entries equal to one (see :func:`_map`)."""
-    rows = range(3)
-    if name == "top":
-        return (12, 16), [(4 * i + j, 4 * i + j) for i in rows for j in range(4)]
-    if name == "transpose":
-        return (12, 16), [(4 * i + j, 4 * j + i) for i in rows for j in rows]
-    if name == "inverse_grads":
-        pairs = [(3 * j + i, 4 * i + j) for i in rows for j in rows]
-        return (12, 16), pairs + [(9 + i, 4 * i + 3) for i in rows]
-    width = 3 if name.endswith("3") else 4  # "by_column3" spreads into rows of three entries
-    shape = (3, 16 if width == 4 else 9)
-    if name.startswith("by_column"):  # p_j to every entry (i, j), j < 3
-        return shape, [(j, width * i + j) for i in rows for j in rows]
-    if name.startswith("by_row"):  # g_i to every entry (i, j) of the top rows
-        return shape, [(i, width * i + j) for i in rows for j in range(width)]
-    if name == "row_sums3":  # entries (i, j) summed over j
-        return (9, 3), [(3 * i + j, i) for i in rows for j in rows]
-    # "column_sums3", "column_sums4": entries (i, j), j < 3, summed over i
-    return (3 * width, 3), [(width * i + j, j) for i in rows for j in rows]
+    r, r4 = range(3), range(4)
+    maps = {
+        "top": ((12, 16), [(4 * i + j, 4 * i + j) for i in r for j in r4]),
+        "transpose": ((12, 16), [(4 * i + j, 4 * j + i) for i in r for j in r]),
+        "inverse_grads": (
+            (12, 16),
+            [(3 * j + i, 4 * i + j) for i in r for j in r] + [(9 + i, 4 * i + 3) for i in r],
+        ),
+        "by_column3": ((3, 9), [(j, 3 * i + j) for i in r for j in r]),
+        "by_column4": ((3, 16), [(j, 4 * i + j) for i in r for j in r]),
+        "by_row3": ((3, 9), [(i, 3 * i + j) for i in r for j in r]),
+        "by_row4": ((3, 16), [(i, 4 * i + j) for i in r for j in r4]),
+        "row_sums3": ((9, 3), [(3 * i + j, i) for i in r for j in r]),
+        "column_sums3": ((9, 3), [(3 * i + j, j) for i in r for j in r]),
+        "column_sums4": ((12, 3), [(4 * i + j, j) for i in r for j in r]),
+    }
+    return maps[name]
 
 
 def _map(name: str, dtype: torch.dtype) -> Tensor:
