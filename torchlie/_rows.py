@@ -237,9 +237,9 @@ def pose_act_grads(T: Tensor, p: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
     In the products form where :func:`products_taken` (``T``'s bottom row is not read; one
     thread, N = 10^6, ns per element, in alternation with the kernel over rows, float32
     (float64): 40.1 -> 36.5 (79.7 -> 61.0)), over blocks of :data:`ACT_BLOCKS` times
-    :data:`ROWS` rows as the other ``act`` kernels: with one thread they measure 2-5 % slower
-    than blocks of ``ROWS`` rows (37.4 -> 38.3, 62.1 -> 65.3), with two (blocks per thread)
-    18 % faster (24.4 -> 20.0; 41.2 -> 41.6)."""
+    :data:`ROWS` rows as the other ``act`` kernels: against blocks of ``ROWS`` rows, with one
+    thread 37.4 -> 38.3 (62.1 -> 65.3), with two (blocks per thread) 24.4 -> 20.0 (41.2 ->
+    41.6)."""
     dT, dp = g.new_empty(g.shape[:-1] + (4, 4)), g.new_empty(g.shape)
     operands, outs = ((T, 2), (p, 1), (g, 1)), ((dT, 2), (dp, 1))
     if products_taken(T, p, g):
