@@ -31,6 +31,52 @@ def test_default_threshold(monkeypatch):
     assert _layout._use_product(x, 10_000)
 
 
+def test_map_sums_by_cpu(monkeypatch):
+    """The kernels that sum by products with constant maps are taken with MKL on an Intel CPU,
+    not elsewhere, unless forced; the vendor is read from /proc/cpuinfo where there is one."""
+    monkeypatch.setattr(_layout, "MAP_SUMS", None)
+    for vendor, mkl, want in [
+        ("GenuineIntel", True, True),
+        ("AuthenticAMD", True, False),
+        ("GenuineIntel", False, False),
+        ("", True, False),
+    ]:
+        monkeypatch.setattr(_layout, "_cpu_vendor", lambda _v=vendor: _v)
+        monkeypatch.setattr(torch.backends.mkl, "is_available", lambda _m=mkl: _m)
+        _layout._intel_mkl.cache_clear()
+        assert _layout.map_sums() is want, (vendor, mkl)
+        for forced in (True, False):
+            with monkeypatch.context() as m:
+                m.setattr(_layout, "MAP_SUMS", forced)
+                assert _layout.map_sums() is forced
+    _layout._intel_mkl.cache_clear()
+    monkeypatch.undo()
+    try:
+        with open("/proc/cpuinfo") as f:
+            lines = [line for line in f if line.startswith("vendor_id")]
+    except OSError:
+        lines = []
+    if lines:
+        assert _layout._cpu_vendor() == lines[0].partition(":")[2].strip()
+    assert isinstance(_layout._cpu_vendor(), str)
+
+
+def test_map_sums_from_the_environment():
+    """TORCHLIE_MAP_SUMS=1 or 0 forces the choice at import; anything else leaves it to
+    the CPU."""
+    import os
+    import subprocess
+    import sys
+
+    code = "from torchlie import _layout; print(_layout.MAP_SUMS)"
+    for value, want in (("1", "True"), ("0", "False"), ("", "None"), ("yes", "None")):
+        env = dict(os.environ, TORCHLIE_MAP_SUMS=value)
+        out = subprocess.run(
+            [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+        )
+        assert out.stdout.strip() == want, value
+
+
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_planes_and_interleave_are_exact(dtype):
     g = torch.Generator().manual_seed(3)

@@ -134,8 +134,15 @@ def test_quaternion_from_matrix(dtype, rows):
     assert float(err.max()) <= VALUE_TOL[dtype], _report(err, r["theta"])
 
 
-@BATCHES
-def test_quaternion_to_matrix(dtype, rows):
+@pytest.mark.parametrize(
+    ("rows", "map_sums"),
+    [(None, None), (100, None), (LARGE, True), (LARGE, False)],
+    ids=["whole", "rows100", "large-products", "large-entries"],
+)
+def test_quaternion_to_matrix(dtype, rows, map_sums, monkeypatch):
+    """Large batches in both of their forms, whichever this CPU takes
+    (torchlie._layout.map_sums)."""
+    monkeypatch.setattr(_layout, "MAP_SUMS", map_sums)
     r = _references(dtype)
     err = _rel(_in_rows(quaternion.to_matrix, r["q_in"], rows), r["q_matrix_ref"], 2)
     assert float(err.max()) <= VALUE_TOL[dtype], _report(err, r["theta"])

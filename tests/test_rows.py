@@ -274,15 +274,16 @@ def test_planes_equal_rows(dtype, monkeypatch):
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_act_products_forms(dtype, monkeypatch):
     """so3.act (forward and backward) and se3.act's backward, on operands of one batch shape
-    with contiguous matrices, take the products forms: the sums of the kernels over rows, each
-    product rounded on its own (within an ulp or two of the largest product); a broadcast batch,
-    a rotation block of a pose, and reduced-precision float32 products take the kernels over
-    rows."""
+    with contiguous matrices, take the products forms where products with constant maps are fast
+    (torchlie._layout.map_sums): the sums of the kernels over rows, each product rounded on its
+    own (within an ulp or two of the largest product); a broadcast batch, a rotation block of a
+    pose, reduced-precision float32 products and other CPUs take the kernels over rows."""
     A, _, p = _poses(1400, dtype, seed=14)
     A, p = A.view(2, 700, 4, 4), p.view(2, 700, 3) * 5.0
     R = A[..., :3, :3].contiguous()
     h = torch.randn(2, 700, 3, generator=torch.Generator().manual_seed(15), dtype=dtype)
     monkeypatch.setattr(_rows, "ROWS", 100)
+    monkeypatch.setattr(_layout, "MAP_SUMS", True)  # whatever this CPU takes
     products = ["_act_products_kernel", "_act_grads_products_kernel"]
     products.append("_pose_act_grads_products_kernel")
     rows = ["_rotate", "_act_grads_kernel", "_pose_act_grads_kernel"]
@@ -298,6 +299,14 @@ def test_act_products_forms(dtype, monkeypatch):
     with monkeypatch.context() as m:
         m.setattr(_rows, "products_taken", lambda *operands: False)
         slow = [_run(fn, args, h) for fn, args in cases]
+    with monkeypatch.context() as m:
+        m.setattr(_layout, "MAP_SUMS", False)
+        seen.clear()
+        elsewhere = [_run(fn, args, h) for fn, args in cases]
+        assert not set(products) & set(seen) and set(rows) <= set(seen)
+    for (y1, g1), (y2, g2) in zip(elsewhere, slow, strict=True):
+        assert torch.equal(y1, y2)
+        assert all(torch.equal(a, b) for a, b in zip(g1, g2, strict=True))
     eps = torch.finfo(dtype).eps
     # |R_ij p_j| <= |p| (~ 10 here), |g_i p_j| and |R_ij g_i| <= |g| |p|
     for (y1, g1), (y2, g2) in zip(fast, slow, strict=True):

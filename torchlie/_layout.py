@@ -28,6 +28,9 @@ interleaving them by product 3.4 (3.6) more, by torch's transposing copy 1.5 (1.
 
 from __future__ import annotations
 
+import functools
+import os
+import platform
 from collections.abc import Sequence
 
 import torch
@@ -95,6 +98,55 @@ def _use_product(x: Tensor, rows: int) -> bool:
     if x.dtype == torch.float64:
         return True
     return x.dtype == torch.float32 and _fp32_full_precision()
+
+
+#: Whether the kernels of large batches that sum through matrix products with constant maps are
+#: taken (see :func:`map_sums`): ``None`` decides by the CPU, ``True`` or ``False`` forces (as
+#: does the environment variable ``TORCHLIE_MAP_SUMS=1`` or ``0`` when the package is imported).
+MAP_SUMS: bool | None = {"1": True, "0": False}.get(os.environ.get("TORCHLIE_MAP_SUMS", "").strip())
+
+
+def map_sums() -> bool:
+    """Whether the kernels of large batches that sum through matrix products with constant maps
+    are taken: where torch's CPU matrix products are MKL's and the CPU is Intel's.
+
+    ``so3.act`` (forward and backward), the backward of ``se3.act``, ``quaternion.to_matrix``
+    (forward and backward) and ``quaternion.apply`` have such forms (see :mod:`torchlie._rows`
+    and :func:`torchlie.quaternion._to_matrix_products_block`).  On an Intel Xeon they are the
+    fastest, and MKL sums each row of such a product alike wherever it lies in the batch.  On an
+    AMD EPYC (Zen 5) MKL is slow for products with a few result columns per row (float32, a block
+    of 8192 rows in cache, ns per row: ``(rows, 9) @ (9, 3)`` 11.9 where the transposed
+    ``(3, 9) @ (9, rows)`` takes 4.7, ``(rows, 3) @ (3, 9)`` 8.9), and sums a row differently by
+    its place (its index modulo 4 in float32, 2 in float64: an ulp here and there), so the
+    kernels written entry by entry over planes or rows are taken there.  They are faster on that
+    CPU (one thread, N = 10^6, ns per element, float32 (float64)): ``so3.act`` forward 20.5 -> 9.0
+    (23.2 -> 12.9), forward+backward 54.4 -> 25.3 (61.8 -> 37.6); ``quaternion.to_matrix``
+    forward 23.2 -> 11.2 (28.6 -> 21.8), forward+backward 43.3 -> 33.4 (65.9 -> 72.0);
+    ``quaternion.apply`` forward 13.3 -> 9.7 (23.6 -> 17.4), forward+backward 33.2 -> 28.6 (57.6
+    -> 48.7); ``se3.act`` forward+backward 38.9 -> 33.6 (68.2 -> 56.0).
+    """
+    if MAP_SUMS is not None:
+        return MAP_SUMS
+    return _intel_mkl()
+
+
+@functools.cache
+def _intel_mkl() -> bool:
+    """Whether torch's CPU matrix products are MKL's and the CPU is an Intel one."""
+    return torch.backends.mkl.is_available() and "GenuineIntel" in _cpu_vendor()
+
+
+def _cpu_vendor() -> str:
+    """The CPU's vendor string: ``vendor_id`` of ``/proc/cpuinfo`` (Linux), else what
+    :func:`platform.processor` says (Windows names the vendor there); ``""`` if neither does."""
+    try:
+        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as f:
+            for line in f:
+                if line.startswith("vendor_id"):
+                    return line.partition(":")[2].strip()
+    except OSError:
+        pass
+    return platform.processor()
 
 
 def by_product(x: Tensor, event_dims: int) -> bool:

@@ -3,7 +3,8 @@
 ``se3.compose`` (forward and backward) and the backward of ``se3.inverse`` split operands of
 one batch shape into planes where matrix products are exact (see :func:`compose`); ``so3.act``
 (forward and backward) and the backward of ``se3.act`` take products forms there, sums of
-products by constant maps (see :func:`act`); everything else is written as follows.
+products by constant maps (see :func:`act`), on CPUs where such products are fast
+(:func:`torchlie._layout.map_sums`); everything else is written as follows.
 
 Each row (or column) of a result is a sum of three products of an entry of one operand with a
 row of the other, computed as one multiply and two multiply-adds over strided views of the
@@ -141,12 +142,14 @@ def products_taken(R: Tensor, *vectors: Tensor) -> bool:
     """Whether :func:`act` and :func:`act_grads` (or :func:`pose_act_grads`, ``R`` a pose) take
     their products forms: the vectors of ``R``'s batch shape, the matrix's entries contiguous
     (a rotation block of a pose is not: the form would read the translation), its matrix
-    products exact (as :func:`torchlie._layout.by_product`)."""
+    products exact (as :func:`torchlie._layout.by_product`), fast and summed alike on this CPU
+    (:func:`torchlie._layout.map_sums`)."""
     n = R.shape[-1]
     return (
         _layout.by_product(R, 2)
         and R.stride()[-2:] == (n, 1)
         and all(v.shape[:-1] == R.shape[:-2] for v in vectors)
+        and _layout.map_sums()
     )
 
 
@@ -171,7 +174,9 @@ def act(R: Tensor, p: Tensor, t: Tensor | None = None) -> Tensor:
     become ``+0.0``, and an infinite entry makes its element's other results NaN).  One thread,
     N = 10^6, ns per element, in alternation with the kernel over rows, float32 (float64): 13.2
     -> 8.1 (20.3 -> 17.0).  For ``se3.act`` the form spreads over twelve entries, and measured
-    no faster: 17.4 -> 18.8 (28.0 -> 28.3); its rows' kernel stays."""
+    no faster: 17.4 -> 18.8 (28.0 -> 28.3); its rows' kernel stays.  These figures are an Intel
+    Xeon's; where MKL's products with constant maps are slow (an AMD EPYC) the kernels over rows
+    are taken, see :func:`torchlie._layout.map_sums`."""
     out = p.new_empty(_batch((R, 2), (p, 1)) + (3,))
     if t is not None:
         _in_blocks(_pose_act_kernel, ((R, 2), (p, 1), (t, 1)), ((out, 1),), ACT_BLOCKS)
