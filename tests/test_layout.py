@@ -31,11 +31,13 @@ def test_default_threshold(monkeypatch):
     assert _layout._use_product(x, 10_000)
 
 
-def test_map_sums_by_cpu(monkeypatch):
-    """The kernels that sum by products with constant maps are taken with MKL on an Intel CPU,
-    not elsewhere, unless forced; the vendor is read from /proc/cpuinfo where there is one."""
-    monkeypatch.setattr(_layout, "MAP_SUMS", None)
-    for vendor, mkl, want in [
+def test_row_products_by_cpu(monkeypatch):
+    """Products with results in rows are taken with MKL on an Intel CPU; elsewhere only float32
+    ones of 16 columns; unless forced.  The vendor is read from /proc/cpuinfo where there is
+    one."""
+    monkeypatch.setattr(_layout, "ROW_PRODUCTS", None)
+    f32, f64 = torch.float32, torch.float64
+    for vendor, mkl, intel in [
         ("GenuineIntel", True, True),
         ("AuthenticAMD", True, False),
         ("GenuineIntel", False, False),
@@ -44,11 +46,13 @@ def test_map_sums_by_cpu(monkeypatch):
         monkeypatch.setattr(_layout, "_cpu_vendor", lambda _v=vendor: _v)
         monkeypatch.setattr(torch.backends.mkl, "is_available", lambda _m=mkl: _m)
         _layout._intel_mkl.cache_clear()
-        assert _layout.map_sums() is want, (vendor, mkl)
-        for forced in (True, False):
-            with monkeypatch.context() as m:
-                m.setattr(_layout, "MAP_SUMS", forced)
-                assert _layout.map_sums() is forced
+        for dtype, columns in ((f32, 3), (f32, 9), (f32, 16), (f64, 3), (f64, 16)):
+            want = intel or (dtype == f32 and columns == 16)
+            assert _layout.row_products(dtype, columns) is want, (vendor, mkl, dtype, columns)
+            for forced in (True, False):
+                with monkeypatch.context() as m:
+                    m.setattr(_layout, "ROW_PRODUCTS", forced)
+                    assert _layout.row_products(dtype, columns) is forced
     _layout._intel_mkl.cache_clear()
     monkeypatch.undo()
     try:
@@ -61,16 +65,16 @@ def test_map_sums_by_cpu(monkeypatch):
     assert isinstance(_layout._cpu_vendor(), str)
 
 
-def test_map_sums_from_the_environment():
-    """TORCHLIE_MAP_SUMS=1 or 0 forces the choice at import; anything else leaves it to
+def test_row_products_from_the_environment():
+    """TORCHLIE_ROW_PRODUCTS=1 or 0 forces the choice at import; anything else leaves it to
     the CPU."""
     import os
     import subprocess
     import sys
 
-    code = "from torchlie import _layout; print(_layout.MAP_SUMS)"
+    code = "from torchlie import _layout; print(_layout.ROW_PRODUCTS)"
     for value, want in (("1", "True"), ("0", "False"), ("", "None"), ("yes", "None")):
-        env = dict(os.environ, TORCHLIE_MAP_SUMS=value)
+        env = dict(os.environ, TORCHLIE_ROW_PRODUCTS=value)
         out = subprocess.run(
             [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
         )

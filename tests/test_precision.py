@@ -135,14 +135,14 @@ def test_quaternion_from_matrix(dtype, rows):
 
 
 @pytest.mark.parametrize(
-    ("rows", "map_sums"),
+    ("rows", "row_products"),
     [(None, None), (100, None), (LARGE, True), (LARGE, False)],
     ids=["whole", "rows100", "large-products", "large-entries"],
 )
-def test_quaternion_to_matrix(dtype, rows, map_sums, monkeypatch):
+def test_quaternion_to_matrix(dtype, rows, row_products, monkeypatch):
     """Large batches in both of their forms, whichever this CPU takes
-    (torchlie._layout.map_sums)."""
-    monkeypatch.setattr(_layout, "MAP_SUMS", map_sums)
+    (torchlie._layout.row_products)."""
+    monkeypatch.setattr(_layout, "ROW_PRODUCTS", row_products)
     r = _references(dtype)
     err = _rel(_in_rows(quaternion.to_matrix, r["q_in"], rows), r["q_matrix_ref"], 2)
     assert float(err.max()) <= VALUE_TOL[dtype], _report(err, r["theta"])

@@ -254,12 +254,12 @@ def test_to_matrix_of_large_batches_by_products(dtype, monkeypatch):
     strides, each element's bits the same wherever it is in the batch (blocks and threads
     included; with MKL on an Intel CPU, within those bounds where the form is forced on
     another), a NaN stays in its element, and not where float32 products are reduced
-    precision, nor on CPUs where such products are slow (torchlie._layout.map_sums)."""
+    precision, nor on CPUs where such products are slow (torchlie._layout.row_products)."""
     from torchlie import _layout
 
     monkeypatch.setattr(_small, "MATRIX_ROWS", 0)  # the small batches below stand for large ones
     monkeypatch.setattr(_layout, "MIN_ROWS", 64)
-    monkeypatch.setattr(_layout, "MAP_SUMS", True)  # whatever this CPU takes
+    monkeypatch.setattr(_layout, "ROW_PRODUCTS", True)  # whatever this CPU takes
     calls = []
     for name in ("_to_matrix_products", "_to_matrix_grad_products"):
         form = getattr(Q, name)
@@ -281,7 +281,7 @@ def test_to_matrix_of_large_batches_by_products(dtype, monkeypatch):
         m.setattr(Q, "_large_matrix", lambda q: False)
         plain, dq_plain = run(q, G)
     with monkeypatch.context() as m:  # other CPUs: the entry-by-entry forms
-        m.setattr(_layout, "MAP_SUMS", False)
+        m.setattr(_layout, "ROW_PRODUCTS", False)
         calls.clear()
         y, d = run(q, G)
         assert calls == [] and torch.equal(y, plain) and torch.equal(d, dq_plain)
@@ -331,7 +331,7 @@ def test_to_matrix_of_large_batches_by_products(dtype, monkeypatch):
 
 def test_apply_of_large_batches_over_shifted_planes(dtype, monkeypatch):
     """Large CPU batches of one batch shape rotate over planes stacked with their cyclic shifts
-    where products with constant maps are fast (torchlie._layout.map_sums): the bits of the
+    where products with constant maps are fast (torchlie._layout.row_products): the bits of the
     entry-by-entry kernel on finite input, blocks included; broadcast batches, reduced-precision
     float32 products and other CPUs take the entry-by-entry kernel; a NaN stays in its
     element."""
@@ -339,7 +339,7 @@ def test_apply_of_large_batches_over_shifted_planes(dtype, monkeypatch):
 
     monkeypatch.setattr(_layout, "MIN_ROWS", 64)
     monkeypatch.setattr(_autograd, "BLOCK", 256)  # blocks of 256 rows (float64 128)
-    monkeypatch.setattr(_layout, "MAP_SUMS", True)  # whatever this CPU takes
+    monkeypatch.setattr(_layout, "ROW_PRODUCTS", True)  # whatever this CPU takes
     calls = []
     form = Q._apply_shifted
     monkeypatch.setattr(Q, "_apply_shifted", lambda *a, **k: calls.append(1) or form(*a, **k))
@@ -363,7 +363,7 @@ def test_apply_of_large_batches_over_shifted_planes(dtype, monkeypatch):
     keep = torch.arange(1000) != 3
     assert out[3].isnan().all() and torch.equal(out[keep], want[keep])
     with monkeypatch.context() as m:  # other CPUs: the entry-by-entry kernel
-        m.setattr(_layout, "MAP_SUMS", False)
+        m.setattr(_layout, "ROW_PRODUCTS", False)
         calls.clear()
         assert torch.equal(Q.apply(q, p), want) and calls == []
     if dtype == torch.float32:

@@ -272,10 +272,45 @@ def test_planes_equal_rows(dtype, monkeypatch):
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
+def test_results_by_copies_equal_the_products(dtype, monkeypatch):
+    """Where products with results in rows are slow (torchlie._layout.row_products), se3.compose,
+    se3.inverse and their backward passes write their results by copies: the bits of the exact
+    products on finite poses, over planes and over rows alike, and a -0.0 stays -0.0."""
+    A, B, _ = _poses(1400, dtype, seed=21)
+    A, B = A.view(2, 700, 4, 4), B.view(2, 700, 4, 4)
+    G = torch.randn(2, 700, 4, 4, generator=torch.Generator().manual_seed(22), dtype=dtype)
+    monkeypatch.setattr(_rows, "ROWS", 100)
+    copies = []
+    kernel = _rows._copy_planes
+    spy = lambda *args: copies.append(args[2]) or kernel(*args)  # noqa: E731
+    monkeypatch.setattr(_rows, "_copy_planes", spy)
+    cases = [(se3.compose, (A, B)), (se3.inverse, (A,))]
+    for planes in (True, False):
+        if not planes:
+            monkeypatch.setattr(_rows, "planes_taken", lambda *operands: False)
+        monkeypatch.setattr(_layout, "ROW_PRODUCTS", True)
+        products = [_run(fn, args, G) for fn, args in cases]
+        assert copies == []
+        monkeypatch.setattr(_layout, "ROW_PRODUCTS", False)
+        copied = [_run(fn, args, G) for fn, args in cases]
+        assert set(copies) == ({"top", "inverse_grads"} if planes else set())
+        copies.clear()
+        for (y1, g1), (y2, g2) in zip(products, copied, strict=True):
+            assert torch.equal(_bits(y1), _bits(y2))
+            assert all(torch.equal(_bits(a), _bits(b)) for a, b in zip(g1, g2, strict=True))
+    signed = A.clone()
+    signed[0, 3, 0, 1] = -0.0  # the products make it +0.0
+    inverse = se3.inverse(signed)
+    assert torch.equal(_bits(inverse[0, 3, 1, 0]), _bits(torch.tensor(-0.0, dtype=dtype)))
+    with pytest.raises(ValueError, match="no copy form for the map 'transpose'"):
+        _rows._copy_planes(torch.zeros(12, 5, dtype=dtype), torch.zeros(5, 4, 4), "transpose")
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
 def test_act_products_forms(dtype, monkeypatch):
     """so3.act (forward and backward) and se3.act's backward, on operands of one batch shape
     with contiguous matrices, take the products forms where products with constant maps are fast
-    (torchlie._layout.map_sums): the sums of the kernels over rows, each product rounded on its
+    (torchlie._layout.row_products): the sums of the kernels over rows, each product rounded on its
     own (within an ulp or two of the largest product); a broadcast batch, a rotation block of a
     pose, reduced-precision float32 products and other CPUs take the kernels over rows."""
     A, _, p = _poses(1400, dtype, seed=14)
@@ -283,7 +318,7 @@ def test_act_products_forms(dtype, monkeypatch):
     R = A[..., :3, :3].contiguous()
     h = torch.randn(2, 700, 3, generator=torch.Generator().manual_seed(15), dtype=dtype)
     monkeypatch.setattr(_rows, "ROWS", 100)
-    monkeypatch.setattr(_layout, "MAP_SUMS", True)  # whatever this CPU takes
+    monkeypatch.setattr(_layout, "ROW_PRODUCTS", True)  # whatever this CPU takes
     products = ["_act_products_kernel", "_act_grads_products_kernel"]
     products.append("_pose_act_grads_products_kernel")
     rows = ["_rotate", "_act_grads_kernel", "_pose_act_grads_kernel"]
@@ -300,7 +335,7 @@ def test_act_products_forms(dtype, monkeypatch):
         m.setattr(_rows, "products_taken", lambda *operands: False)
         slow = [_run(fn, args, h) for fn, args in cases]
     with monkeypatch.context() as m:
-        m.setattr(_layout, "MAP_SUMS", False)
+        m.setattr(_layout, "ROW_PRODUCTS", False)
         seen.clear()
         elsewhere = [_run(fn, args, h) for fn, args in cases]
         assert not set(products) & set(seen) and set(rows) <= set(seen)

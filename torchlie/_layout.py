@@ -100,34 +100,44 @@ def _use_product(x: Tensor, rows: int) -> bool:
     return x.dtype == torch.float32 and _fp32_full_precision()
 
 
-#: Whether the kernels of large batches that sum through matrix products with constant maps are
-#: taken (see :func:`map_sums`): ``None`` decides by the CPU, ``True`` or ``False`` forces (as
-#: does the environment variable ``TORCHLIE_MAP_SUMS=1`` or ``0`` when the package is imported).
-MAP_SUMS: bool | None = {"1": True, "0": False}.get(os.environ.get("TORCHLIE_MAP_SUMS", "").strip())
+#: Whether the kernels of large batches take matrix products with results in rows (see
+#: :func:`row_products`): ``None`` decides by the CPU and dtype, ``True`` or ``False`` forces (as
+#: does the environment variable ``TORCHLIE_ROW_PRODUCTS=1`` or ``0`` when the package is
+#: imported).
+ROW_PRODUCTS: bool | None = {"1": True, "0": False}.get(
+    os.environ.get("TORCHLIE_ROW_PRODUCTS", "").strip()
+)
 
 
-def map_sums() -> bool:
-    """Whether the kernels of large batches that sum through matrix products with constant maps
-    are taken: where torch's CPU matrix products are MKL's and the CPU is Intel's.
+def row_products(dtype: torch.dtype, columns: int) -> bool:
+    """Whether a kernel of large batches may end in a matrix product whose result is a block of
+    the batch's rows, ``columns`` entries each (a constant map applied to every row): with MKL
+    on an Intel CPU always; elsewhere only float32 products of 16 columns.
 
-    ``so3.act`` (forward and backward), the backward of ``se3.act``, ``quaternion.to_matrix``
-    (forward and backward) and ``quaternion.apply`` have such forms (see :mod:`torchlie._rows`
-    and :func:`torchlie.quaternion._to_matrix_products_block`).  On an Intel Xeon they are the
-    fastest, and MKL sums each row of such a product alike wherever it lies in the batch.  On an
-    AMD EPYC (Zen 5) MKL is slow for products with a few result columns per row (float32, a block
-    of 8192 rows in cache, ns per row: ``(rows, 9) @ (9, 3)`` 11.9 where the transposed
-    ``(3, 9) @ (9, rows)`` takes 4.7, ``(rows, 3) @ (3, 9)`` 8.9), and sums a row differently by
-    its place (its index modulo 4 in float32, 2 in float64: an ulp here and there), so the
-    kernels written entry by entry over planes or rows are taken there.  They are faster on that
-    CPU (one thread, N = 10^6, ns per element, float32 (float64)): ``so3.act`` forward 20.5 -> 9.0
-    (23.2 -> 12.9), forward+backward 54.4 -> 25.3 (61.8 -> 37.6); ``quaternion.to_matrix``
+    The other direction, planes from rows (``(k, n) @ (n, rows)``, see :func:`stacked`), is fast
+    on every CPU measured.  Products with results in rows are not: on an AMD EPYC (Zen 5), a block
+    in cache, ns per row, float32 ``(rows, 9) @ (9, 3)`` 11.9 where ``(3, 9) @ (9, rows)`` takes
+    4.7, ``(rows, 3) @ (3, 9)`` 8.9; float64 ``(rows, 12) @ (12, 16)`` 22-28 where copying the
+    twelve planes into the rows takes 7.2 (float32 5.5 against 5.0).  MKL there also sums a row
+    of such a product differently by its place in the batch (its index modulo 4 in float32, 2
+    in float64: an ulp here and there), where on an Intel Xeon each row is summed alike.
+
+    Where this is false, the kernels written entry by entry over planes or rows are taken
+    instead of the products forms of ``so3.act`` (forward and backward), the backward of
+    ``se3.act``, ``quaternion.to_matrix`` (forward and backward) and ``quaternion.apply`` (3 and
+    9 columns), and copies instead of the exact products with 0/1 maps that write the results
+    of ``se3.compose``, ``se3.inverse`` and their backward passes (16 columns).  On that AMD
+    EPYC, one thread, N = 10^6, ns per element, float32 (float64): ``so3.act`` forward 20.5 ->
+    9.0 (23.2 -> 12.9), forward+backward 54.4 -> 25.3 (61.8 -> 37.6); ``quaternion.to_matrix``
     forward 23.2 -> 11.2 (28.6 -> 21.8), forward+backward 43.3 -> 33.4 (65.9 -> 72.0);
-    ``quaternion.apply`` forward 13.3 -> 9.7 (23.6 -> 17.4), forward+backward 33.2 -> 28.6 (57.6
-    -> 48.7); ``se3.act`` forward+backward 38.9 -> 33.6 (68.2 -> 56.0).
+    ``quaternion.apply`` forward 13.3 -> 9.7 (23.6 -> 17.4), forward+backward 33.2 -> 28.6
+    (57.6 -> 48.7); ``se3.act`` forward+backward 38.9 -> 33.6 (68.2 -> 56.0); float64
+    ``se3.inverse`` forward 57.0 -> 45.4, ``se3.compose`` forward 85.4 -> 65.3 (float32, with
+    copies: 26.9 -> 31.9 and 29.2 -> 31.7, so the products stay there).
     """
-    if MAP_SUMS is not None:
-        return MAP_SUMS
-    return _intel_mkl()
+    if ROW_PRODUCTS is not None:
+        return ROW_PRODUCTS
+    return _intel_mkl() or (dtype == torch.float32 and columns >= 16)
 
 
 @functools.cache

@@ -4,7 +4,7 @@
 one batch shape into planes where matrix products are exact (see :func:`compose`); ``so3.act``
 (forward and backward) and the backward of ``se3.act`` take products forms there, sums of
 products by constant maps (see :func:`act`), on CPUs where such products are fast
-(:func:`torchlie._layout.map_sums`); everything else is written as follows.
+(:func:`torchlie._layout.row_products`); everything else is written as follows.
 
 Each row (or column) of a result is a sum of three products of an entry of one operand with a
 row of the other, computed as one multiply and two multiply-adds over strided views of the
@@ -143,13 +143,13 @@ def products_taken(R: Tensor, *vectors: Tensor) -> bool:
     their products forms: the vectors of ``R``'s batch shape, the matrix's entries contiguous
     (a rotation block of a pose is not: the form would read the translation), its matrix
     products exact (as :func:`torchlie._layout.by_product`), fast and summed alike on this CPU
-    (:func:`torchlie._layout.map_sums`)."""
+    (:func:`torchlie._layout.row_products`)."""
     n = R.shape[-1]
     return (
         _layout.by_product(R, 2)
         and R.stride()[-2:] == (n, 1)
         and all(v.shape[:-1] == R.shape[:-2] for v in vectors)
-        and _layout.map_sums()
+        and _layout.row_products(R.dtype, 3)
     )
 
 
@@ -176,7 +176,7 @@ def act(R: Tensor, p: Tensor, t: Tensor | None = None) -> Tensor:
     -> 8.1 (20.3 -> 17.0).  For ``se3.act`` the form spreads over twelve entries, and measured
     no faster: 17.4 -> 18.8 (28.0 -> 28.3); its rows' kernel stays.  These figures are an Intel
     Xeon's; where MKL's products with constant maps are slow (an AMD EPYC) the kernels over rows
-    are taken, see :func:`torchlie._layout.map_sums`."""
+    are taken, see :func:`torchlie._layout.row_products`."""
     out = p.new_empty(_batch((R, 2), (p, 1)) + (3,))
     if t is not None:
         _in_blocks(_pose_act_kernel, ((R, 2), (p, 1), (t, 1)), ((out, 1),), ACT_BLOCKS)
@@ -317,11 +317,30 @@ def _write(planes: Tensor, out: Tensor, name: str, last: bool) -> None:
     """Twelve planes (``(12, m)``, or shaped ``(3, 4, m)``) into the ``(m, 4, 4)`` rows ``out``
     by one product with the constant map ``name`` (see :func:`_map`), the last rows
     ``(0, 0, 0, 1)`` (``last``) or zero (exact, with the caveats of the transpositions by
-    product, see :mod:`torchlie._layout`)."""
+    product, see :mod:`torchlie._layout`); by copies where such products are slow (see
+    :func:`torchlie._layout.row_products`)."""
     m = out.shape[0]
-    flat = torch.mm(planes.reshape(12, m).T, _map(name, out.dtype), out=out.view(m, 16))
+    planes = planes.reshape(12, m)
+    if not _layout.row_products(out.dtype, 16):
+        _copy_planes(planes, out, name)
+        out[:, 3, :].copy_(_bias(out.dtype)[12:] if last else _bias(out.dtype)[:4])
+        return
+    flat = torch.mm(planes.T, _map(name, out.dtype), out=out.view(m, 16))
     if last:  # filled after the product: addmm's bias costs more (see _inverse_kernel)
         flat[:, 15].fill_(1.0)
+
+
+def _copy_planes(planes: Tensor, out: Tensor, name: str) -> None:
+    """The top ``3 x 4`` blocks of ``out`` from twelve ``(12, m)`` planes, placed as the map
+    ``name`` of :func:`_write` places them, by strided copies."""
+    m = out.shape[0]
+    if name == "top":  # plane 4 i + j to (i, j)
+        out[:, :3, :].copy_(planes.T.view(m, 3, 4))
+    elif name == "inverse_grads":  # plane 3 j + i to (i, j), plane 9 + i to (i, 3)
+        out[:, :3, :3].copy_(planes[:9].view(3, 3, m).permute(2, 1, 0))
+        out[:, :3, 3].copy_(planes[9:].T)
+    else:
+        raise ValueError(f"torchlie._rows._copy_planes: no copy form for the map {name!r}")
 
 
 def _compose_planes_kernel(A: Tensor, B: Tensor, out: Tensor) -> None:
@@ -399,12 +418,16 @@ def compose_grads(A: Tensor, B: Tensor, G: Tensor) -> tuple[Tensor, Tensor]:
 
 def _inverse_kernel(T: Tensor, out: Tensor) -> None:
     n = T.shape[0]
-    forms = _map("transpose", T.dtype)  # [R^T, 0] from [R, t], rows read where they lie
-    flat = torch.mm(T.reshape(n, 16)[:, :12], forms, out=out.view(n, 16))
-    # the last entry filled after the product, not as the bias of torch.addmm: the same bits,
-    # float32 N = 10^6 37.3 -> 33.2 ns per element (float64 67.4 -> 59.0), se3.compose's
-    # _write 53.8 -> 48.9 (105.1 -> 98.1)
-    flat[:, 15].fill_(1.0)
+    if _layout.row_products(T.dtype, 16):
+        forms = _map("transpose", T.dtype)  # [R^T, 0] from [R, t], rows read where they lie
+        flat = torch.mm(T.reshape(n, 16)[:, :12], forms, out=out.view(n, 16))
+        # the last entry filled after the product, not as the bias of torch.addmm: the same
+        # bits, float32 N = 10^6 37.3 -> 33.2 ns per element (float64 67.4 -> 59.0),
+        # se3.compose's _write 53.8 -> 48.9 (105.1 -> 98.1)
+        flat[:, 15].fill_(1.0)
+    else:  # the same values by copies (exact, -0.0 and infinities kept)
+        out[:, :3, :3].copy_(T[:, :3, :3].mT)
+        out[:, 3, :].copy_(_bias(out.dtype)[12:])
     t = out[:, :3, 3]  # -R^T t = -sum_j R_j t_j (rows R_j of R)
     torch.mul(T[:, 0, :3], T[:, 0, 3:], out=t)
     t.addcmul_(T[:, 1, :3], T[:, 1, 3:]).addcmul_(T[:, 2, :3], T[:, 2, 3:]).neg_()

@@ -343,8 +343,8 @@ def _large_matrix(q: Tensor) -> bool:
     """Whether :func:`to_matrix` of ``q`` takes :func:`_to_matrix_products_block` and its
     backward :func:`_to_matrix_grad_products_block`: a large eager CPU batch whose matrix
     products are exact (see :func:`_layout.by_product`), on a CPU where they sum fast and alike
-    (:func:`_layout.map_sums`)."""
-    return _layout.by_product(q, 1) and _layout.map_sums()
+    (:func:`_layout.row_products`)."""
+    return _layout.by_product(q, 1) and _layout.row_products(q.dtype, 9)
 
 
 def _to_matrix_products_block(q: Tensor, *, dest: Tensor | None = None) -> Tensor:
@@ -355,7 +355,7 @@ def _to_matrix_products_block(q: Tensor, *, dest: Tensor | None = None) -> Tenso
     written row by row into the result.  Eleven calls where :func:`_to_matrix_entries` makes 28
     (an Intel Xeon, one thread, N = 10^6, in alternation, ns per element: float32 17.1 against
     27.7, float64 32.5 against 53.7; taken where MKL is fast for these products, see
-    :func:`_layout.map_sums`).  Within four ulp of it; there each row of a product is summed
+    :func:`_layout.row_products`).  Within four ulp of it; there each row of a product is summed
     alike whatever the rows around it (tested), so an element's bits do not depend on its place
     in the batch."""
     batch = q.shape[:-1]
@@ -856,7 +856,8 @@ def apply(q: Float[Tensor, "*b1 4"], points: Float[Tensor, "*b2 3"]) -> Float[Te
 
 
 def _apply_values(q: Tensor, p: Tensor) -> Tensor:
-    if _layout.by_product(q, 1) and q.shape[:-1] == p.shape[:-1] and _layout.map_sums():
+    same_batch = q.shape[:-1] == p.shape[:-1]
+    if same_batch and _layout.by_product(q, 1) and _layout.row_products(q.dtype, 3):
         return _apply_shifted_blocked(q, p)
     if torch.compiler.is_compiling() or _layout.by_product(q, 1) or _layout.by_product(p, 1):
         return _apply_entries_blocked(q, p)
@@ -978,7 +979,7 @@ def _apply_shifted(q: Tensor, p: Tensor, *, dest: Tensor | None = None) -> Tenso
     cyclic shifts of a cross product are slices: ``v x p`` is ``v[1:4] p[2:5] - v[2:5] p[1:4]``,
     two calls over three planes each.  Fifteen calls where :func:`_apply_entries` makes 27, the
     result's rows by one product with the identity (taken where that product is fast, see
-    :func:`_layout.map_sums`; an Intel Xeon, one thread, N = 10^6, in alternation, ns per
+    :func:`_layout.row_products`; an Intel Xeon, one thread, N = 10^6, in alternation, ns per
     element: float32 19.4-19.9 -> 17.9-18.1, float64 36.0 -> 34.9; the same operations written
     out without blocks took 16.4-17.1 and 31.6, and storing the result's columns strided instead
     of the product 17.8)."""
