@@ -52,7 +52,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from .. import _checks
+from .. import _checks, _layout
 from .. import so3 as _so3
 from .._typing import Float
 from .urdf import JointSpec, RobotSpec, parse_urdf
@@ -745,7 +745,10 @@ class Chain:
         # Transposing back to (..., 4, 4): for small batches one stacked copy (fewest ops);
         # for large ones per-link copies, which torch runs several times faster than one
         # interleaved copy.
-        if B > _SMALL_BATCH:
+        if B > _SMALL_BATCH and _layout.eager_cpu(q2) and not _layout.row_products(q2.dtype, 16):
+            # where such products are slow (float64 off Intel CPUs), torch's strided copy
+            Ts = tuple(p.permute(2, 1, 0).contiguous() for p in poses)
+        elif B > _SMALL_BATCH:
             # (16, B) -> (B, 16) through a GEMM with a permutation matrix: exact (one product
             # by 1 per entry), and faster than torch's strided copy.
             perm = self._transpose16(q2)
