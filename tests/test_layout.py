@@ -45,7 +45,7 @@ def test_row_products_by_cpu(monkeypatch):
     ]:
         monkeypatch.setattr(_layout, "_cpu_vendor", lambda _v=vendor: _v)
         monkeypatch.setattr(torch.backends.mkl, "is_available", lambda _m=mkl: _m)
-        _layout._intel_mkl.cache_clear()
+        _layout.intel_mkl.cache_clear()
         for dtype, columns in ((f32, 3), (f32, 9), (f32, 16), (f64, 3), (f64, 16)):
             want = intel or (dtype == f32 and columns == 16)
             assert _layout.row_products(dtype, columns) is want, (vendor, mkl, dtype, columns)
@@ -53,7 +53,7 @@ def test_row_products_by_cpu(monkeypatch):
                 with monkeypatch.context() as m:
                     m.setattr(_layout, "ROW_PRODUCTS", forced)
                     assert _layout.row_products(dtype, columns) is forced
-    _layout._intel_mkl.cache_clear()
+    _layout.intel_mkl.cache_clear()
     monkeypatch.undo()
     try:
         with open("/proc/cpuinfo") as f:

@@ -291,7 +291,7 @@ def test_to_matrix_of_large_batches_by_products(dtype, monkeypatch):
     assert ((dq - dq_plain).norm(dim=-1) <= bound).all()
     # MKL on an Intel CPU sums each row of a product alike wherever it lies in the batch: an
     # element's bits do not depend on its place; forced on another CPU, within the bounds above
-    intel = _layout._intel_mkl()
+    intel = _layout.intel_mkl()
 
     def alike(y, d, index):
         y, d = y.reshape(-1, 3, 3), d.reshape(-1, 4)

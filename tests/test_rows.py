@@ -271,6 +271,23 @@ def test_planes_equal_rows(dtype, monkeypatch):
         assert seen == ["_compose_kernel"] * 14 + ["_inverse_grads_kernel"] * 14
 
 
+def test_blocks_by_cpu(monkeypatch):
+    """act and se3.inverse go over blocks as measured on an Intel Xeon there, four times as
+    large elsewhere; the bits do not depend on the blocks."""
+    monkeypatch.setattr(_layout, "ROW_PRODUCTS", False)  # the same kernels in both runs
+    monkeypatch.setattr(_layout, "intel_mkl", lambda: True)
+    assert _rows._blocks(_rows.ACT_BLOCKS) == _rows.ACT_BLOCKS and _rows._blocks(1) == 1
+    A, B, p = _poses(1400, torch.float64, seed=31)
+    monkeypatch.setattr(_rows, "ROWS", 50)
+    on_intel = [_run(fn, args) for fn, args in _cases(A, B, p)]
+    monkeypatch.setattr(_layout, "intel_mkl", lambda: False)
+    assert _rows._blocks(_rows.ACT_BLOCKS) == _rows.OTHER_CPU_BLOCKS * _rows.ACT_BLOCKS
+    elsewhere = [_run(fn, args) for fn, args in _cases(A, B, p)]
+    for (y1, g1), (y2, g2) in zip(on_intel, elsewhere, strict=True):
+        assert torch.equal(_bits(y1), _bits(y2))
+        assert all(torch.equal(_bits(a), _bits(b)) for a, b in zip(g1, g2, strict=True))
+
+
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_results_by_copies_equal_the_products(dtype, monkeypatch):
     """Where products with results in rows are slow (torchlie._layout.row_products), se3.compose,

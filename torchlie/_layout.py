@@ -137,11 +137,11 @@ def row_products(dtype: torch.dtype, columns: int) -> bool:
     """
     if ROW_PRODUCTS is not None:
         return ROW_PRODUCTS
-    return _intel_mkl() or (dtype == torch.float32 and columns >= 16)
+    return intel_mkl() or (dtype == torch.float32 and columns >= 16)
 
 
 @functools.cache
-def _intel_mkl() -> bool:
+def intel_mkl() -> bool:
     """Whether torch's CPU matrix products are MKL's and the CPU is an Intel one."""
     return torch.backends.mkl.is_available() and "GenuineIntel" in _cpu_vendor()
 
