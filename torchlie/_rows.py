@@ -139,8 +139,8 @@ def _blocks(blocks: int) -> int:
     forward+backward 23.2 -> 19.4 (35.0 -> 27.1), ``se3.act`` forward 10.6 -> 8.5 (16.0 -> 12.5),
     forward+backward 31.1 -> 25.8 (57.8 -> 47.3); blocks of 32 ``ROWS`` about the same as 8, the
     whole batch slower; ``se3.inverse`` forward over 4 ``ROWS`` rather than 1: 21.8 -> 16.3 (32.8
-    -> 24.9).  On
-    the Intel Xeon, ``act`` over 16 384 and 32 768 rows took 8-12 % longer than over 8192."""
+    -> 24.9).  On the Intel Xeon, ``act`` over 16 384 and 32 768 rows took 8-12 % longer than over
+    8192."""
     return blocks if _layout.intel_mkl() else OTHER_CPU_BLOCKS * blocks
 
 
@@ -341,7 +341,10 @@ def _write(planes: Tensor, out: Tensor, name: str, last: bool) -> None:
     planes = planes.reshape(12, m)
     if not _layout.row_products(out.dtype, 16):
         _copy_planes(planes, out, name)
-        out[:, 3, :].copy_(_bias(out.dtype)[12:] if last else _bias(out.dtype)[:4])
+        if last:
+            out[:, 3, :].copy_(_bias(out.dtype)[12:])
+        else:
+            out[:, 3, :].zero_()
         return
     flat = torch.mm(planes.T, _map(name, out.dtype), out=out.view(m, 16))
     if last:  # filled after the product: addmm's bias costs more (see _inverse_kernel)

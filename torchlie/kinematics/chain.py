@@ -745,14 +745,15 @@ class Chain:
         # Transposing back to (..., 4, 4): for small batches one stacked copy (fewest ops);
         # for large ones per-link copies, which torch runs several times faster than one
         # interleaved copy.
-        if B > _SMALL_BATCH and _layout.eager_cpu(q2) and not _layout.row_products(q2.dtype, 16):
-            # where such products are slow (float64 off Intel CPUs), torch's strided copy
-            Ts = tuple(p.permute(2, 1, 0).contiguous() for p in poses)
-        elif B > _SMALL_BATCH:
-            # (16, B) -> (B, 16) through a GEMM with a permutation matrix: exact (one product
-            # by 1 per entry), and faster than torch's strided copy.
-            perm = self._transpose16(q2)
-            Ts = tuple(torch.mm(p.reshape(16, B).t(), perm).view(B, 4, 4) for p in poses)
+        if B > _SMALL_BATCH:
+            if _layout.eager_cpu(q2) and not _layout.row_products(q2.dtype, 16):
+                # where such products are slow (float64 off Intel CPUs), torch's strided copy
+                Ts = tuple(p.permute(2, 1, 0).contiguous() for p in poses)
+            else:
+                # (16, B) -> (B, 16) through a GEMM with a permutation matrix: exact (one
+                # product by 1 per entry), and faster than torch's strided copy.
+                perm = self._transpose16(q2)
+                Ts = tuple(torch.mm(p.reshape(16, B).t(), perm).view(B, 4, 4) for p in poses)
         if stacked:
             if B <= _SMALL_BATCH:
                 T = torch.stack(poses).permute(3, 0, 2, 1).contiguous()
