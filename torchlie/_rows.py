@@ -60,7 +60,7 @@ from ._autograd import block_rows
 #: elements; half as many for float64: 256 kB of poses per operand.
 ROWS = 4096
 
-_BIASES: dict[torch.dtype, Tensor] = {}
+_LAST_ROWS: dict[torch.dtype, Tensor] = {}
 _MAPS: dict[tuple[str, torch.dtype], Tensor] = {}
 
 
@@ -104,13 +104,12 @@ def _in_blocks(
         kernel(*(x[block] for x in flat_in), *(o[block] for o in flat_out))
 
 
-def _bias(dtype: torch.dtype) -> Tensor:
-    """The flattened ``4 x 4`` matrix with a 1 in its last entry, zeros elsewhere."""
-    bias = _BIASES.get(dtype)
-    if bias is None:
-        bias = _BIASES[dtype] = torch.zeros(16, dtype=dtype)
-        bias[15] = 1.0
-    return bias
+def _last_row(dtype: torch.dtype) -> Tensor:
+    """The last row ``(0, 0, 0, 1)`` of a pose (built once per dtype)."""
+    row = _LAST_ROWS.get(dtype)
+    if row is None:
+        row = _LAST_ROWS[dtype] = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=dtype)
+    return row
 
 
 def _rotate(R: Tensor, p: Tensor, out: Tensor, t: Tensor | None = None) -> Tensor:
@@ -278,7 +277,7 @@ def _compose_kernel(A: Tensor, B: Tensor, out: Tensor) -> None:
         torch.mul(A[..., i, :1], B[..., 0, :], out=row)
         row.addcmul_(A[..., i, 1:2], B[..., 1, :]).addcmul_(A[..., i, 2:3], B[..., 2, :])
     out[..., :3, 3].add_(A[..., :3, 3])
-    out[..., 3, :].copy_(_bias(out.dtype)[12:])  # (0, 0, 0, 1)
+    out[..., 3, :].copy_(_last_row(out.dtype))
 
 
 def _top_planes(T: Tensor) -> Tensor:
@@ -342,7 +341,7 @@ def _write(planes: Tensor, out: Tensor, name: str, last: bool) -> None:
     if not _layout.row_products(out.dtype, 16):
         _copy_planes(planes, out, name)
         if last:
-            out[:, 3, :].copy_(_bias(out.dtype)[12:])
+            out[:, 3, :].copy_(_last_row(out.dtype))
         else:
             out[:, 3, :].zero_()
         return
@@ -448,7 +447,7 @@ def _inverse_kernel(T: Tensor, out: Tensor) -> None:
         flat[:, 15].fill_(1.0)
     else:  # the same values by copies (exact, -0.0 and infinities kept)
         out[:, :3, :3].copy_(T[:, :3, :3].mT)
-        out[:, 3, :].copy_(_bias(out.dtype)[12:])
+        out[:, 3, :].copy_(_last_row(out.dtype))
     t = out[:, :3, 3]  # -R^T t = -sum_j R_j t_j (rows R_j of R)
     torch.mul(T[:, 0, :3], T[:, 0, 3:], out=t)
     t.addcmul_(T[:, 1, :3], T[:, 1, 3:]).addcmul_(T[:, 2, :3], T[:, 2, 3:]).neg_()
