@@ -225,7 +225,7 @@ def norm(v: Tensor, dim: int = -1, keepdim: bool = False) -> Tensor:
 
 
 #: Clamp of the half angle in the forward-only evaluations: sin(h)/h rounds to 1 below it.
-_H_MIN = {torch.float32: 1e-30, torch.float64: 1e-150}
+H_MIN = {torch.float32: 1e-30, torch.float64: 1e-150}
 
 
 def rodrigues_values(w: Tensor | Sequence[Tensor], parts: str = "abcd") -> tuple[Tensor, ...]:
@@ -243,13 +243,13 @@ def rodrigues_values(w: Tensor | Sequence[Tensor], parts: str = "abcd") -> tuple
     ``Jl``); the others are not computed.
     """
     t2 = theta2(w)
-    h = t2.sqrt().mul_(0.5).clamp_min_(_H_MIN[t2.dtype])
+    h = t2.sqrt().mul_(0.5).clamp_min_(H_MIN[t2.dtype])
     sh, ch = torch.sin(h), torch.cos(h)
     s = sh / h
     a = s * ch
     values = {"a": a}
     if "c" in parts:
-        values["c"] = (1.0 - a).div_(t2.clamp_min(_H_MIN[t2.dtype]))
+        values["c"] = (1.0 - a).div_(t2.clamp_min(H_MIN[t2.dtype]))
     if "d" in parts:
         values["d"] = (ch - sh).mul_(ch.add_(sh))
     if "b" in parts:
@@ -267,9 +267,9 @@ def jl_inv_values(w: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor]:
     components (as :func:`theta2`).
     """
     t2 = theta2(w)
-    h = t2.sqrt().mul_(0.5).clamp_min_(_H_MIN[t2.dtype])
+    h = t2.sqrt().mul_(0.5).clamp_min_(H_MIN[t2.dtype])
     e = torch.cos(h).div_(torch.sin(h).div_(h))
-    return e, (1.0 - e).div_(t2.clamp_min(_H_MIN[t2.dtype]))
+    return e, (1.0 - e).div_(t2.clamp_min(H_MIN[t2.dtype]))
 
 
 def step(x: Tensor) -> Tensor:

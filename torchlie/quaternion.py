@@ -701,16 +701,27 @@ def _log_of_matrix(R: Tensor, dest: Tensor | None = None) -> Tensor:
 def _log_of_matrix_components(R: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
     """The three components of :func:`_log_of_matrix` (not stacked; ``R`` as a tensor or its
     9 planes, row by row)."""
+    return _log_and_cot(R)[0]
+
+
+def _log_and_cot(
+    R: Tensor | Sequence[Tensor], cot: bool = False
+) -> tuple[tuple[Tensor, Tensor, Tensor], Tensor | None, Tensor | None]:
+    """:func:`_log_of_matrix_components`, and with ``cot`` the angle ``theta`` and
+    ``(theta/2) cot(theta/2)`` (the coefficients of ``Jl^-1``).  The rotation vector is
+    ``sign 2 atan2(|c_v|, |c_w|) c_v / |c_v|``, ``|c_v|`` clamped at ``_coeffs.H_MIN`` before
+    the angle and the quotient (which tends to ``2 / |c_w|``; ``phi`` is exactly 0 at
+    ``c_v = 0``) and ``cot(theta/2) = |c_w| / |c_v|``."""
     cw, cx, cy, cz, sign = _from_matrix_parts(R)
-    f = _log_factor(cw, cx, cy, cz, sign)
-    return f * cx, f * cy, f * cz
-
-
-def _log_factor(cw: Tensor, cx: Tensor, cy: Tensor, cz: Tensor, sign: Tensor) -> Tensor:
-    """``sign 2 atan2(|c_v|, |c_w|) / |c_v|``, the rotation vector's factor on ``c_v``."""
     nv = torch.addcmul(torch.addcmul(cx * cx, cy, cy), cz, cz).sqrt_()
-    f = torch.atan2(nv, cw.abs()).mul_(2.0).div_(nv.clamp_min(torch.finfo(nv.dtype).tiny))
-    return f.mul_(sign)
+    nv = nv.clamp_min_(_coeffs.H_MIN[nv.dtype])
+    a = cw.abs()
+    theta = torch.atan2(nv, a).mul_(2.0)
+    f = torch.div(theta, nv).mul_(sign)
+    phi = (f * cx, f * cy, f * cz)
+    if not cot:
+        return phi, None, None
+    return phi, theta, a.div_(nv).mul_(theta).mul_(0.5)
 
 
 # ----------------------------------------------------------------------------------------------
