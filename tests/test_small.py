@@ -361,3 +361,49 @@ def test_an_element_alone_and_in_a_batch(dtype):
                 shared, (d_first, _) = _values_and_grads(fn, args[0], args[1][i], upstream=gy)
                 alone, (d_alone, _) = _values_and_grads(fn, args[0][3], args[1][i], upstream=gy[3])
                 assert torch.equal(shared[3], alone) and torch.equal(d_first[3], d_alone), name
+
+
+POSE_FORMS = ("pose_compose", "pose_compose_grads", "pose_inverse")
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_pose_forms_agree_with_the_block_products(dtype, monkeypatch):
+    """``se3.compose`` (forward and backward) and ``se3.inverse`` below POSE_ROWS poses take
+    their ``4 x 4`` product forms, and agree with the products of the blocks they replace to an
+    ulp of the largest entry (the same sums, with zero terms added); NaN bottom rows are not read
+    and a NaN entry spoils only its own pose's result."""
+    calls = {name: 0 for name in POSE_FORMS}
+    for name in POSE_FORMS:
+        form = getattr(_small, name)
+
+        def counted(*args, name=name, form=form):
+            calls[name] += 1
+            return form(*args)
+
+        monkeypatch.setattr(_small, name, counted)
+    g = torch.Generator().manual_seed(31)
+    e = torch.finfo(dtype).eps
+    for rows in (1, 2, 7, _small.POSE_ROWS - 1):
+        A, B = se3.random(2, rows, generator=g, dtype=dtype)
+        A = A.clone()
+        A[..., 3, :] = torch.nan  # not read
+        A[0, 0, 0] = torch.nan  # one pose spoiled
+        G = torch.randn(rows, 4, 4, generator=g, dtype=dtype)
+        results = []
+        for pose_rows in (_small.POSE_ROWS, 0):
+            monkeypatch.setattr(_small, "POSE_ROWS", pose_rows)
+            calls.update(dict.fromkeys(calls, 0))
+            a, b = A.clone().requires_grad_(), B.clone().requires_grad_()
+            out = se3.compose(a, b)
+            results.append((out.detach(), *torch.autograd.grad(out, (a, b), G), se3.inverse(A)))
+            assert calls == dict.fromkeys(POSE_FORMS, int(pose_rows > 0))
+        for formed, plain in zip(*results, strict=True):
+            assert not bool(formed[1:].isnan().any())
+            assert bool((formed[1:, 3, :3] == 0).all())
+            torch.testing.assert_close(formed[1:], plain[1:], rtol=0, atol=4 * e)
+            # the NaN pose: NaN wherever the blocks' products read its NaN entry (the forms may
+            # spread it over more of that pose's entries: its products with zeros)
+            assert bool((formed[0].isnan() | ~plain[0].isnan()).all())
+    monkeypatch.setattr(_small, "POSE_ROWS", 32)
+    assert _small.pose_form(torch.zeros(3), 31) and not _small.pose_form(torch.zeros(3), 32)
+    assert not _small.pose_form(torch.zeros(3, device="meta"), 1)

@@ -325,8 +325,11 @@ def _inverse_entries(T: Tensor) -> Tensor:
 def _compose_fwd(A: Tensor, B: Tensor) -> Tensor:
     if torch.compiler.is_compiling():
         return _compose_entries(A, B)
-    if _rows.taken((A, B), max(A.numel(), B.numel()) // 16):
+    rows = max(A.numel(), B.numel()) // 16
+    if _rows.taken((A, B), rows):
         return _rows.compose(A, B)
+    if _small.pose_form(A, rows) and _layout.eager_cpu(B):
+        return _small.pose_compose(A, B)
     top = _small.matmul(A[..., :3, :3], B[..., :3, :])  # [R1 R2, R1 t2]
     top.select(-1, 3).add_(A[..., :3, 3])
     return _with_last_row(top)
@@ -338,6 +341,8 @@ def _compose_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor, Tensor]:
         dA, dB = _compose_bwd_entries(A, B, G)
     elif _rows.taken((A, B, G), G.numel() // 16):
         dA, dB = _rows.compose_grads(A, B, G)
+    elif _small.pose_form(G, G.numel() // 16):
+        dA, dB = _small.pose_compose_grads(A, B, G)
     else:
         G3 = G[..., :3, :]
         dR1 = _small.matmul(G3, B[..., :3, :].transpose(-1, -2))  # G_R R2^T + g t2^T
@@ -401,6 +406,8 @@ def _inverse_fwd(T: Tensor) -> Tensor:
         return _inverse_entries(T)
     if _rows.inverse_taken(T):
         return _rows.inverse(T)
+    if _small.pose_form(T, T.numel() // 16):
+        return _small.pose_inverse(T).view(T.shape)
     Rt = T[..., :3, :3].transpose(-1, -2)
     return _with_last_row(torch.cat((Rt, _small.matmul(Rt, T[..., :3, 3:]).neg_()), dim=-1))
 
@@ -604,7 +611,7 @@ def _log_forward(T: Tensor, *, dest: Tensor | None = None) -> Tensor:
     # _small.se3_log does): as accurate (within 1.1 eps of the exact result norm-wise for angles
     # of 1e-8 to 3, 1.4 near pi), a sixth faster.  Float64 keeps the evaluation from |phi|.
     phi, theta, e = _quat._log_and_cot(R, cot=True)
-    d = torch.rsub(e, 1.0).div_(theta.square_().clamp_min_(_coeffs.H_MIN[T.dtype]))
+    d = torch.rsub(e, 1.0).div_(theta.mul_(theta).clamp_min_(_coeffs.H_MIN[T.dtype]))
     rho = so3._jl_components(phi, t, e, e.new_full((), -0.5), d)
     return _layout.interleave((*rho, *phi), dest=dest)
 
