@@ -212,7 +212,8 @@ def pose_compose_grads(A: Tensor, B: Tensor, G: Tensor) -> tuple[Tensor, Tensor]
 def pose_inverse(T: Tensor) -> Tensor:
     """``[[R^T, -R^T t], [0, 1]]`` of poses as ``P - P Q`` (one ``baddbmm``) with
     ``P = [[R^T, 0], [0, 1]]`` and ``Q`` the translation column alone."""
-    T = T.reshape(-1, 4, 4)
+    if T.dim() != 3:
+        T = T.reshape(-1, 4, 4)
     P = torch.where(constant("rotation_block", torch.bool), T, constant("corner", T.dtype)).mT
     Q = torch.where(constant("translation_column", torch.bool), T, constant("zero", T.dtype))
     return torch.baddbmm(P, P, Q, alpha=-1.0)
