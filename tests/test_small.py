@@ -363,12 +363,12 @@ def test_an_element_alone_and_in_a_batch(dtype):
                 assert torch.equal(shared[3], alone) and torch.equal(d_first[3], d_alone), name
 
 
-POSE_FORMS = ("pose_compose", "pose_compose_grads", "pose_inverse")
+POSE_FORMS = ("pose_compose", "pose_compose_grads", "pose_inverse", "pose_inverse_grads")
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_pose_forms_agree_with_the_block_products(dtype, monkeypatch):
-    """``se3.compose`` (forward and backward) and ``se3.inverse`` below POSE_ROWS poses take
+    """``se3.compose`` and ``se3.inverse`` (forward and backward) below POSE_ROWS poses take
     their ``4 x 4`` product forms, and agree with the products of the blocks they replace to an
     ulp of the largest entry (the same sums, with zero terms added); NaN bottom rows are not read
     and a NaN entry spoils only its own pose's result."""
@@ -394,8 +394,9 @@ def test_pose_forms_agree_with_the_block_products(dtype, monkeypatch):
             monkeypatch.setattr(_small, "POSE_ROWS", pose_rows)
             calls.update(dict.fromkeys(calls, 0))
             a, b = A.clone().requires_grad_(), B.clone().requires_grad_()
-            out = se3.compose(a, b)
-            results.append((out.detach(), *torch.autograd.grad(out, (a, b), G), se3.inverse(A)))
+            out, inv = se3.compose(a, b), se3.inverse(a)
+            grads = torch.autograd.grad(out, (a, b), G) + torch.autograd.grad(inv, a, G)
+            results.append((out.detach(), inv.detach(), *grads))
             assert calls == dict.fromkeys(POSE_FORMS, int(pose_rows > 0))
         for formed, plain in zip(*results, strict=True):
             assert not bool(formed[1:].isnan().any())

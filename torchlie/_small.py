@@ -23,7 +23,7 @@ which are not the component-wise operations:
   their coefficients), float32 in float64; the other ops' backwards are a few whole-tensor
   calls already (``quaternion.apply`` and ``quaternion.from_matrix`` take their differentiable
   formulas on small batches);
-* below :data:`POSE_ROWS` poses, ``se3.compose`` (forward and backward) and ``se3.inverse`` as
+* below :data:`POSE_ROWS` poses, ``se3.compose`` and ``se3.inverse`` (forward and backward) as
   one batched product of ``4 x 4`` matrices each, their bottom rows put to ``(0, 0, 0, 1)`` or
   zero by ``where`` (the inputs' bottom rows are still not read).
 
@@ -217,6 +217,19 @@ def pose_inverse(T: Tensor) -> Tensor:
     P = torch.where(constant("rotation_block", torch.bool), T, constant("corner", T.dtype)).mT
     Q = torch.where(constant("translation_column", torch.bool), T, constant("zero", T.dtype))
     return torch.baddbmm(P, P, Q, alpha=-1.0)
+
+
+def pose_inverse_grads(T: Tensor, G: Tensor) -> Tensor:
+    """The gradient of :func:`pose_inverse` for ``G``: ``[[G_R^T - t g^T, -R g], [0, 0]]``
+    (``g`` the translation column of ``G``) as ``G_R'^T - M N`` by one ``baddbmm``, with
+    ``M = [[R, t], [0, 0]]`` and ``N = [[0, g], [g^T, 0]]``."""
+    if T.dim() != 3:
+        T, G = T.reshape(-1, 4, 4), G.reshape(-1, 4, 4)
+    zero = constant("zero", G.dtype)
+    C = torch.where(constant("rotation_block", torch.bool), G, zero).mT
+    M = torch.where(constant("top_rows", torch.bool), T, zero)
+    g = torch.where(constant("translation_column", torch.bool), G, zero)
+    return torch.baddbmm(C, M, g + g.mT, alpha=-1.0)
 
 
 def _outer(v: Tensor, u: Tensor | None = None) -> Tensor:

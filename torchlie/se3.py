@@ -420,6 +420,9 @@ def _inverse_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor]:
         return (_inverse_bwd_entries(T, G),)
     if _rows.taken((T, G), G.numel() // 16):
         return (_rows.inverse_grads(T, G),)
+    if _small.pose_form(G, G.numel() // 16) and T.shape == G.shape:
+        dT = _small.pose_inverse_grads(T, G)
+        return (dT if dT.dim() == T.dim() else dT.view(T.shape),)
     h = -G[..., :3, 3:]
     dR = torch.addcmul(G[..., :3, :3].transpose(-1, -2), T[..., :3, 3:], h.transpose(-1, -2))
     dt = _small.matmul(T[..., :3, :3], h)
