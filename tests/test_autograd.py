@@ -15,7 +15,7 @@ import pytest
 import torch
 from torch.autograd import forward_ad as fwAD
 
-from torchlie import _autograd, _checks, quaternion, se3, so3
+from torchlie import _autograd, _checks, _layout, quaternion, se3, so3
 
 F64 = torch.float64
 
@@ -424,6 +424,30 @@ def test_blocks_hold_the_same_bytes_in_every_dtype():
         doubled, summed = run(a)
         assert torch.equal(doubled, a * 2.0) and torch.equal(summed, a.sum(-1))
         assert calls[0] == (dtype, rows) and sum(c[1] for c in calls) == n
+
+
+def test_blocks_by_cpu(monkeypatch):
+    """``other_cpu`` times as many rows per block off Intel CPUs with MKL, BLOCK on them; the
+    same result either way (quaternion.apply takes two)."""
+    calls = []
+
+    def fwd(a):
+        calls.append(a.shape[0])
+        return a * 2.0
+
+    run = _autograd._blocked(fwd, (1,), other_cpu=2)
+    a = torch.randn(4 * _autograd.BLOCK + 5, 3)
+    for intel, rows in ((True, _autograd.BLOCK), (False, 2 * _autograd.BLOCK)):
+        monkeypatch.setattr(_layout, "intel_mkl", lambda intel=intel: intel)
+        calls.clear()
+        assert torch.equal(run(a), a * 2.0)
+        assert calls[0] == rows and sum(calls) == a.shape[0]
+    q, p = torch.randn(2, 4 * _autograd.BLOCK + 5, 4).unbind(0)
+    p = p[:, :3].contiguous()
+    monkeypatch.setattr(_layout, "intel_mkl", lambda: True)
+    blocks = quaternion._apply_entries_blocked(q, p)
+    monkeypatch.setattr(_layout, "intel_mkl", lambda: False)
+    assert torch.equal(quaternion._apply_entries_blocked(q, p), blocks)
 
 
 @pytest.mark.parametrize("passive", [False, True])

@@ -928,7 +928,7 @@ def _apply_grads_block(
     return _layout.interleave(dq, oq, dq_dest), _layout.interleave(dp, op, dp_dest)
 
 
-_apply_grads = _blocked(_apply_grads_block, (1, 1, 1))
+_apply_grads = _blocked(_apply_grads_block, (1, 1, 1), other_cpu=2)
 
 
 def _apply_jvp(saved: tuple[Tensor, ...], dq: Tensor | None, dp: Tensor | None) -> Tensor:
@@ -977,7 +977,7 @@ def _apply_entries(q: Tensor, p: Tensor, *, dest: Tensor | None = None) -> Tenso
     return _layout.interleave(parts, o, dest)
 
 
-_apply_entries_blocked = _blocked(_apply_entries, (1, 1))
+_apply_entries_blocked = _blocked(_apply_entries, (1, 1), other_cpu=2)
 
 
 def _apply_shifted(q: Tensor, p: Tensor, *, dest: Tensor | None = None) -> Tensor:
