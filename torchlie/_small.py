@@ -202,9 +202,9 @@ def pose_compose_grads(A: Tensor, B: Tensor, G: Tensor) -> tuple[Tensor, Tensor]
     """The gradients of :func:`pose_compose` for ``G`` (over the broadcast batch): ``G_top B'^T``
     and ``R_A'^T G_top`` with ``G_top`` the top rows of ``G``, ``B'`` as in the forward and
     ``R_A'`` the rotation block of ``A`` alone (bottom rows zero)."""
-    zero = constant("zero", G.dtype)
-    top = torch.where(constant("top_rows", torch.bool), G, zero)
-    b = torch.where(constant("top_rows", torch.bool), B, constant("corner", B.dtype))
+    zero, top_rows = constant("zero", G.dtype), constant("top_rows", torch.bool)
+    top = torch.where(top_rows, G, zero)
+    b = torch.where(top_rows, B, constant("corner", B.dtype))
     a = torch.where(constant("rotation_block", torch.bool), A, zero)
     return matmul(top, b.mT), matmul(a.mT, top)
 
@@ -212,24 +212,31 @@ def pose_compose_grads(A: Tensor, B: Tensor, G: Tensor) -> tuple[Tensor, Tensor]
 def pose_inverse(T: Tensor) -> Tensor:
     """``[[R^T, -R^T t], [0, 1]]`` of poses as ``P - P Q`` (one ``baddbmm``) with
     ``P = [[R^T, 0], [0, 1]]`` and ``Q`` the translation column alone."""
+    shape = T.shape
     if T.dim() != 3:
         T = T.reshape(-1, 4, 4)
     P = torch.where(constant("rotation_block", torch.bool), T, constant("corner", T.dtype)).mT
     Q = torch.where(constant("translation_column", torch.bool), T, constant("zero", T.dtype))
-    return torch.baddbmm(P, P, Q, alpha=-1.0)
+    return _in_shape(torch.baddbmm(P, P, Q, alpha=-1.0), shape)
+
+
+def _in_shape(x: Tensor, shape: torch.Size) -> Tensor:
+    """``x`` viewed as ``shape``, without the view (1-2 us a call) where it has that shape."""
+    return x if x.dim() == len(shape) else x.view(shape)
 
 
 def pose_inverse_grads(T: Tensor, G: Tensor) -> Tensor:
     """The gradient of :func:`pose_inverse` for ``G``: ``[[G_R^T - t g^T, -R g], [0, 0]]``
     (``g`` the translation column of ``G``) as ``G_R'^T - M N`` by one ``baddbmm``, with
     ``M = [[R, t], [0, 0]]`` and ``N = [[0, g], [g^T, 0]]``."""
+    shape = T.shape
     if T.dim() != 3:
         T, G = T.reshape(-1, 4, 4), G.reshape(-1, 4, 4)
     zero = constant("zero", G.dtype)
     C = torch.where(constant("rotation_block", torch.bool), G, zero).mT
     M = torch.where(constant("top_rows", torch.bool), T, zero)
     g = torch.where(constant("translation_column", torch.bool), G, zero)
-    return torch.baddbmm(C, M, g + g.mT, alpha=-1.0)
+    return _in_shape(torch.baddbmm(C, M, g + g.mT, alpha=-1.0), shape)
 
 
 def _outer(v: Tensor, u: Tensor | None = None) -> Tensor:

@@ -407,8 +407,7 @@ def _inverse_fwd(T: Tensor) -> Tensor:
     if _rows.inverse_taken(T):
         return _rows.inverse(T)
     if _small.pose_form(T, T.numel() // 16):
-        out = _small.pose_inverse(T)
-        return out if out.dim() == T.dim() else out.view(T.shape)  # a view costs 1-2 us
+        return _small.pose_inverse(T)
     Rt = T[..., :3, :3].transpose(-1, -2)
     return _with_last_row(torch.cat((Rt, _small.matmul(Rt, T[..., :3, 3:]).neg_()), dim=-1))
 
@@ -420,9 +419,8 @@ def _inverse_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor]:
         return (_inverse_bwd_entries(T, G),)
     if _rows.taken((T, G), G.numel() // 16):
         return (_rows.inverse_grads(T, G),)
-    if _small.pose_form(G, G.numel() // 16) and T.shape == G.shape:
-        dT = _small.pose_inverse_grads(T, G)
-        return (dT if dT.dim() == T.dim() else dT.view(T.shape),)
+    if _small.pose_form(G, G.numel() // 16):
+        return (_small.pose_inverse_grads(T, G),)
     h = -G[..., :3, 3:]
     dR = torch.addcmul(G[..., :3, :3].transpose(-1, -2), T[..., :3, 3:], h.transpose(-1, -2))
     dt = _small.matmul(T[..., :3, :3], h)
