@@ -212,31 +212,22 @@ def pose_compose_grads(A: Tensor, B: Tensor, G: Tensor) -> tuple[Tensor, Tensor]
 def pose_inverse(T: Tensor) -> Tensor:
     """``[[R^T, -R^T t], [0, 1]]`` of poses as ``P - P Q`` (one ``baddbmm``) with
     ``P = [[R^T, 0], [0, 1]]`` and ``Q`` the translation column alone."""
-    shape = T.shape
-    if T.dim() != 3:
-        T = T.reshape(-1, 4, 4)
-    P = torch.where(constant("rotation_block", torch.bool), T, constant("corner", T.dtype)).mT
-    Q = torch.where(constant("translation_column", torch.bool), T, constant("zero", T.dtype))
-    return _in_shape(torch.baddbmm(P, P, Q, alpha=-1.0), shape)
-
-
-def _in_shape(x: Tensor, shape: torch.Size) -> Tensor:
-    """``x`` viewed as ``shape``, without the view (1-2 us a call) where it has that shape."""
-    return x if x.dim() == len(shape) else x.view(shape)
+    x = T if T.dim() == 3 else T.reshape(-1, 4, 4)
+    P = torch.where(constant("rotation_block", torch.bool), x, constant("corner", x.dtype)).mT
+    Q = torch.where(constant("translation_column", torch.bool), x, constant("zero", x.dtype))
+    return _result(torch.baddbmm(P, P, Q, alpha=-1.0), T, 2)
 
 
 def pose_inverse_grads(T: Tensor, G: Tensor) -> Tensor:
     """The gradient of :func:`pose_inverse` for ``G``: ``[[G_R^T - t g^T, -R g], [0, 0]]``
     (``g`` the translation column of ``G``) as ``G_R'^T - M N`` by one ``baddbmm``, with
     ``M = [[R, t], [0, 0]]`` and ``N = [[0, g], [g^T, 0]]``."""
-    shape = T.shape
-    if T.dim() != 3:
-        T, G = T.reshape(-1, 4, 4), G.reshape(-1, 4, 4)
-    zero = constant("zero", G.dtype)
-    C = torch.where(constant("rotation_block", torch.bool), G, zero).mT
-    M = torch.where(constant("top_rows", torch.bool), T, zero)
-    g = torch.where(constant("translation_column", torch.bool), G, zero)
-    return _in_shape(torch.baddbmm(C, M, g + g.mT, alpha=-1.0), shape)
+    x, y = (T, G) if T.dim() == 3 else (T.reshape(-1, 4, 4), G.reshape(-1, 4, 4))
+    zero = constant("zero", y.dtype)
+    C = torch.where(constant("rotation_block", torch.bool), y, zero).mT
+    M = torch.where(constant("top_rows", torch.bool), x, zero)
+    g = torch.where(constant("translation_column", torch.bool), y, zero)
+    return _result(torch.baddbmm(C, M, g + g.mT, alpha=-1.0), T, 2)
 
 
 def _outer(v: Tensor, u: Tensor | None = None) -> Tensor:
