@@ -266,16 +266,19 @@ def test_log_exp_roundtrip_every_angle(dtype):
 
 
 def test_q_values_match_the_series_coefficients():
-    """The forward-only float32 coefficients of Q (closed forms sharing one sqrt and two sin,
-    three-term series below ``Q_VALUES_T2``) agree with the float64 coefficient functions far
-    below float32's precision, on both sides of the switch and at large angles."""
+    """The forward-only float32 coefficients of Q (closed forms from Rodrigues' coefficients of
+    the same angle, three-term series below ``Q_VALUES_T2``) agree with the float64 coefficient
+    functions far below float32's precision, on both sides of the switch and at large angles."""
     k = _coeffs.Q_VALUES_T2
-    t2 = torch.tensor(
+    t = torch.tensor(
         [0.0, 1e-30, 1e-12, 1e-6, 1e-4, 2.5e-3, math.nextafter(k, 0), k, math.nextafter(k, 1)]
         + [0.02, 0.1, 0.5, 1.0, 4.0, PI**2, 20.0, 100.0],
         dtype=F64,
-    )
-    got = _coeffs.q_values(t2)
+    ).sqrt()
+    w = torch.stack((t, torch.zeros_like(t), torch.zeros_like(t)), -1)
+    half = _coeffs.half_angle(w)
+    t2 = half[0]
+    got = _coeffs.q_values(t2, *_coeffs.rodrigues_values(None, "ab", half))
     want = se3._q_of_t2(t2, F64)
     for a, b in zip(got, want, strict=True):
         torch.testing.assert_close(a, b, rtol=1e-9, atol=0)

@@ -228,7 +228,20 @@ def norm(v: Tensor, dim: int = -1, keepdim: bool = False) -> Tensor:
 H_MIN = {torch.float32: 1e-30, torch.float64: 1e-150}
 
 
-def rodrigues_values(w: Tensor | Sequence[Tensor], parts: str = "abcd") -> tuple[Tensor, ...]:
+def half_angle(w: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """``(t2, h, sin h, cos h)`` with ``t2 = theta2(w)`` and ``h = sqrt(t2) / 2`` clamped at
+    :data:`H_MIN`: the one ``sqrt``, ``sin`` and ``cos`` per element that the forward-only
+    evaluations below start from (``half=`` of each, to take several from one)."""
+    t2 = theta2(w)
+    h = t2.sqrt().mul_(0.5).clamp_min_(H_MIN[t2.dtype])
+    return t2, h, torch.sin(h), torch.cos(h)
+
+
+def rodrigues_values(
+    w: Tensor | Sequence[Tensor] | None,
+    parts: str = "abcd",
+    half: tuple[Tensor, Tensor, Tensor, Tensor] | None = None,
+) -> tuple[Tensor, ...]:
     """``(a, b, c, d) = (sin t / t, (1 - cos t)/t^2, (t - sin t)/t^3, cos t)`` of ``t = |w|``.
 
     ``Exp(w) = d I + a hat(w) + b w w^T`` and ``Jl(w) = a I + b hat(w) + c w w^T``.
@@ -238,37 +251,37 @@ def rodrigues_values(w: Tensor | Sequence[Tensor], parts: str = "abcd") -> tuple
     absolute error is about ``eps / t^2``, so the term it enters, ``c w w^T``, is accurate to
     about ``eps`` at every angle (and 0 at t = 0); use it only in that product.  Computed in
     the precision of :func:`theta2` (float64 for float32 input) and returned in it.  ``w`` as a
-    ``(..., 3)`` tensor or its three components (as :func:`theta2`).  ``parts``: the
-    coefficients wanted, by letter, in the order returned (``"abd"`` for ``Exp``, ``"abc"`` for
-    ``Jl``); the others are not computed.
+    ``(..., 3)`` tensor or its three components (as :func:`theta2`), or ``half``: its
+    :func:`half_angle`.  ``parts``: the coefficients wanted, by letter, in the order returned
+    (``"abd"`` for ``Exp``, ``"abc"`` for ``Jl``); the others are not computed.
     """
-    t2 = theta2(w)
-    h = t2.sqrt().mul_(0.5).clamp_min_(H_MIN[t2.dtype])
-    sh, ch = torch.sin(h), torch.cos(h)
+    t2, h, sh, ch = half_angle(w) if half is None else half
     s = sh / h
     a = s * ch
     values = {"a": a}
     if "c" in parts:
         values["c"] = (1.0 - a).div_(t2.clamp_min(H_MIN[t2.dtype]))
     if "d" in parts:
-        values["d"] = (ch - sh).mul_(ch.add_(sh))
+        values["d"] = (ch - sh).mul_(ch + sh)
     if "b" in parts:
         values["b"] = s.mul_(s).mul_(0.5)
     return tuple(values[k] for k in parts)
 
 
-def jl_inv_values(w: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor]:
+def jl_inv_values(
+    w: Tensor | Sequence[Tensor] | None,
+    half: tuple[Tensor, Tensor, Tensor, Tensor] | None = None,
+) -> tuple[Tensor, Tensor]:
     """``((t/2) cot(t/2), (1 - (t/2) cot(t/2))/t^2)`` of ``t = |w|`` in ``[0, pi]``:
     ``Jl^-1 = e I - hat(w)/2 + D w w^T``.
 
     Forward-only (module docstring).  ``e = cos(h) / (sin(h)/h)`` with ``h = t/2``; ``D`` has,
     like ``c`` of :func:`rodrigues_values`, an absolute error of about ``eps / t^2`` and is
     meant only for the product ``D w w^T``.  ``w`` as a ``(..., 3)`` tensor or its three
-    components (as :func:`theta2`).
+    components (as :func:`theta2`), or ``half``: its :func:`half_angle`.
     """
-    t2 = theta2(w)
-    h = t2.sqrt().mul_(0.5).clamp_min_(H_MIN[t2.dtype])
-    e = torch.cos(h).div_(torch.sin(h).div_(h))
+    t2, h, sh, ch = half_angle(w) if half is None else half
+    e = ch / (sh / h)
     return e, (1.0 - e).div_(t2.clamp_min(H_MIN[t2.dtype]))
 
 
@@ -303,26 +316,25 @@ _Q_SERIES = (
 )
 
 
-def q_values(t2: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+def q_values(t2: Tensor, a: Tensor, b: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """``(c1, c2, c3) = (sinc3, cosc4, (cosc4 - 3 sinc5)/2)`` of ``t2`` in float64, to well
     within float32's precision: the coefficients of the top-right block of the SE(3) Jacobian
     in the plain backward passes of float32 input.
 
-    Forward-only (module docstring).  One ``sqrt`` and two ``sin`` for all three: with
-    ``t = sqrt(t2)``, ``c1 = (t - sin t)/t^3``, ``c2 = (1/2 - 2 sin^2(t/2)/t2)/t2`` and
+    Forward-only (module docstring).  From ``a = sin(t)/t`` and ``b = (1 - cos t)/t^2`` of the
+    same angle (:func:`rodrigues_values`, whose ``sin`` and ``cos`` they share; no
+    trigonometric function of its own): ``c1 = (1 - a)/t2``, ``c2 = (1/2 - b)/t2`` and
     ``sinc5 = (1/6 - c1)/t2``, whose cancellations leave relative errors of about
-    ``6 eps/t2``, ``12 eps/t2`` and ``180 eps/t2^2`` (float64 ``eps``: below 2e-10 for
+    ``12 eps/t2``, ``12 eps/t2`` and ``180 eps/t2^2`` (float64 ``eps``: below 2e-10 for
     ``t2 >= Q_VALUES_T2``), and three terms of each series below that, selected with
-    :func:`step` (each branch evaluated where it is finite: the closed forms at ``t2`` or
-    above, the series at ``t2`` or below the switch).
+    :func:`step` (the closed forms divide by ``t2`` clamped at the switch, so the branch not
+    taken is finite).
     """
     small = step(Q_VALUES_T2 - t2)
     ts, tl = t2.clamp_min(Q_VALUES_T2), t2.clamp_max(Q_VALUES_T2)
-    t = ts.sqrt()
-    r = torch.sin(0.5 * t).div_(t)
-    c1 = (t - torch.sin(t)).div_(ts * t)
-    c2 = r.mul_(r).mul_(-2.0).add_(0.5).div_(ts)
-    s5 = (1.0 / 6.0 - c1).div_(ts)
+    c1 = torch.rsub(a, 1.0).div_(ts)
+    c2 = torch.rsub(b, 0.5).div_(ts)
+    s5 = torch.rsub(c1, 1.0 / 6.0).div_(ts)
     c3 = (c2 - 3.0 * s5).mul_(0.5)
     large = 1.0 - small
     return tuple(
@@ -331,11 +343,14 @@ def q_values(t2: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     )
 
 
-def q_plain(t2: Tensor, dtype: torch.dtype) -> tuple[Tensor, Tensor, Tensor]:
+def q_plain(
+    dtype: torch.dtype, t2: Tensor, a: Tensor | None, b: Tensor | None
+) -> tuple[Tensor, Tensor, Tensor]:
     """Forward-only ``(c1, c2, c3)`` of ``t2`` for input of ``dtype`` (the plain backward
-    passes): :func:`q_values` for float32 (a third of the operations of :func:`q_series`, to
-    well within float32's precision), :func:`q_series` otherwise; in ``t2``'s dtype."""
-    return (q_values if dtype == torch.float32 else q_series)(t2)
+    passes): :func:`q_values` from Rodrigues' ``a`` and ``b`` for float32 (a few operations
+    and no trigonometric function, to well within float32's precision), :func:`q_series`
+    otherwise (``a`` and ``b`` not read); in ``t2``'s dtype."""
+    return q_values(t2, a, b) if dtype == torch.float32 else q_series(t2)
 
 
 def theta2(w: Tensor | Sequence[Tensor], keepdim: bool = False) -> Tensor:

@@ -127,11 +127,16 @@ def _q_of_t2(t2: Tensor, dtype: torch.dtype) -> tuple[Tensor, Tensor, Tensor]:
     return c1.to(dtype), c2.to(dtype), c3.to(dtype)
 
 
-def _q_values(xyz: Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
-    """:func:`_q_coeffs` from the components of ``phi``, forward-only (the plain backward
-    passes): for float32, :func:`_coeffs.q_values` (a third of the operations)."""
-    dtype = xyz[0].dtype
-    c1, c2, c3 = _coeffs.q_plain(_coeffs.theta2(xyz), dtype)
+def _q_values(
+    dtype: torch.dtype, half: tuple[Tensor, ...], ab: tuple[Tensor, Tensor] | None = None
+) -> tuple[Tensor, Tensor, Tensor]:
+    """:func:`_q_coeffs` of ``phi`` for input of ``dtype``, forward-only (the plain backward
+    passes), from its :func:`_coeffs.half_angle`: for float32, :func:`_coeffs.q_values` from
+    Rodrigues' ``a`` and ``b`` (``ab``, or evaluated from ``half``; no trigonometric function
+    of its own), :func:`_coeffs.q_series` otherwise; in ``dtype``."""
+    if ab is None and dtype == torch.float32:
+        ab = _coeffs.rodrigues_values(None, "ab", half)
+    c1, c2, c3 = _coeffs.q_plain(dtype, half[0], *(ab or (None, None)))
     return c1.to(dtype), c2.to(dtype), c3.to(dtype)
 
 
@@ -554,7 +559,10 @@ def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor, *, dest: Tensor | Non
     """:func:`_exp_backward` from components, forward-only coefficients (plain backward)."""
     x = _quat._planes(xi, 6)
     xyz = x[3:]
-    a, b, c = (v.to(xi.dtype) for v in _coeffs.rodrigues_values(xyz, "abc"))
+    half = _coeffs.half_angle(xyz)
+    a, b, c = _coeffs.rodrigues_values(None, "abc", half)
+    qc = _q_values(xi.dtype, half, (a, b))
+    a, b, c = (v.to(xi.dtype) for v in (a, b, c))
     R, t = _rotation_and_translation(T)
     G_R, g_t = _rotation_and_translation(G)
     o = _layout.outputs(x[0], 6, dest=dest)
@@ -563,7 +571,7 @@ def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor, *, dest: Tensor | Non
     g_phi = so3._jl_components(xyz, u, a, b, c)
     g_tx = so3._jl_components(xyz, so3._cross(t, g_t), a, -b, c)
     neg = [-v for v in x]
-    q = _q_components(neg[:3], neg[3:], g_t, *_q_values(xyz))
+    q = _q_components(neg[:3], neg[3:], g_t, *qc)
     g_phi = [
         torch.add(p, r, out=oi).add_(s) for p, r, s, oi in zip(g_phi, g_tx, q, o[3:], strict=True)
     ]
@@ -642,12 +650,14 @@ def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor, *, dest: Tensor | Non
     """:func:`_log_backward` from components, forward-only coefficients (plain backward)."""
     x = _quat._planes(xi, 6)
     gs = _quat._planes(g, 6)
-    e, d = (v.to(xi.dtype) for v in _coeffs.jl_inv_values(x[3:]))
-    half = e.new_full((), -0.5)
-    h_rho = so3._jl_components(x[3:], gs[:3], e, half, d)
-    q = _q_components(x[:3], x[3:], h_rho, *_q_values(x[3:]))
+    half = _coeffs.half_angle(x[3:])  # one sin and cos for the coefficients of Jl^-1 and Q
+    qc = _q_values(xi.dtype, half)
+    e, d = (v.to(xi.dtype) for v in _coeffs.jl_inv_values(None, half))
+    minus_half = e.new_full((), -0.5)
+    h_rho = so3._jl_components(x[3:], gs[:3], e, minus_half, d)
+    q = _q_components(x[:3], x[3:], h_rho, *qc)
     v = [(gi - qi).mul_(0.5) for gi, qi in zip(gs[3:], q, strict=True)]
-    u = so3._jl_components(x[3:], v, e, half, d)  # h_phi / 2
+    u = so3._jl_components(x[3:], v, e, minus_half, d)  # h_phi / 2
     r = _quat._planes(_rot(T), 9)
     o, top = _top_outputs(r[0], dest=dest)
     G_R = [so3._cross(r[3 * i : 3 * i + 3], u, top[i][:3]) for i in range(3)]  # rows of R hat(u)
