@@ -20,7 +20,7 @@ import reference as ref
 import torch
 from samplers import ANGLES, PI, rotvecs
 
-from torchlie import _layout, quaternion, so3
+from torchlie import _layout, compiled, quaternion, so3
 
 pytestmark = pytest.mark.slow
 
@@ -123,6 +123,19 @@ def test_log_of_exp(dtype, rows):
     w = r["w"]
     out = _in_rows(lambda v: so3.log(so3.exp(v)), w, rows)
     err = _sign_free_near_pi(out, w.double(), r["theta"], 1)
+    assert float(err.max()) <= VALUE_TOL[dtype], _report(err, r["theta"])
+
+
+@pytest.mark.compile
+def test_compiled_log_values(dtype):
+    """``torchlie.compiled.so3.log``: float32 takes its angle from a polynomial in float64 there
+    (``torchlie._coeffs.atan2_nonneg``) instead of ``atan2``; both dtypes within the same
+    tolerance, and the rotation vectors of ``log(exp(w))`` as well."""
+    r = _references(dtype)
+    log = compiled.so3.log
+    err = _sign_free_near_pi(log(r["R_in"]), r["log_ref"], r["theta"], 1)
+    assert float(err.max()) <= VALUE_TOL[dtype], _report(err, r["theta"])
+    err = _sign_free_near_pi(log(so3.exp(r["w"])), r["w"].double(), r["theta"], 1)
     assert float(err.max()) <= VALUE_TOL[dtype], _report(err, r["theta"])
 
 

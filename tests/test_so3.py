@@ -35,6 +35,22 @@ def test_rotate_e2_by_pi_over_3_about_x():
     torch.testing.assert_close(p, expected, rtol=0, atol=2 * eps(F64))
 
 
+def test_atan2_nonneg_polynomial():
+    """The angle of the compiled float32 logs, ``atan2`` for ``y, x >= 0`` by a polynomial of
+    the smaller over the larger, within 2e-8 relative of torch's ``atan2`` at every angle in
+    ``[0, pi/2]`` (dense, both sides of ``y = x``, the ends, tiny and huge scales)."""
+    a = torch.linspace(0.0, PI / 2, 200_001, dtype=F64)
+    a = torch.cat((a, torch.tensor([1e-30, 1e-8, PI / 4 - 1e-12, PI / 4 + 1e-12], dtype=F64)))
+    for scale in (1e-30, 1.0, 4.0, 1e30):
+        y, x = scale * torch.sin(a), scale * torch.cos(a)
+        x = torch.where(a == PI / 2, torch.zeros_like(x), x)
+        want = torch.atan2(y, x)
+        got = _coeffs.atan2_nonneg(y, x)
+        rel = (got - want).abs() / want.clamp_min(torch.finfo(F64).tiny)
+        assert float(rel.max()) <= 2e-8
+        assert float(got[0]) == 0.0 and float(got[200_000]) == PI / 2
+
+
 @pytest.mark.parametrize(
     "R, omega",
     [

@@ -285,6 +285,39 @@ def jl_inv_values(
     return e, (1.0 - e).div_(t2.clamp_min(H_MIN[t2.dtype]))
 
 
+#: ``atan(r) = r P(r^2)`` for ``r`` in ``[0, 1]``: the coefficients of ``P``, lowest degree
+#: first, fitted in relative error (within 1.6e-8 of ``atan`` over the interval).
+ATAN_POLY = (
+    0.9999999847501353,
+    -0.33333073144366354,
+    0.19992615169542852,
+    -0.14203610645081147,
+    0.10640801023651227,
+    -0.07504010583026437,
+    0.04268816135835052,
+    -0.016066561511482252,
+    0.0028493725423138078,
+)
+
+
+def atan2_nonneg(y: Tensor, x: Tensor) -> Tensor:
+    """``atan2(y, x)`` for ``y, x >= 0``, not both 0 (a value in ``[0, pi/2]``), to 2e-8
+    relative: ``atan(r)`` of ``r = min / max`` by :data:`ATAN_POLY` (Estrin's scheme), and
+    ``pi/2 - atan(r)`` where ``y > x``.  For float32 results, evaluated in float64: in a
+    compiled CPU loop it costs two thirds of torch's ``atan2`` (Sleef's 1-ulp ``atan2`` in
+    double-float arithmetic), for float32 results as accurate (see :mod:`torchlie.compiled`).
+    Forward-only (module docstring)."""
+    c = ATAN_POLY
+    r = torch.minimum(y, x) / torch.maximum(y, x)
+    s = r * r
+    s2 = s * s
+    s4 = s2 * s2
+    p = (c[0] + c[1] * s) + s2 * (c[2] + c[3] * s)
+    p = p + s4 * ((c[4] + c[5] * s) + s2 * (c[6] + c[7] * s) + s4 * c[8])
+    t = r * p
+    return torch.where(y > x, (math.pi / 2) - t, t)
+
+
 def step(x: Tensor) -> Tensor:
     """``1.0`` where ``x > 0``, else ``0.0`` (NaN included, as ``x > 0``; torch's ``sign`` is
     0 there), in ``x``'s dtype, without boolean tensors: on CPU a comparison costs as much as
