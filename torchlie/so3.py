@@ -244,10 +244,11 @@ _ExpFn = custom_function(
 def _jl_inv_apply_values(
     w: Tensor | Sequence[Tensor], v: Tensor | Sequence[Tensor]
 ) -> tuple[Tensor, Tensor, Tensor]:
-    """Components of ``Jl(w)^-1 v = e v - (w x v)/2 + D (w . v) w``; forward-only.  ``w`` and
-    ``v`` as ``(..., 3)`` tensors or as their three components."""
+    """Components of ``Jl(w)^-1 v = e v - (w x v)/2 + D (w . v) w`` for ``w`` of angle at most
+    pi (a log's); forward-only.  ``w`` and ``v`` as ``(..., 3)`` tensors or as their three
+    components."""
     wc = _quat._planes(w, 3)
-    e, d = (t.to(wc[0].dtype) for t in _coeffs.jl_inv_values(wc))
+    e, d = (t.to(wc[0].dtype) for t in _coeffs.jl_inv_log_values(wc))
     out = _jl_components(wc, _quat._planes(v, 3), e, e.new_full((), -0.5), d)
     return out[0], out[1], out[2]
 
