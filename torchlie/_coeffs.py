@@ -24,7 +24,10 @@ name               value                                            series at 0
 Forward-only evaluations (``*_values``) serve the forward passes of the custom autograd Functions,
 which run without autograd: there no branch needs to be safe to differentiate, so a clamp of the
 half angle replaces the series and its ``where`` (``sin(h)/h`` is exact to rounding for every
-``h > 0``, and equals 1 for the clamped value).  They must not be differentiated.
+``h > 0``, and equals 1 for the clamped value).  They must not be differentiated.  Two of them
+are polynomial fits over a bounded range, for float32 results, evaluated in float64:
+:func:`atan2_nonneg` (:data:`ATAN_POLY`) and :func:`jl_inv_log_values` (:data:`JINV_POLY`, angles
+up to pi).
 """
 
 from __future__ import annotations

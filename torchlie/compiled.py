@@ -40,6 +40,16 @@ float32, forward (forward and backward): ``se3.exp`` 62 -> 28 ns per element, ``
 134 -> 23 (~400 -> 50), ``se3.inverse`` 53 -> 18, ``quaternion.apply`` (175 -> 18).  ``se3.log``
 is computed from the components of its rotation vector, stacked once (stacked first, that vector
 was read again by a loop of its own): 33 -> 28.
+
+Angles by polynomials.  In a vectorised loop torch's ``atan2`` is Sleef's 1-ulp one, in
+double-float arithmetic: 2 of the 6.9 ns per element of a compiled float32 ``so3.log``.  The
+float32 logs of rotation matrices (``so3.log``, ``se3.log``, the conversions to rotation vectors)
+take the half angle here from :func:`torchlie._coeffs.atan2_nonneg`, a polynomial of the smaller
+of ``|c_v|`` and ``|c_w|`` over the larger in float64 (6.9 -> 6.2 ns per element; against the
+60-digit references the values stay within 1.6 eps, eager's 1.45).  Their backward passes (eager
+too) take the coefficients of ``Jl^-1`` from a polynomial in ``theta^2``
+(:func:`torchlie._coeffs.jl_inv_log_values`) instead of ``sin``, ``cos`` and divisions: compiled
+``so3.log`` forward+backward 15.2 -> 12.1.
 """
 
 from __future__ import annotations
