@@ -278,7 +278,7 @@ def test_q_values_match_the_series_coefficients():
     w = torch.stack((t, torch.zeros_like(t), torch.zeros_like(t)), -1)
     half = _coeffs.half_angle(w)
     t2 = half[0]
-    got = _coeffs.q_values(t2, *_coeffs.rodrigues_values(None, "ab", half))
+    got = _coeffs.q_values(t2, *_coeffs.rodrigues_values(None, "bc", half))
     want = se3._q_of_t2(t2, F64)
     for a, b in zip(got, want, strict=True):
         torch.testing.assert_close(a, b, rtol=1e-9, atol=0)

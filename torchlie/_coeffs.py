@@ -385,41 +385,41 @@ _Q_SERIES = (
 )
 
 
-def q_values(t2: Tensor, a: Tensor, b: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+def q_values(t2: Tensor, b: Tensor, c: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """``(c1, c2, c3) = (sinc3, cosc4, (cosc4 - 3 sinc5)/2)`` of ``t2`` in float64, to well
     within float32's precision: the coefficients of the top-right block of the SE(3) Jacobian
     in the plain backward passes of float32 input.
 
-    Forward-only (module docstring).  From ``a = sin(t)/t`` and ``b = (1 - cos t)/t^2`` of the
-    same angle (:func:`rodrigues_values`, whose ``sin`` and ``cos`` they share; no
-    trigonometric function of its own): ``c1 = (1 - a)/t2``, ``c2 = (1/2 - b)/t2`` and
-    ``sinc5 = (1/6 - c1)/t2``, whose cancellations leave relative errors of about
-    ``12 eps/t2``, ``12 eps/t2`` and ``180 eps/t2^2`` (float64 ``eps``: below 2e-10 for
-    ``t2 >= Q_VALUES_T2``), and three terms of each series below that, selected with
-    :func:`step` (the closed forms divide by ``t2`` clamped at the switch, so the branch not
-    taken is finite).
+    Forward-only (module docstring).  From ``b = (1 - cos t)/t^2`` and ``c = (t - sin t)/t^3`` of
+    the same angle (:func:`rodrigues_values`, whose ``sin`` and ``cos`` they share; no
+    trigonometric function of its own): ``c1 = c``, ``c2 = (1/2 - b)/t2`` and
+    ``sinc5 = (1/6 - c)/t2``, whose cancellations leave relative errors of about ``12 eps/t2``,
+    ``12 eps/t2`` and ``180 eps/t2^2`` (float64 ``eps``: below 2e-10 for ``t2 >= Q_VALUES_T2``),
+    and three terms of each series below that, selected with :func:`step` (the closed forms
+    divide by ``t2`` clamped at the switch, one reciprocal for both, so the branch not taken is
+    finite).
     """
     small = step(Q_VALUES_T2 - t2)
     ts, tl = t2.clamp_min(Q_VALUES_T2), t2.clamp_max(Q_VALUES_T2)
-    c1 = torch.rsub(a, 1.0).div_(ts)
-    c2 = torch.rsub(b, 0.5).div_(ts)
-    s5 = torch.rsub(c1, 1.0 / 6.0).div_(ts)
+    r = ts.reciprocal_()
+    c2 = torch.rsub(b, 0.5).mul_(r)
+    s5 = torch.rsub(c, 1.0 / 6.0).mul_(r)
     c3 = (c2 - 3.0 * s5).mul_(0.5)
     large = 1.0 - small
     return tuple(
-        torch.addcmul(exact.mul_(large), (tl * k2).add_(k1).mul_(tl).add_(k0), small)
-        for (k0, k1, k2), exact in zip(_Q_SERIES, (c1, c2, c3), strict=True)
+        torch.addcmul(exact * large, (tl * k2).add_(k1).mul_(tl).add_(k0), small)
+        for (k0, k1, k2), exact in zip(_Q_SERIES, (c, c2, c3), strict=True)
     )
 
 
 def q_plain(
-    dtype: torch.dtype, t2: Tensor, a: Tensor | None, b: Tensor | None
+    dtype: torch.dtype, t2: Tensor, b: Tensor | None, c: Tensor | None
 ) -> tuple[Tensor, Tensor, Tensor]:
     """Forward-only ``(c1, c2, c3)`` of ``t2`` for input of ``dtype`` (the plain backward
-    passes): :func:`q_values` from Rodrigues' ``a`` and ``b`` for float32 (a few operations
+    passes): :func:`q_values` from Rodrigues' ``b`` and ``c`` for float32 (a few operations
     and no trigonometric function, to well within float32's precision), :func:`q_series`
-    otherwise (``a`` and ``b`` not read); in ``t2``'s dtype."""
-    return q_values(t2, a, b) if dtype == torch.float32 else q_series(t2)
+    otherwise (``b`` and ``c`` not read); in ``t2``'s dtype."""
+    return q_values(t2, b, c) if dtype == torch.float32 else q_series(t2)
 
 
 def theta2(w: Tensor | Sequence[Tensor], keepdim: bool = False) -> Tensor:

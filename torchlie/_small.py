@@ -498,14 +498,14 @@ def _jl_inv_coefficients(h: Tensor, s: Tensor, cos_h: Tensor) -> tuple[Tensor, T
     return e, torch.rsub(e, 1.0).div_(h.square().mul_(4.0))
 
 
-def _q(rho: Tensor, phi: Tensor, v: Tensor, dtype: torch.dtype, a: Tensor, b: Tensor) -> Tensor:
+def _q(rho: Tensor, phi: Tensor, v: Tensor, dtype: torch.dtype, b: Tensor, c: Tensor) -> Tensor:
     """``Q(rho, phi) v``, the top-right block of the SE(3) left Jacobian, of ``(rows, 3)``
     vectors (``dtype``: the input's, which picks the coefficients' evaluation, see
-    :func:`torchlie._coeffs.q_plain`, from Rodrigues' ``a`` and ``b`` of ``phi`` for float32).
+    :func:`torchlie._coeffs.q_plain`, from Rodrigues' ``b`` and ``c`` of ``phi`` for float32).
     With ``a = phi x v``, ``b = phi x a`` and ``r(x) = rho x x``: ``r(v)/2 + c1 r(a) + c2 r(b) +
     phi x (c1 r(v) + (c1 - 3 c2) r(a) + c3 r(b) + phi x (c2 r(v) + c3 r(a)))``."""
     t2 = (phi * phi).sum(-1, keepdim=True)
-    c1, c2, c3 = _coeffs.q_plain(dtype, t2, a, b)
+    c1, c2, c3 = _coeffs.q_plain(dtype, t2, b, c)
     cross = torch.linalg.cross
     a = cross(phi, v)
     rv, ra, rb = cross(rho, v), cross(rho, a), cross(rho, cross(phi, a))
@@ -527,7 +527,7 @@ def se3_exp_backward(xi: Tensor, T: Tensor, G: Tensor) -> Tensor:
     u = _vee_rt_g(M[:, :3, :3], g[:, :3, :3])
     w = torch.linalg.cross(M[:, :3, 3], g_t)
     g_phi = _jl(phi, u + w, a, None, c).addcmul_(b, torch.linalg.cross(phi, u - w))
-    g_phi += _q(-rho, -phi, g_t, xi.dtype, a, b)
+    g_phi += _q(-rho, -phi, g_t, xi.dtype, b, c)
     return _result(torch.cat((g_rho, g_phi), -1), xi, 1)
 
 
@@ -537,10 +537,11 @@ def se3_log_backward(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
     bottom row 0 (float32 in float64)."""
     M, x, gg = (_rows(y, e) for y, e in ((T, (4, 4)), (xi, (6,)), (g, (6,))))
     rho, phi = x[:, :3], x[:, 3:]
-    h, s, cos_h = _half_angle(phi)  # one sin and cos for the coefficients of Jl^-1 and Q
-    e, d = _jl_inv_coefficients(h, s, cos_h)
+    half = _half_angle(phi)  # one sin and cos for the coefficients of Jl^-1 and Q
+    e, d = _jl_inv_coefficients(*half)
     h_rho = _jl(phi, gg[:, :3], e, -0.5, d)
-    q = _q(rho, phi, h_rho, xi.dtype, s * cos_h, s.square().mul_(0.5))
+    _, b, c = _jl_coefficients(*half)
+    q = _q(rho, phi, h_rho, xi.dtype, b, c)
     v = (gg[:, 3:] - q).mul_(0.5)
     R = M[:, :3, :3]
     top = torch.cat((_r_hat(R, _jl(phi, v, e, -0.5, d)), torch.bmm(R, h_rho.unsqueeze(-1))), -1)

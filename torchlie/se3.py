@@ -128,15 +128,15 @@ def _q_of_t2(t2: Tensor, dtype: torch.dtype) -> tuple[Tensor, Tensor, Tensor]:
 
 
 def _q_values(
-    dtype: torch.dtype, half: tuple[Tensor, ...], ab: tuple[Tensor, Tensor] | None = None
+    dtype: torch.dtype, half: tuple[Tensor, ...], bc: tuple[Tensor, Tensor] | None = None
 ) -> tuple[Tensor, Tensor, Tensor]:
     """:func:`_q_coeffs` of ``phi`` for input of ``dtype``, forward-only (the plain backward
     passes), from its :func:`_coeffs.half_angle`: for float32, :func:`_coeffs.q_values` from
-    Rodrigues' ``a`` and ``b`` (``ab``, or evaluated from ``half``; no trigonometric function
+    Rodrigues' ``b`` and ``c`` (``bc``, or evaluated from ``half``; no trigonometric function
     of its own), :func:`_coeffs.q_series` otherwise; in ``dtype``."""
-    if ab is None and dtype == torch.float32:
-        ab = _coeffs.rodrigues_values(None, "ab", half)
-    c1, c2, c3 = _coeffs.q_plain(dtype, half[0], *(ab or (None, None)))
+    if bc is None and dtype == torch.float32:
+        bc = _coeffs.rodrigues_values(None, "bc", half)
+    c1, c2, c3 = _coeffs.q_plain(dtype, half[0], *(bc or (None, None)))
     return c1.to(dtype), c2.to(dtype), c3.to(dtype)
 
 
@@ -561,7 +561,7 @@ def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor, *, dest: Tensor | Non
     xyz = x[3:]
     half = _coeffs.half_angle(xyz)
     a, b, c = _coeffs.rodrigues_values(None, "abc", half)
-    qc = _q_values(xi.dtype, half, (a, b))
+    qc = _q_values(xi.dtype, half, (b, c))
     a, b, c = (v.to(xi.dtype) for v in (a, b, c))
     R, t = _rotation_and_translation(T)
     G_R, g_t = _rotation_and_translation(G)
