@@ -232,12 +232,13 @@ H_MIN = {torch.float32: 1e-30, torch.float64: 1e-150}
 
 
 def half_angle(w: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """``(t2, h, sin h, cos h)`` with ``t2 = theta2(w)`` and ``h = sqrt(t2) / 2`` clamped at
-    :data:`H_MIN`: the one ``sqrt``, ``sin`` and ``cos`` per element that the forward-only
-    evaluations below start from (``half=`` of each, to take several from one)."""
+    """``(t2, sin(h)/h, sin h, cos h)`` with ``t2 = theta2(w)`` and ``h = sqrt(t2) / 2`` clamped
+    at :data:`H_MIN`: the one ``sqrt``, ``sin``, ``cos`` and division per element that the
+    forward-only evaluations below start from (``half=`` of each, to take several from one)."""
     t2 = theta2(w)
     h = t2.sqrt().mul_(0.5).clamp_min_(H_MIN[t2.dtype])
-    return t2, h, torch.sin(h), torch.cos(h)
+    sh = torch.sin(h)
+    return t2, sh / h, sh, torch.cos(h)
 
 
 def rodrigues_values(
@@ -258,8 +259,7 @@ def rodrigues_values(
     :func:`half_angle`.  ``parts``: the coefficients wanted, by letter, in the order returned
     (``"abd"`` for ``Exp``, ``"abc"`` for ``Jl``); the others are not computed.
     """
-    t2, h, sh, ch = half_angle(w) if half is None else half
-    s = sh / h
+    t2, s, sh, ch = half_angle(w) if half is None else half
     a = s * ch
     values = {"a": a}
     if "c" in parts:
@@ -267,7 +267,7 @@ def rodrigues_values(
     if "d" in parts:
         values["d"] = (ch - sh).mul_(ch + sh)
     if "b" in parts:
-        values["b"] = s.mul_(s).mul_(0.5)
+        values["b"] = (s * s).mul_(0.5)
     return tuple(values[k] for k in parts)
 
 
@@ -283,8 +283,8 @@ def jl_inv_values(
     meant only for the product ``D w w^T``.  ``w`` as a ``(..., 3)`` tensor or its three
     components (as :func:`theta2`), or ``half``: its :func:`half_angle`.
     """
-    t2, h, sh, ch = half_angle(w) if half is None else half
-    e = ch / (sh / h)
+    t2, s, _, ch = half_angle(w) if half is None else half
+    e = ch / s
     return e, (1.0 - e).div_(t2.clamp_min(H_MIN[t2.dtype]))
 
 
