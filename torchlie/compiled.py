@@ -41,15 +41,15 @@ float32, forward (forward and backward): ``se3.exp`` 62 -> 28 ns per element, ``
 is computed from the components of its rotation vector, stacked once (stacked first, that vector
 was read again by a loop of its own): 33 -> 28.
 
-Angles by polynomials.  In a vectorised loop torch's ``atan2`` is Sleef's 1-ulp one, in
-double-float arithmetic: 2 of the 6.9 ns per element of a compiled float32 ``so3.log``.  The
-float32 logs of rotation matrices (``so3.log``, ``se3.log``, the conversions to rotation vectors)
-take the half angle here from :func:`torchlie._coeffs.atan2_nonneg`, a polynomial of the smaller
-of ``|c_v|`` and ``|c_w|`` over the larger in float64 (6.9 -> 6.2 ns per element; against the
-60-digit references the values stay within 1.6 eps, eager's 1.45).  The float32 backward of
-``so3.log`` (eager too) takes the coefficients of ``Jl^-1`` from a polynomial in ``theta^2``
-(:func:`torchlie._coeffs.jl_inv_log_values`) instead of ``sin``, ``cos`` and divisions: compiled
-forward+backward 15.2 -> 12.1.
+Angles by polynomials.  In a vectorised CPU loop torch's ``atan2`` is Sleef's 1-ulp one, in
+double-float arithmetic: 2 of the 6.9 ns per element of a compiled float32 ``so3.log``.  On CPU
+the float32 logs of rotation matrices (``so3.log``, ``se3.log``, the conversions to rotation
+vectors) take the half angle here from :func:`torchlie._coeffs.atan2_nonneg`, a polynomial of
+the smaller of ``|c_v|`` and ``|c_w|`` over the larger in float64 (6.9 -> 6.2 ns per element;
+against the 60-digit references the values stay within 1.6 eps, eager's 1.45).  The float32
+backward of ``so3.log`` (eager too) takes the coefficients of ``Jl^-1`` from a polynomial in
+``theta^2`` (:func:`torchlie._coeffs.jl_inv_log_values`) instead of ``sin``, ``cos`` and
+divisions: compiled forward+backward 15.2 -> 12.1.
 """
 
 from __future__ import annotations

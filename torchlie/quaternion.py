@@ -716,8 +716,8 @@ def _log_and_cot(
     nv = torch.addcmul(torch.addcmul(cx * cx, cy, cy), cz, cz).sqrt_()
     nv = nv.clamp_min_(_coeffs.H_MIN[nv.dtype])
     a = cw.abs()
-    if torch.compiler.is_compiling() and nv.dtype == torch.float32:
-        # In a fused loop, the angle by a polynomial in float64 costs two thirds of atan2.
+    if torch.compiler.is_compiling() and nv.dtype == torch.float32 and nv.device.type == "cpu":
+        # In a fused CPU loop, the angle by a polynomial in float64 costs two thirds of atan2.
         nv64 = nv.double()
         half = _coeffs.atan2_nonneg(nv64, a.double())
         theta = (2.0 * half).float()
