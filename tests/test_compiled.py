@@ -155,3 +155,15 @@ def test_compiled_forward_and_backward_are_one_loop_each(module, name, make):
     want = torch.autograd.grad(fn(*args), args, G)
     for a, b in zip(got, want, strict=True):
         torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-5)
+
+
+def test_compiled_float32_log_takes_its_angle_from_a_polynomial():
+    # On CPU the float32 log's half angle is torchlie._coeffs.atan2_nonneg in the fused loop,
+    # not atan2 (Sleef's, double-float arithmetic); the values are eager's to a few ulp.
+    R = so3.random(37, generator=torch.Generator().manual_seed(7))
+    torch._dynamo.reset()
+    cfn = torch.compile(so3.log, fullgraph=True, options=compiled.inductor_options("so3", "log"))
+    got, code = run_and_get_code(cfn, R)
+    assert len(code) == 1 and _loops(code[0]) == 1
+    assert "atan2" not in code[0]
+    torch.testing.assert_close(got, so3.log(R), rtol=0, atol=4e-7)
