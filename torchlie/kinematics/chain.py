@@ -52,7 +52,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from .. import _checks, _layout
+from .. import _checks
 from .. import so3 as _so3
 from .._typing import Float
 from .urdf import JointSpec, RobotSpec, parse_urdf
@@ -398,7 +398,6 @@ class Chain:
         )
         self._plans: dict[tuple[int, ...], _Plan] = {}
         self._jac_plans: dict[int, _JacPlan] = {}
-        self._perm16: Tensor | None = None
         self._mimic_t: tuple[Tensor, Tensor, Tensor] | None = None
 
     # ------------------------------------------------------------------------------------------
@@ -655,18 +654,6 @@ class Chain:
             out.append(res)
         return out
 
-    def _transpose16(self, like: Tensor) -> Tensor:
-        """Permutation matrix taking a flattened ``(c, r)`` 4x4 to ``(r, c)``."""
-        if self._perm16 is None or self._perm16.dtype != like.dtype:
-            P = torch.zeros(16, 16, dtype=like.dtype, device=like.device)
-            for c in range(4):
-                for r in range(4):
-                    P[4 * c + r, 4 * r + c] = 1.0
-            if torch.compiler.is_compiling():
-                return P
-            self._perm16 = P
-        return self._perm16
-
     def _pose(self, plan: _Plan, out: list[list[Tensor]], i: int, B: int, like: Tensor) -> Tensor:
         """Internal ``(4, 4, B)`` transposed pose of link ``i``."""
         if i == 0:
@@ -742,18 +729,10 @@ class Chain:
         out = self._run(plan, q2)
         poses = [self._pose(plan, out, i, B, q2) for i in targets]  # (c, r, B) each
         n = len(targets)
-        # Transposing back to (..., 4, 4): for small batches one stacked copy (fewest ops);
-        # for large ones per-link copies, which torch runs several times faster than one
-        # interleaved copy.
+        # Back to (..., 4, 4): for small batches one stacked copy (fewest ops); for large ones
+        # per-link copies, which torch runs faster than one interleaved copy.
         if B > _SMALL_BATCH:
-            if _layout.eager_cpu(q2) and not _layout.row_products(q2.dtype, 16):
-                # where such products are slow (float64 off Intel CPUs), torch's strided copy
-                Ts = tuple(p.permute(2, 1, 0).contiguous() for p in poses)
-            else:
-                # (16, B) -> (B, 16) through a GEMM with a permutation matrix: exact (one
-                # product by 1 per entry), and faster than torch's strided copy.
-                perm = self._transpose16(q2)
-                Ts = tuple(torch.mm(p.reshape(16, B).t(), perm).view(B, 4, 4) for p in poses)
+            Ts = tuple(p.permute(2, 1, 0).contiguous() for p in poses)
         if stacked:
             if B <= _SMALL_BATCH:
                 T = torch.stack(poses).permute(3, 0, 2, 1).contiguous()
