@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import inspect
 import pickle
 from dataclasses import dataclass
 
@@ -74,7 +75,7 @@ def test_methods_equal_core(grp, batch):
         (X.between(Y).tensor, c.between(a, b)),
         (X.interpolate(Y, 0.3).tensor, c.interpolate(a, b, 0.3)),
         (X.is_valid(), c.is_valid(a)),
-        (X.matrix(), a),
+        (X.matrix, a),
     ]
     for got, want in pairs:
         assert torch.equal(got, want)
@@ -84,13 +85,13 @@ def test_methods_equal_core(grp, batch):
         assert all(torch.equal(u, v) for u, v in zip(dist, want, strict=True))
     else:
         assert torch.equal(dist, want)
-    assert X.matrix() is a  # no copy
+    assert X.matrix is a  # no copy
 
 
 def test_so3_conversions(batch):
     X = rand(GROUPS[0], *batch)
     assert torch.equal(X.quaternion(), quaternion.from_matrix(X.tensor))
-    assert X.rotation() is X
+    assert X.rotation is X
     q = quaternion.random(*batch, generator=torch.Generator().manual_seed(3), dtype=F64)
     assert torch.equal(SO3.from_quaternion(q).tensor, quaternion.to_matrix(q))
 
@@ -98,15 +99,59 @@ def test_so3_conversions(batch):
 def test_se3_conversions(batch):
     T = rand(GROUPS[1], *batch)
     R, t = se3.to_rt(T.tensor)
-    assert isinstance(T.rotation(), SO3)
-    assert torch.equal(T.rotation().tensor, R)
-    assert torch.equal(T.translation(), t)
+    assert isinstance(T.rotation, SO3)
+    assert torch.equal(T.rotation.tensor, R)
+    assert torch.equal(T.translation, t)
     assert all(torch.equal(u, v) for u, v in zip(T.to_rt(), (R, t), strict=True))
     assert torch.equal(T.pos_quat(), se3.to_pos_quat(T.tensor))
     assert torch.equal(T.quaternion(), se3.to_pos_quat(T.tensor)[..., 3:])
     assert torch.equal(SE3.from_rt(R, t).tensor, se3.from_rt(R, t))
     assert torch.equal(SE3.from_rt(SO3(R), t).tensor, se3.from_rt(R, t))
     assert torch.equal(SE3.from_pos_quat(T.pos_quat()).tensor, se3.from_pos_quat(T.pos_quat()))
+
+
+def test_accessors_are_read_only_properties(batch):
+    # The class rule: nouns for stored data are properties; verbs and conversions are methods.
+    T = rand(GROUPS[1], *batch)
+    X = SO3(T.tensor[..., :3, :3])
+    props = {SE3: ("matrix", "rotation", "translation"), SO3: ("matrix", "rotation")}
+    for cls, names in props.items():
+        for name in names:
+            assert isinstance(inspect.getattr_static(cls, name), property), (cls, name)
+    for obj, name in [(T, "matrix"), (T, "rotation"), (T, "translation"), (X, "rotation")]:
+        with pytest.raises(AttributeError):
+            setattr(obj, name, getattr(obj, name))
+    for cls, name in [
+        (SE3, "log"),
+        (SE3, "inverse"),
+        (SE3, "apply"),
+        (SE3, "quaternion"),
+        (SE3, "pos_quat"),
+        (SE3, "to_rt"),
+        (SO3, "quaternion"),
+        (SO3, "log"),
+    ]:
+        assert inspect.isfunction(inspect.getattr_static(cls, name)), (cls, name)
+
+    assert T.matrix is T.tensor and X.matrix is X.tensor
+    assert X.rotation is X
+    assert type(T.rotation) is SO3 and T.rotation.shape == T.shape
+    assert torch.equal(T.rotation.tensor, T.tensor[..., :3, :3])
+    assert torch.equal(T.translation, T.tensor[..., :3, 3])
+    # rotation and translation are copies: writing into them leaves the element as it was.
+    t, R = T.translation.clone(), T.rotation.tensor.clone()
+    T.translation.add_(1.0)
+    T.rotation.tensor.add_(1.0)
+    assert torch.equal(T.translation, t) and torch.equal(T.rotation.tensor, R)
+
+    # The reported case: the identity residual is plain tensor arithmetic on the property.
+    residual = (T @ T.inverse()).matrix - torch.eye(4, dtype=F64)
+    assert residual.shape == (*batch, 4, 4)
+    torch.testing.assert_close(residual, torch.zeros_like(residual), rtol=0, atol=1e-12)
+    T32 = SE3.from_rt(so3.exp(torch.tensor([0.3, -0.2, 0.1])), torch.tensor([1.0, 2.0, 3.0]))
+    residual = (T32 @ T32.inverse()).matrix - torch.eye(4)
+    assert residual.dtype == torch.float32
+    assert float(residual.abs().max()) <= 8 * torch.finfo(torch.float32).eps
 
 
 def test_identity_random(grp, dtype):
@@ -364,7 +409,7 @@ def test_compile_fullgraph():
     def f(R: SO3, w: torch.Tensor, T: SE3, p: torch.Tensor):
         X = R.compose(SO3.exp(w)).inverse()
         Y = T.compose(SE3.from_rt(X, p)).rplus(torch.cat((p, w), -1))
-        return X, Y.apply(p) + X.log(), Y[0]
+        return X, Y.apply(p) + X.log() + Y.translation + Y.rotation.matrix[..., 0], Y[0]
 
     F32 = torch.float32
     R = rand(GROUPS[0], 4, dtype=F32)

@@ -245,8 +245,8 @@ def test_head_outputs_and_translation(gen):
     T = pose(f)
     assert isinstance(T, SE3) and T.shape == (7,)
     y = pose.linear(f)
-    torch.testing.assert_close(T.translation(), y[:, 3:])
-    torch.testing.assert_close(T.rotation().tensor, so3.exp(y[:, :3]))
+    torch.testing.assert_close(T.translation, y[:, 3:])
+    torch.testing.assert_close(T.rotation.tensor, so3.exp(y[:, :3]))
     assert "representation='rotvec'" in repr(pose)
 
 

@@ -13,6 +13,13 @@ tensor, cannot be mutated, and cost one Python object per call.
   ``X.apply(p)``: Dynamo (torch 2.13) does not trace ``@`` on user-defined classes.
 * ``X.shape`` is the *batch* shape; ``len(X)``, ``X[i]``, ``X[1:3]``, ``X[..., 0]`` index the
   batch dimensions only and return the same class.
+* Property or method, by one rule: a *property* is a noun for data the element stores, read
+  without arguments or arithmetic (``.tensor``, ``.matrix``, ``.rotation``, ``.translation``
+  and the metadata ``.shape``, ``.ndim``, ``.dtype``, ``.device``, ``.requires_grad``); a
+  *method* takes arguments, is a verb, or computes new numbers: group operations and maps
+  (``.inverse()``, ``.log()``, ``.adjoint()``, ``.apply(p)``) and changes of representation
+  (``.quaternion()``, ``.pos_quat()``, ``.to_rt()``).  So ``(T @ T.inverse()).matrix`` is a
+  tensor, as ``.tensor`` is.
 * Both classes are registered as pytree nodes (one leaf, the tensor), so they can be passed into
   and returned from ``torch.func`` transforms and ``torch.compile`` d functions.  A transform
   that maps leaves maps the tensor: ``torch.func.grad`` with respect to an ``SO3`` returns an
@@ -157,7 +164,7 @@ class _Group:
         """The inverse element.
 
         Example:
-            >>> SE3.from_rt(torch.eye(3), torch.ones(3)).inverse().translation()
+            >>> SE3.from_rt(torch.eye(3), torch.ones(3)).inverse().translation
             tensor([-1., -1., -1.])
         """
         return type(self)._wrap(self._core.inverse(self.tensor))
@@ -194,7 +201,7 @@ class _Group:
 
         Example:
             >>> T = SE3.from_rt(torch.eye(3), torch.tensor([1.0, 0.0, 0.0]))
-            >>> T.lplus(torch.tensor([0.0, 2.0, 0.0, 0.0, 0.0, 0.0])).translation()
+            >>> T.lplus(torch.tensor([0.0, 2.0, 0.0, 0.0, 0.0, 0.0])).translation
             tensor([1., 2., 0.])
         """
         return type(self)._wrap(self._core.lplus(self.tensor, tau))
@@ -227,7 +234,7 @@ class _Group:
         Example:
             >>> a = SE3.from_rt(torch.eye(3), torch.tensor([1.0, 0.0, 0.0]))
             >>> b = SE3.from_rt(torch.eye(3), torch.tensor([1.0, 2.0, 0.0]))
-            >>> a.between(b).translation()
+            >>> a.between(b).translation
             tensor([0., 2., 0.])
         """
         _same_group("between", self, other)
@@ -266,11 +273,12 @@ class _Group:
 
     # -- views and conversions -------------------------------------------------------------
 
+    @property
     def matrix(self) -> Tensor:
-        """The wrapped matrix ``(..., n, n)`` (the same tensor, not a copy).
+        """The wrapped matrix ``(..., n, n)``: the same tensor as ``.tensor``, not a copy.
 
         Example:
-            >>> SO3.identity().matrix()
+            >>> SO3.identity().matrix
             tensor([[1., 0., 0.],
                     [0., 1., 0.],
                     [0., 0., 1.]])
@@ -379,6 +387,12 @@ def _check_valid(name: str, ok: Tensor, what: str) -> None:
 class SO3(_Group):
     """Rotations, wrapping rotation matrices ``(..., 3, 3)`` (``p_world = R @ p_body``).
 
+    Properties are nouns for stored data, read without arguments or arithmetic: ``.tensor`` and
+    ``.matrix`` (the same rotation matrices), ``.rotation`` (``self``, as for :class:`SE3`),
+    ``.shape`` (batch shape), ``.dtype``, ...  Everything that takes arguments, is a verb or
+    computes new numbers is a method: ``.log()``, ``.inverse()``, ``.apply(p)``, and the
+    conversion ``.quaternion()``.
+
     Args:
         tensor: rotation matrices ``(..., 3, 3)``, floating point.
         check: also check the values with :func:`torchlie.so3.is_valid` (``ValueError``).
@@ -420,11 +434,23 @@ class SO3(_Group):
         return cls._wrap(_quat.to_matrix(q))
 
     def quaternion(self) -> Float[Tensor, "*b 4"]:
-        """Canonical wxyz unit quaternions ``(..., 4)`` (``w >= 0``)."""
+        """Canonical wxyz unit quaternions ``(..., 4)`` (``w >= 0``); a conversion, so a method.
+
+        Example:
+            >>> SO3.exp(torch.tensor([0.0, 0.0, torch.pi / 2])).quaternion()
+            tensor([0.7071, 0.0000, 0.0000, 0.7071])
+        """
         return _quat.from_matrix(self.tensor)
 
+    @property
     def rotation(self) -> SO3:
-        """``self`` (so code written for SE3 poses also accepts rotations)."""
+        """``self``, so that code reading ``X.rotation`` of an :class:`SE3` accepts an SO3 too.
+
+        Example:
+            >>> R = SO3.identity()
+            >>> R.rotation is R
+            True
+        """
         return self
 
 
@@ -432,6 +458,13 @@ class SE3(_Group):
     """Rigid motions, wrapping homogeneous poses ``(..., 4, 4)`` ``[[R, t], [0, 1]]``.
 
     Tangent vectors are twists ``(rho, phi)`` ``(..., 6)``, translation part first.
+
+    Properties are nouns for stored data, read without arguments or arithmetic: ``.tensor`` and
+    ``.matrix`` (the same poses), ``.rotation`` (the rotation block as an :class:`SO3`),
+    ``.translation`` ``(..., 3)``, ``.shape`` (batch shape), ``.dtype``, ...  Everything that
+    takes arguments, is a verb or computes new numbers is a method: ``.log()``,
+    ``.inverse()``, ``.apply(p)``, and the conversions ``.quaternion()``, ``.pos_quat()``,
+    ``.to_rt()``.
 
     Args:
         tensor: poses ``(..., 4, 4)``, floating point.
@@ -442,7 +475,7 @@ class SE3(_Group):
         >>> T = SE3.from_rt(torch.eye(3), torch.tensor([1.0, 2.0, 3.0]))
         >>> T @ torch.zeros(3)
         tensor([1., 2., 3.])
-        >>> (T @ T).translation()
+        >>> (T @ T).translation
         tensor([2., 4., 6.])
         >>> T.inverse().log()
         tensor([-1., -2., -3.,  0.,  0.,  0.])
@@ -498,12 +531,26 @@ class SE3(_Group):
         """7-vectors ``(t, q)``: translation, then the canonical wxyz quaternion."""
         return _se3.to_pos_quat(self.tensor)
 
+    @property
     def rotation(self) -> SO3:
-        """The rotation part as an :class:`SO3`."""
+        """The rotation block as an :class:`SO3` (a copy, from :func:`torchlie.se3.to_rt`).
+
+        Example:
+            >>> SE3.identity().rotation
+            SO3(tensor([[1., 0., 0.],
+                        [0., 1., 0.],
+                        [0., 0., 1.]]))
+        """
         return SO3._wrap(_se3.to_rt(self.tensor)[0])
 
+    @property
     def translation(self) -> Float[Tensor, "*b 3"]:
-        """The translation part ``(..., 3)``."""
+        """The translation column ``(..., 3)`` (a copy, from :func:`torchlie.se3.to_rt`).
+
+        Example:
+            >>> SE3.from_rt(torch.eye(3), torch.tensor([1.0, 2.0, 3.0])).translation
+            tensor([1., 2., 3.])
+        """
         return _se3.to_rt(self.tensor)[1]
 
     def quaternion(self) -> Float[Tensor, "*b 4"]:
