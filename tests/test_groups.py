@@ -11,6 +11,7 @@ import pytest
 import torch
 from torch.autograd import gradcheck
 
+import torchlie.groups
 from torchlie import quaternion, se3, so3
 from torchlie.groups import SE3, SO3
 
@@ -152,6 +153,10 @@ def test_accessors_are_read_only_properties(batch):
     residual = (T32 @ T32.inverse()).matrix - torch.eye(4)
     assert residual.dtype == torch.float32
     assert float(residual.abs().max()) <= 8 * torch.finfo(torch.float32).eps
+
+
+def test_dir_lists_only_the_public_names():
+    assert dir(torchlie.groups) == sorted(torchlie.groups.__all__) == ["SE3", "SO3"]
 
 
 def test_identity_random(grp, dtype):

@@ -11,6 +11,7 @@ from samplers import rotvecs
 from torch.autograd import gradcheck, gradgradcheck
 from torch.nn.utils import parametrize
 
+import torchlie.nn
 from torchlie import conversions, quaternion, se3, so3
 from torchlie.groups import SE3, SO3
 from torchlie.nn import (
@@ -248,6 +249,13 @@ def test_head_outputs_and_translation(gen):
     torch.testing.assert_close(T.translation, y[:, 3:])
     torch.testing.assert_close(T.rotation.tensor, so3.exp(y[:, :3]))
     assert "representation='rotvec'" in repr(pose)
+
+
+def test_dir_lists_only_the_public_names():
+    names = dir(torchlie.nn)
+    assert names == sorted(torchlie.nn.__all__)
+    assert all(hasattr(torchlie.nn, name) for name in names)
+    assert not {"Float", "Tensor", "torch", "nn", "so3", "se3", "SO3", "SE3"} & set(names)
 
 
 def test_bad_arguments():

@@ -11,6 +11,7 @@ from samplers import eps
 from scipy.spatial.transform import Rotation, Slerp
 from torch.autograd import gradcheck
 
+import torchlie.statistics
 from torchlie import se3, so3
 from torchlie.statistics import (
     Alignment,
@@ -65,6 +66,13 @@ def _check_cov(eps_samples: torch.Tensor, cov: torch.Tensor) -> None:
     assert (m.abs() <= 5 * (d / n).sqrt()).all()
     # and the test can fail: a 10 % error in a variance is far outside the band
     assert not ((1.1 * S - cov).abs() <= 5 * se_S).all()
+
+
+def test_dir_lists_only_the_public_names():
+    names = dir(torchlie.statistics)
+    assert names == sorted(torchlie.statistics.__all__)
+    assert all(hasattr(torchlie.statistics, name) for name in names)
+    assert not {"Float", "Tensor", "torch", "NamedTuple", "ModuleType", "so3", "se3"} & set(names)
 
 
 def test_so3_randn_covariance():

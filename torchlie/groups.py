@@ -47,6 +47,12 @@ from ._typing import Bool, Float
 
 __all__ = ["SO3", "SE3"]
 
+
+def __dir__() -> list[str]:
+    # dir() lists the public API only, not the names this module imports (torch, Tensor, ...).
+    return sorted(__all__)
+
+
 _G = TypeVar("_G", bound="_Group")
 
 

@@ -49,6 +49,11 @@ __all__ = [
     "SE3Parametrization",
 ]
 
+
+def __dir__() -> list[str]:
+    # dir() lists the public API only, not the names this module imports (torch, Tensor, ...).
+    return sorted(__all__)
+
 _NAME = "torchlie.nn."
 
 #: Size of the raw vector of each rotation representation.

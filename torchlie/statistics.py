@@ -48,6 +48,12 @@ __all__ = [
     "se3_integrate",
 ]
 
+
+def __dir__() -> list[str]:
+    # dir() lists the public API only, not the names this module imports (torch, Tensor, ...).
+    return sorted(__all__)
+
+
 _NAME = "torchlie.statistics."
 _METHODS = ("chordal", "geodesic")
 
