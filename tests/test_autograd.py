@@ -15,7 +15,7 @@ import pytest
 import torch
 from torch.autograd import forward_ad as fwAD
 
-from torchlie import _autograd, _checks, _layout, quaternion, se3, so3
+from torchlie import _autograd, _checks, quaternion, se3, so3
 
 F64 = torch.float64
 
@@ -61,32 +61,21 @@ def _custom_functions() -> list[_autograd.CustomFunction]:
 
 
 def _public_call(self, *inputs):
-    """``CustomFunction.__call__`` without the fast paths: always ``Function.apply``."""
+    """``CustomFunction.__call__`` through the ``setup_context`` Function that ``torch.func``
+    transforms take, always."""
     if torch.compiler.is_compiling():
         return self.compiled.apply(*inputs)
-    return self.eager.apply(*inputs)
+    return self.transform.apply(*inputs)
 
 
 @pytest.fixture
 def public_path(monkeypatch):
-    """Route every custom Function through the public ``Function.apply``."""
+    """Route every custom Function through its ``setup_context`` Function."""
 
     def use():
         monkeypatch.setattr(_autograd.CustomFunction, "__call__", _public_call)
 
     return use
-
-
-@pytest.fixture
-def no_public_apply(monkeypatch):
-    """Make ``Function.apply`` of every custom Function raise (the fast paths must not call it)."""
-
-    def fail(*args, **kwargs):
-        raise AssertionError("Function.apply called")
-
-    for cf in _custom_functions():
-        for cls in (cf.eager, cf.compiled):
-            monkeypatch.setattr(cls, "apply", fail)
 
 
 def _value_and_grad(fn, x: torch.Tensor, seed: int = 0):
@@ -99,7 +88,7 @@ def _value_and_grad(fn, x: torch.Tensor, seed: int = 0):
 
 
 # ----------------------------------------------------------------------------------------------
-# Fast paths against the public Function.apply
+# The eager Function and the plain forward against the setup_context Function
 # ----------------------------------------------------------------------------------------------
 
 
@@ -117,16 +106,6 @@ def test_fast_paths_match_function_apply(case, public_path, device):
     assert torch.equal(dx_fast, dx_ref)
 
 
-def test_fast_paths_do_not_call_function_apply(case, no_public_apply):
-    fn, x = case
-    fn(x)  # plain forward
-    with torch.no_grad():
-        fn(x.detach().requires_grad_())
-    _value_and_grad(fn, x)  # C entry point
-    with fwAD.dual_level():
-        fwAD.unpack_dual(fn(fwAD.make_dual(x.detach(), torch.ones_like(x))))
-
-
 def _graph_nodes(node, depth: int = 4) -> list:
     """``node`` and the autograd nodes up to ``depth`` steps behind it."""
     out = [node]
@@ -142,7 +121,7 @@ def test_reverse_mode_records_the_custom_backward(case):
     y = fn(x.detach().requires_grad_())
     assert y.requires_grad
     names = [type(n).__name__ for n in _graph_nodes(y.grad_fn)]
-    assert any(n.endswith("FunctionJvpBackward") for n in names), names
+    assert any("Function" in n and n.endswith("Backward") for n in names), names
 
 
 def test_no_grad_call_has_no_grad_fn(case, device):
@@ -398,7 +377,7 @@ def test_blocked_splits_large_batches_only():
         calls.append(a.shape[0])
         return a.sum(-1) + b
 
-    run = _autograd._blocked(fwd, (1, 0))
+    run = _autograd.blocked(fwd, (1, 0))
     a, b = torch.randn(2 * _autograd.BLOCK + 5, 3), torch.randn(2 * _autograd.BLOCK + 5)
     torch.testing.assert_close(run(a, b), fwd(a, b))
     assert calls[:3] == [_autograd.BLOCK, _autograd.BLOCK, 5]
@@ -416,7 +395,7 @@ def test_blocks_hold_the_same_bytes_in_every_dtype():
         calls.append((a.dtype, a.shape[0]))
         return a * 2.0, a.sum(-1)  # a tuple of results: each joined
 
-    run = _autograd._blocked(fwd, (1,))
+    run = _autograd.blocked(fwd, (1,))
     n = 2 * _autograd.BLOCK + 5
     for dtype, rows in ((torch.float32, _autograd.BLOCK), (torch.float64, _autograd.BLOCK // 2)):
         a = torch.randn(n, 3, dtype=dtype)
@@ -426,43 +405,16 @@ def test_blocks_hold_the_same_bytes_in_every_dtype():
         assert calls[0] == (dtype, rows) and sum(c[1] for c in calls) == n
 
 
-def test_blocks_by_cpu(monkeypatch):
-    """``other_cpu`` times as many rows per block off Intel CPUs with MKL, BLOCK on them; the
-    same result either way (quaternion.apply takes two)."""
-    calls = []
-
-    def fwd(a):
-        calls.append(a.shape[0])
-        return a * 2.0
-
-    run = _autograd._blocked(fwd, (1,), other_cpu=2)
-    a = torch.randn(4 * _autograd.BLOCK + 5, 3)
-    for intel, rows in ((True, _autograd.BLOCK), (False, 2 * _autograd.BLOCK)):
-        monkeypatch.setattr(_layout, "intel_mkl", lambda intel=intel: intel)
-        calls.clear()
-        assert torch.equal(run(a), a * 2.0)
-        assert calls[0] == rows and sum(calls) == a.shape[0]
-    q, p = torch.randn(2, 4 * _autograd.BLOCK + 5, 4).unbind(0)
-    p = p[:, :3].contiguous()
-    monkeypatch.setattr(_layout, "intel_mkl", lambda: True)
-    blocks = quaternion._apply_entries_blocked(q, p)
-    monkeypatch.setattr(_layout, "intel_mkl", lambda: False)
-    assert torch.equal(quaternion._apply_entries_blocked(q, p), blocks)
-
-
-@pytest.mark.parametrize("passive", [False, True])
-def test_blocks_scale_with_the_threads(passive, monkeypatch):
+def test_blocks_scale_with_the_threads():
     """A block of BLOCK rows per intra-op thread (torch splits a kernel between its threads only
-    above 32 768 elements), and the same result; under OMP_WAIT_POLICY=PASSIVE one thread's
-    block whatever the threads."""
-    monkeypatch.setattr(_autograd, "PASSIVE", passive)
+    above 32 768 elements), and the same result."""
     calls = []
 
     def fwd(a):
         calls.append(a.shape[0])
         return a * 2.0
 
-    run = _autograd._blocked(fwd, (1,))
+    run = _autograd.blocked(fwd, (1,))
     n = 4 * _autograd.BLOCK + 5
     a = torch.randn(n, 3)
     threads = torch.get_num_threads()
@@ -471,7 +423,7 @@ def test_blocks_scale_with_the_threads(passive, monkeypatch):
             torch.set_num_threads(k)
             calls.clear()
             assert torch.equal(run(a), a * 2.0)
-            assert calls[0] == (1 if passive else k) * _autograd.BLOCK and sum(calls) == n
+            assert calls[0] == k * _autograd.BLOCK and sum(calls) == n
     finally:
         torch.set_num_threads(threads)
 
@@ -492,3 +444,20 @@ def test_blocked_forward_with_grad_and_under_vmap(small_blocks):
     (g,) = torch.autograd.grad(so3.log(so3.exp(w)).sum(), w)
     torch.testing.assert_close(g, torch.ones_like(w), rtol=0, atol=1e-12)
     torch.testing.assert_close(torch.func.vmap(so3.exp)(w.detach()), so3.exp(w.detach()))
+
+
+def test_without_the_private_queries_every_mode_still_works(case, monkeypatch):
+    """Where torch lacks the private query of active transforms and the forward-mode level,
+    :mod:`torchlie._autograd` assumes both active: every call then goes through the
+    ``setup_context`` Function, with the same values, gradients and tangents."""
+    fn, x = case
+    y, dx = _value_and_grad(fn, x)
+    with fwAD.dual_level():
+        tangent = fwAD.unpack_dual(fn(fwAD.make_dual(x, torch.ones_like(x)))).tangent
+    monkeypatch.setattr(_autograd, "_TRANSFORMS_QUERY", None)
+    monkeypatch.setattr(_autograd, "_forward_ad", object())  # no level to read
+    assert _autograd.transforms_active() and _autograd.forward_ad_active()
+    assert torch.equal(fn(x), y)
+    y2, dx2 = _value_and_grad(fn, x)
+    assert torch.equal(y2, y) and torch.equal(dx2, dx)
+    torch.testing.assert_close(torch.func.jvp(fn, (x,), (torch.ones_like(x),))[1], tangent)

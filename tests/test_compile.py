@@ -3,7 +3,7 @@
 fullgraph=True fails on any graph break, so these tests also prove that no op synchronises the
 device or branches in Python on tensor values.  One compiled function per module keeps the
 compile cost to one graph each.  These two graphs go through Inductor, the backend users get
-(so do tests/test_compiled.py, test_compensated.py, test_nn.py, test_se3.py and
+(so do tests/test_compiled.py, test_nn.py, test_se3.py and
 test_kinematics_compile.py); the fullgraph tests of the other modules use ``aot_eager``:
 Dynamo and AOTAutograd trace the same graph, forward and backward, without Inductor's C++ code
 generation, which costs 10-40 s per graph on a cold cache.
@@ -91,12 +91,10 @@ def test_quaternion_core_compile_fullgraph():
         torch.testing.assert_close(b, a, rtol=1e-5, atol=1e-5)
 
 
-def test_large_batches_compile_fullgraph_whatever_the_threads(monkeypatch):
+def test_large_batches_compile_fullgraph_whatever_the_threads():
     """Batches large enough for the eager blocks compile in one graph, forward and backward,
-    where the eager blocks are sized by the thread count (``OMP_WAIT_POLICY`` not ``PASSIVE``):
-    ``torch.get_num_threads()`` would break the graph, and is not called while compiling
-    (``aot_eager``, see above)."""
-    monkeypatch.setattr(_autograd, "PASSIVE", False)
+    where the eager blocks are sized by the thread count: ``torch.get_num_threads()`` would
+    break the graph, and is not called while compiling (``aot_eager``, see above)."""
     g = torch.Generator().manual_seed(1)
     n = _autograd.BLOCK // 2  # 3 n numbers per batch of vectors: above the eager threshold
     w, xi = torch.randn(n, 3, generator=g), torch.randn(n, 6, generator=g)

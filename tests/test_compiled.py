@@ -15,11 +15,12 @@ pytestmark = pytest.mark.compile
 
 
 def test_compiled_mirrors_the_eager_api():
-    # float64 exp: the compensated kernel in Inductor's vectorised loop keeps its error-free
-    # transforms (no contraction into fused multiply-adds): eager's values within 2.5e-16
+    # the same formula; Inductor's loop contracts and orders some products differently:
+    # eager's values within 4 ulp of the largest entry
     w, _ = rotvecs(ANGLES, n_random=20, dtype=torch.float64)
     R = so3.exp(w)
-    torch.testing.assert_close(compiled.so3.exp(w), R, rtol=0, atol=2.5e-16)
+    eps = torch.finfo(torch.float64).eps
+    torch.testing.assert_close(compiled.so3.exp(w), R, rtol=0, atol=4 * eps)
     q = torch.randn(7, 4, dtype=torch.float64)
     torch.testing.assert_close(
         compiled.quaternion.to_matrix(q), quaternion.to_matrix(q), rtol=0, atol=1e-15
@@ -31,7 +32,6 @@ def test_compiled_mirrors_the_eager_api():
         rtol=0,
         atol=1e-15,
     )
-    # (float64 se3.exp compiles the same compensated kernel again: tests/test_se3.py has it)
     xi = torch.randn(7, 6)
     torch.testing.assert_close(compiled.se3.exp(xi), se3.exp(xi), rtol=0, atol=1e-6)
     # compiled once, then kept on the namespace
@@ -40,8 +40,6 @@ def test_compiled_mirrors_the_eager_api():
 
 
 def test_compiled_gradients_and_errors():
-    # float32: the float64 exp's compensated kernel takes 20-40 s to compile, and the test above
-    # compiles it already
     w = torch.randn(5, 3, requires_grad=True)
     (g_eager,) = torch.autograd.grad(so3.log(so3.exp(w) @ so3.exp(w)).sum(), w)
     (g_comp,) = torch.autograd.grad(
@@ -155,15 +153,3 @@ def test_compiled_forward_and_backward_are_one_loop_each(module, name, make):
     want = torch.autograd.grad(fn(*args), args, G)
     for a, b in zip(got, want, strict=True):
         torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-5)
-
-
-def test_compiled_float32_log_takes_its_angle_from_a_polynomial():
-    # On CPU the float32 log's half angle is torchlie._coeffs.atan2_nonneg in the fused loop,
-    # not atan2 (Sleef's, double-float arithmetic); the values are eager's to a few ulp.
-    R = so3.random(37, generator=torch.Generator().manual_seed(7))
-    torch._dynamo.reset()
-    cfn = torch.compile(so3.log, fullgraph=True, options=compiled.inductor_options("so3", "log"))
-    got, code = run_and_get_code(cfn, R)
-    assert len(code) == 1 and _loops(code[0]) == 1
-    assert "atan2" not in code[0]
-    torch.testing.assert_close(got, so3.log(R), rtol=0, atol=4e-7)

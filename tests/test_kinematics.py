@@ -324,23 +324,18 @@ def test_small_and_large_batches_agree(arm):
         torch.testing.assert_close(d_big[link][:100], d_small[link], atol=4 * eps(F64), rtol=0)
 
 
-@pytest.mark.parametrize("dtype", [torch.float32, F64])
-def test_large_batches_transposed_back_by_product_or_copy(dtype, monkeypatch):
-    """Above 2048 configurations the poses go back to (..., 4, 4) by a product with a permutation
-    where such products are fast (torchlie._layout.row_products), by copies elsewhere: the same
-    bits, both outputs contiguous."""
-    from torchlie import _layout
-
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_large_batches_equal_small_ones_and_are_contiguous(dtype):
+    """Above 2048 configurations the poses go back to (..., 4, 4) by per-link copies: the same
+    bits as the small-batch path, every output contiguous."""
     arm = Chain.from_urdf(sample_robot("arm7"), dtype=dtype)
     q = arm.random_configuration(3000, generator=torch.Generator().manual_seed(3))
-    out = {}
-    for forced in (True, False):
-        monkeypatch.setattr(_layout, "ROW_PRODUCTS", forced)
-        out[forced] = arm.forward_kinematics(q, stacked=True), arm.forward_kinematics(q)
-    (S1, d1), (S2, d2) = out[True], out[False]
-    assert torch.equal(S1, S2) and S2.is_contiguous()
-    for link in arm.link_names:
-        assert torch.equal(d1[link], d2[link]) and d2[link].is_contiguous()
+    S, d = arm.forward_kinematics(q, stacked=True), arm.forward_kinematics(q)
+    assert S.is_contiguous()
+    for i, link in enumerate(arm.link_names):
+        assert torch.equal(S[:, i], d[link]) and d[link].is_contiguous()
+        small = torch.cat([arm.forward_kinematics(part)[link] for part in q.split(1000)])
+        assert torch.equal(d[link], small)
 
 
 def test_link_subsets(tree):

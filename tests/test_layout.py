@@ -6,7 +6,7 @@ import pytest
 import torch
 from samplers import rotvecs
 
-from torchlie import _autograd, _layout, conversions, quaternion, se3, so3
+from torchlie import _layout, conversions, quaternion, se3, so3
 
 DTYPES = [torch.float32, torch.float64]
 DEFAULT_MIN_ROWS = _layout.MIN_ROWS
@@ -29,56 +29,6 @@ def test_default_threshold(monkeypatch):
     x = torch.zeros(1)
     assert not _layout._use_product(x, 1000)
     assert _layout._use_product(x, 10_000)
-
-
-def test_row_products_by_cpu(monkeypatch):
-    """Products with results in rows are taken with MKL on an Intel CPU; elsewhere only float32
-    ones of 16 columns; unless forced.  The vendor is read from /proc/cpuinfo where there is
-    one."""
-    monkeypatch.setattr(_layout, "ROW_PRODUCTS", None)
-    f32, f64 = torch.float32, torch.float64
-    for vendor, mkl, intel in [
-        ("GenuineIntel", True, True),
-        ("AuthenticAMD", True, False),
-        ("GenuineIntel", False, False),
-        ("", True, False),
-    ]:
-        monkeypatch.setattr(_layout, "_cpu_vendor", lambda _v=vendor: _v)
-        monkeypatch.setattr(torch.backends.mkl, "is_available", lambda _m=mkl: _m)
-        _layout.intel_mkl.cache_clear()
-        for dtype, columns in ((f32, 3), (f32, 9), (f32, 16), (f64, 3), (f64, 16)):
-            want = intel or (dtype == f32 and columns == 16)
-            assert _layout.row_products(dtype, columns) is want, (vendor, mkl, dtype, columns)
-            for forced in (True, False):
-                with monkeypatch.context() as m:
-                    m.setattr(_layout, "ROW_PRODUCTS", forced)
-                    assert _layout.row_products(dtype, columns) is forced
-    _layout.intel_mkl.cache_clear()
-    monkeypatch.undo()
-    try:
-        with open("/proc/cpuinfo") as f:
-            lines = [line for line in f if line.startswith("vendor_id")]
-    except OSError:
-        lines = []
-    if lines:
-        assert _layout._cpu_vendor() == lines[0].partition(":")[2].strip()
-    assert isinstance(_layout._cpu_vendor(), str)
-
-
-def test_row_products_from_the_environment():
-    """TORCHLIE_ROW_PRODUCTS=1 or 0 forces the choice at import; anything else leaves it to
-    the CPU."""
-    import os
-    import subprocess
-    import sys
-
-    code = "from torchlie import _layout; print(_layout.ROW_PRODUCTS)"
-    for value, want in (("1", "True"), ("0", "False"), ("", "None"), ("yes", "None")):
-        env = dict(os.environ, TORCHLIE_ROW_PRODUCTS=value)
-        out = subprocess.run(
-            [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
-        )
-        assert out.stdout.strip() == want, value
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
@@ -177,11 +127,7 @@ def _cases(dtype):
 
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_ops_equal_with_copies_only(dtype, monkeypatch):
-    """Values and gradients of the ops are bitwise those of the copying layout (the component
-    forms of ``quaternion.multiply`` and ``quaternion.to_matrix``: large batches take complex
-    arithmetic and matrix products, tested in test_quaternion.py)."""
-    monkeypatch.setattr(quaternion, "_large_pair", lambda a, b: False)
-    monkeypatch.setattr(quaternion, "_large_matrix", lambda q: False)
+    """Values and gradients of the ops are bitwise those of the copying layout."""
     fast = _values_and_grads(_cases(dtype))
     monkeypatch.setattr(_layout, "MIN_ROWS", 10**12)
     slow = _values_and_grads(_cases(dtype))
@@ -189,81 +135,6 @@ def test_ops_equal_with_copies_only(dtype, monkeypatch):
         assert torch.equal(y1, y2), name
         for a, b in zip(g1, g2, strict=True):
             assert torch.equal(a, b), name
-
-
-@pytest.mark.parametrize("dtype", DTYPES)
-def test_large_batch_kernels_of_the_group_ops_equal_the_matmuls(dtype, rows_calls, monkeypatch):
-    """The ops that switch to other kernels on large CPU batches (torchlie._rows for the group
-    ops, entry by entry for quaternion.apply) agree with their batched-matmul (and
-    cross-product) forms."""
-    g = torch.Generator().manual_seed(6)
-    xi = torch.randn(3, 400, 6, generator=g, dtype=dtype)
-    T, p = se3.exp(xi), torch.randn(3, 400, 3, generator=g, dtype=dtype)
-    q = quaternion.from_matrix(T[..., :3, :3])
-    cases = [
-        (se3.compose, (T, T.flip(1))),
-        (se3.compose, (T, T[0, 0])),
-        (se3.inverse, (T,)),
-        (se3.act, (T, p)),
-        (se3.act, (T[0, 0], p)),
-        (so3.act, (T[..., :3, :3], p)),
-        (so3.act, (T[..., :3, :3], p[0, 0])),
-        (quaternion.apply, (q, p)),
-        (quaternion.apply, (q[0, 0], p)),
-    ]
-    large = _values_and_grads(cases)
-    # every group op's forward and backward
-    assert sorted(set(rows_calls)) == sorted(rows_calls.names)
-    assert rows_calls.count("act") == 4 and rows_calls.count("compose") == 2
-    monkeypatch.setattr(_layout, "MIN_ROWS", 10**12)
-    rows_calls.clear()
-    matmuls = _values_and_grads(cases)
-    assert not rows_calls
-    eps = torch.finfo(dtype).eps
-    for (name, y1, g1), (_, y2, g2) in zip(large, matmuls, strict=True):
-        # rounding differs: a few eps of the largest input scale (|p| up to ~4 here)
-        scale = 4 * eps * y2.abs().max()
-        torch.testing.assert_close(y1, y2, rtol=0, atol=scale, msg=name)
-        for a, b in zip(g1, g2, strict=True):
-            # a broadcast input's gradient is a sum over the batch: a few eps per summand
-            summed = T.shape[:-2].numel() // a.shape[:-2].numel()
-            torch.testing.assert_close(a, b, rtol=4 * eps, atol=4 * eps * summed, msg=name)
-
-
-@pytest.mark.parametrize("dtype", DTYPES)
-def test_interleave_reads_its_output_columns_and_writes_dest(dtype):
-    g = torch.Generator().manual_seed(7)
-    x = torch.randn(700, 4, generator=g, dtype=dtype)
-    x[5] = torch.tensor(
-        [-0.0, float("inf"), float("nan"), 1e-40 if dtype == torch.float64 else 1e-42]
-    )
-    cols = [c.contiguous() for c in x.unbind(-1)]
-    o = _layout.outputs(cols[0], 4)
-    assert isinstance(o, _layout.Columns) and o.result.shape == (700, 4)
-    assert all(
-        c.shape == (700,) and c.data_ptr() == o.result[0, i].data_ptr() for i, c in enumerate(o)
-    )
-    parts = [torch.mul(c, 1.0, out=p) for c, p in zip(cols[:3], o, strict=False)]
-    parts.append(cols[3])  # not written to its column: copied there
-    got = _layout.interleave(parts, o)
-    assert got is o.result and _same_bits(got, x)  # -0.0, inf and NaN kept as they are
-    # columns of dest: the kernel's last operations write the rows of the blocked result
-    dest = torch.full((1000, 4), float("nan"), dtype=dtype)
-    o = _layout.outputs(cols[0], 4, dest=dest[100:800])
-    assert o[0].data_ptr() == dest[100].data_ptr()
-    parts = [torch.mul(c, 1.0, out=p) for c, p in zip(cols, o, strict=True)]
-    got = _layout.interleave(parts, o, dest[100:800])
-    assert got.data_ptr() == dest[100].data_ptr()
-    assert _same_bits(dest[100:800], x) and dest[:100].isnan().all() and dest[800:].isnan().all()
-    # columns of a new result, then copied to dest
-    o = _layout.outputs(cols[0], 4)
-    parts = [torch.mul(c, 1.0, out=p) for c, p in zip(cols, o, strict=True)]
-    dest = torch.zeros(700, 4, dtype=dtype)
-    assert _layout.interleave(parts, o, dest).data_ptr() == dest.data_ptr()
-    assert _same_bits(dest, x)
-    # no columns: the parts copied into the columns of the result, or of dest
-    assert _same_bits(_layout.interleave(cols), x)
-    assert _same_bits(_layout.interleave(cols[:2], dest=dest[:700, :2].contiguous()), x[:, :2])
 
 
 def test_interleave_is_differentiable_where_autograd_records():
@@ -277,57 +148,14 @@ def test_interleave_is_differentiable_where_autograd_records():
 
 def test_no_output_planes_where_autograd_records():
     x = torch.randn(700)
-    assert _layout.outputs(x, 3, x) != (None,) * 3
+    assert _layout.outputs(x, 3) != (None,) * 3
     y = x.clone().requires_grad_()
-    assert _layout.outputs(x, 3, y) == (None,) * 3
+    assert _layout.outputs(y, 3) == (None,) * 3
     with torch.no_grad():
-        assert _layout.outputs(x, 3, y) != (None,) * 3
+        assert _layout.outputs(y, 3) != (None,) * 3
     with torch.autograd.forward_ad.dual_level():
-        assert _layout.outputs(x, 3, x) == (None,) * 3
+        assert _layout.outputs(x, 3) == (None,) * 3
     assert _layout.outputs(x[:10], 3) == (None,) * 3  # small batch: the copies
-
-
-@pytest.mark.parametrize("dtype", DTYPES)
-def test_blocks_written_in_place_equal_one_pass(dtype, monkeypatch):
-    """Large batches, evaluated block by block with each block's result written in its rows
-    of the output (forward, and the plain backward), equal one pass over the whole batch."""
-    monkeypatch.setattr(_layout, "MIN_ROWS", 64)
-    cases = _cases(dtype)
-    w = cases[0][1][0]
-    T = se3.exp(torch.cat((w.flip(0), w), -1))
-    p = torch.randn(w.shape, generator=torch.Generator().manual_seed(8), dtype=dtype)
-    q = quaternion.from_rotvec(w)
-    cases += [
-        (se3.compose, (T, T.flip(0))),
-        (se3.inverse, (T,)),
-        (se3.act, (T, p)),
-        (so3.act, (T[..., :3, :3], p)),
-        (quaternion.apply, (q, p)),
-    ]
-
-    def second_order(fn, args):  # the backward recorded for a second one: blocks joined
-        leaves = [a.clone().requires_grad_() for a in args]
-        y = fn(*leaves)
-        grads = torch.autograd.grad(y, leaves, torch.ones_like(y), create_graph=True)
-        return torch.autograd.grad(sum(g.square().sum() for g in grads), leaves)
-
-    def run():
-        with torch.no_grad():
-            plain = [fn(*args) for fn, args in cases]
-        again = [g for fn, args in cases[-5:] for g in second_order(fn, args)]
-        return plain + again, _values_and_grads(cases)
-
-    whole = run()
-    monkeypatch.setattr(_autograd, "BLOCK", 256)  # float32 256 rows, float64 128
-    blocked = run()
-    eps = torch.finfo(dtype).eps
-    for a, b in zip(blocked[0], whole[0], strict=True):
-        # the same per-element formulas; only a SIMD tail may round differently
-        torch.testing.assert_close(a, b, rtol=4 * eps, atol=4 * eps)
-    for (name, y1, g1), (_, y2, g2) in zip(blocked[1], whole[1], strict=True):
-        torch.testing.assert_close(y1, y2, rtol=4 * eps, atol=4 * eps, msg=name)
-        for a, b in zip(g1, g2, strict=True):
-            torch.testing.assert_close(a, b, rtol=4 * eps, atol=4 * eps, msg=name)
 
 
 @pytest.mark.parametrize("dtype", DTYPES)

@@ -327,7 +327,6 @@ def test_op_jacobians_match_jacrev(group, op, where):
         close(J, ref, 16 * eps(F64) * group.scale(X, Y, tau))
 
 
-@pytest.mark.usefixtures("component_kernels")
 def test_jacobians_under_vmap(group):
     G = group.mod
     X = group.random(5, seed=15)

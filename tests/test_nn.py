@@ -550,7 +550,6 @@ def test_parametrization_matrix_mode_is_projection(gen):
 
 
 @pytest.mark.parametrize("rep", REPS)
-@pytest.mark.usefixtures("component_kernels")
 def test_map_under_vmap(rep, gen):
     x = torch.randn(6, REPRESENTATIONS[rep], generator=gen, dtype=F64)
     x[2] = 0.0  # the fallback branch inside vmap too

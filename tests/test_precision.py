@@ -4,12 +4,11 @@ Angles 0, 1e-12, 1e-8, 1e-6, 1e-4, 1e-2, 1, 3, pi-1e-2, pi-1e-4, pi-1e-6, pi-1e-
 (coordinate axes, diagonals, near-diagonals, 200 random), float32 and float64.  Errors are
 norm-wise relative per element, ``|out - ref| / |ref|`` (absolute where ``ref = 0``).
 
-Targets: values 4e-16 (float64) / 3e-7 (float32), gradients 1e-15 / 5e-7, all met.  float64
-``so3.exp`` reaches them through compensated arithmetic (``torchlie._compensated``); the plain
-formula is 3 ulp off near pi, which also carries into ``log(exp(w))`` and its gradient.  The
-values and the plain backward passes are checked over the whole sample set, in batches of
-100 rows, which take the matrix forms of ``torchlie._small``, and over the sample set repeated
-to a batch large enough for the kernels of large CPU batches (``torchlie._layout``).
+Targets: values within 4 ulp (``4 eps``) and gradients within 8 ulp (``8 eps``) of the
+references, in every angle region and both dtypes.  The values and the plain backward passes
+are checked over the whole sample set, in batches of 100 rows, and over the sample set
+repeated to a batch large enough to be evaluated in blocks (``torchlie._autograd.evaluate``)
+with its results written in columns (``torchlie._layout``).
 """
 
 from __future__ import annotations
@@ -20,12 +19,12 @@ import reference as ref
 import torch
 from samplers import ANGLES, PI, rotvecs
 
-from torchlie import _layout, compiled, quaternion, so3
+from torchlie import _autograd, _layout, compiled, quaternion, so3
 
 pytestmark = pytest.mark.slow
 
-VALUE_TOL = {torch.float64: 4e-16, torch.float32: 3e-7}
-GRAD_TOL = {torch.float64: 1e-15, torch.float32: 5e-7}
+VALUE_TOL = {dt: 4 * torch.finfo(dt).eps for dt in (torch.float32, torch.float64)}
+GRAD_TOL = {dt: 8 * torch.finfo(dt).eps for dt in (torch.float32, torch.float64)}
 _CACHE: dict[torch.dtype, dict[str, torch.Tensor]] = {}
 
 
@@ -85,14 +84,14 @@ LARGE = -1
 
 
 def _tiled(x: torch.Tensor) -> torch.Tensor:
-    """``x`` repeated along its first dimension to at least ``_layout.MIN_ROWS`` rows."""
-    copies = -(-_layout.MIN_ROWS // x.shape[0])
+    """``x`` repeated along its first dimension to a batch of several blocks."""
+    copies = -(-max(_layout.MIN_ROWS, 3 * _autograd.BLOCK) // x.shape[0])
     return x.repeat((copies,) + (1,) * (x.dim() - 1))
 
 
 def _in_rows(fn, x: torch.Tensor, rows: int | None) -> torch.Tensor:
-    """``fn(x)`` over the whole sample set, in batches of ``rows`` (small batches take the
-    matrix forms of torchlie._small), or over a large batch (``rows = LARGE``)."""
+    """``fn(x)`` over the whole sample set, in batches of ``rows``, or over a large batch
+    (``rows = LARGE``)."""
     if rows is None:
         return fn(x)
     if rows == LARGE:
@@ -128,9 +127,8 @@ def test_log_of_exp(dtype, rows):
 
 @pytest.mark.compile
 def test_compiled_log_values(dtype):
-    """``torchlie.compiled.so3.log``: float32 takes its angle from a polynomial in float64 there
-    (``torchlie._coeffs.atan2_nonneg``) instead of ``atan2``; both dtypes within the same
-    tolerance, and the rotation vectors of ``log(exp(w))`` as well."""
+    """``torchlie.compiled.so3.log`` within the same tolerance, and the rotation vectors of
+    ``log(exp(w))`` as well."""
     r = _references(dtype)
     log = compiled.so3.log
     err = _sign_free_near_pi(log(r["R_in"]), r["log_ref"], r["theta"], 1)
@@ -147,15 +145,8 @@ def test_quaternion_from_matrix(dtype, rows):
     assert float(err.max()) <= VALUE_TOL[dtype], _report(err, r["theta"])
 
 
-@pytest.mark.parametrize(
-    ("rows", "row_products"),
-    [(None, None), (100, None), (LARGE, True), (LARGE, False)],
-    ids=["whole", "rows100", "large-products", "large-entries"],
-)
-def test_quaternion_to_matrix(dtype, rows, row_products, monkeypatch):
-    """Large batches in both of their forms, whichever this CPU takes
-    (torchlie._layout.row_products)."""
-    monkeypatch.setattr(_layout, "ROW_PRODUCTS", row_products)
+@BATCHES
+def test_quaternion_to_matrix(dtype, rows):
     r = _references(dtype)
     err = _rel(_in_rows(quaternion.to_matrix, r["q_in"], rows), r["q_matrix_ref"], 2)
     assert float(err.max()) <= VALUE_TOL[dtype], _report(err, r["theta"])
@@ -214,8 +205,7 @@ def _rows_of_plain_backward(out: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
 
 def _plain_jacobian(fn, x: torch.Tensor, *rest: torch.Tensor, rows: int | None) -> torch.Tensor:
     """:func:`_rows_of_plain_backward` of ``fn(x, *rest)`` with respect to ``x``, over the whole
-    sample set, in batches of ``rows`` (small batches take the matrix forms of
-    torchlie._small, backward passes included) or over a large batch (``rows = LARGE``)."""
+    sample set, in batches of ``rows`` or over a large batch (``rows = LARGE``)."""
     whole = [(x, *rest)]
     if rows == LARGE:
         whole = [tuple(_tiled(t) for t in whole[0])]

@@ -16,7 +16,6 @@ from scipy.spatial.transform import Rotation, Slerp
 from torch.autograd import gradcheck, gradgradcheck
 
 import torchlie.so3 as so3
-from torchlie import _small
 from torchlie import quaternion as Q
 
 F64 = torch.float64
@@ -193,184 +192,6 @@ def test_multiply_composes_like_matrices(dtype):
     # literal: i * j = k
     i, j, k = torch.eye(4, dtype=dtype)[1:]
     assert torch.equal(Q.multiply(i, j), k)
-
-
-def test_multiply_of_large_batches_in_complex_arithmetic(dtype, monkeypatch):
-    """Large CPU batches multiply (and back-propagate) in complex arithmetic on the pairs
-    ``(w + x i, y + z i)``: within two ulp of the component form, every sampler angle, batch
-    shapes broadcast, views that cannot be complex fall back, a NaN stays in its element."""
-    from torchlie import _layout
-
-    monkeypatch.setattr(_small, "MATRIX_ROWS", 0)  # the small batches below stand for large ones
-    monkeypatch.setattr(_layout, "MIN_ROWS", 64)
-    calls = []
-    form = Q._complex_product
-    monkeypatch.setattr(Q, "_complex_product", lambda *a, **k: calls.append(1) or form(*a, **k))
-    w, _ = samplers.rotvecs(dtype=dtype)
-    q = Q.from_rotvec(w) * 1.7
-    r = q[torch.randperm(q.shape[0], generator=torch.Generator().manual_seed(1))]
-    g = torch.Generator().manual_seed(2)
-
-    def run(a, b):
-        a, b = a.clone().requires_grad_(), b.clone().requires_grad_()
-        y = Q.multiply(a, b)
-        dy = torch.randn(y.shape, generator=torch.Generator().manual_seed(3), dtype=dtype)
-        return (y, *torch.autograd.grad(y, (a, b), dy)), dy
-
-    for a, b in ((q, r), (q, r[100]), (r[7:8], q), (q[:96].unflatten(0, (8, 12)), r[:12])):
-        calls.clear()
-        fast, dy = run(a, b)
-        assert len(calls) == 3  # the product and both gradients
-        with monkeypatch.context() as m:
-            m.setattr(Q, "_large_pair", lambda a, b: False)
-            plain, _ = run(a, b)
-        assert len(calls) == 3
-        # |q p| = |q| |p|: the norm of each product, summed where a gradient sums over a
-        # broadcast batch, is the scale of its rounding
-        na, nb, nd = (x.norm(dim=-1, keepdim=True) for x in (a, b, dy))
-        scales = (na * nb, (nd * nb).sum_to_size(na.shape), (na * nd).sum_to_size(nb.shape))
-        for x, ref, scale in zip(fast, plain, scales, strict=True):
-            assert x.shape == ref.shape
-            assert ((x - ref).norm(dim=-1, keepdim=True) <= 2 * eps(dtype) * scale).all()
-    # i j = k exactly; a view with odd strides takes the component form
-    i, j, k = torch.eye(4, dtype=dtype)[1:]
-    assert torch.equal(Q.multiply(i.expand(100, 4), j), k.expand(100, 4))
-    odd = torch.randn(100, 5, generator=g, dtype=dtype)[:, 1:]
-    with monkeypatch.context() as m:
-        m.setattr(Q, "_large_pair", lambda a, b: False)
-        ref = Q.multiply(odd, r[:100])
-    calls.clear()
-    assert torch.equal(Q.multiply(odd, r[:100]), ref) and calls == [1]  # tried, declined
-    bad = q[:100].clone()
-    bad[3, 2] = float("nan")
-    out = Q.multiply(bad, r[:100])
-    assert out[3].isnan().all() and not out[torch.arange(100) != 3].isnan().any()
-
-
-def test_to_matrix_of_large_batches_by_products(dtype, monkeypatch):
-    """Large CPU batches take the matrix of the scaled products ``q_a q_b`` (two matrix
-    products), and its backward products too: within four ulp of the entry-by-entry forms
-    (gradients: eight, relative to |G| / |q|), every sampler angle, any scale, batch shapes and
-    strides, each element's bits the same wherever it is in the batch (blocks and threads
-    included; with MKL on an Intel CPU, within those bounds where the form is forced on
-    another), a NaN stays in its element, and not where float32 products are reduced
-    precision, nor on CPUs where such products are slow (torchlie._layout.row_products)."""
-    from torchlie import _layout
-
-    monkeypatch.setattr(_small, "MATRIX_ROWS", 0)  # the small batches below stand for large ones
-    monkeypatch.setattr(_layout, "MIN_ROWS", 64)
-    monkeypatch.setattr(_layout, "ROW_PRODUCTS", True)  # whatever this CPU takes
-    calls = []
-    for name in ("_to_matrix_products", "_to_matrix_grad_products"):
-        form = getattr(Q, name)
-        spy = lambda *args, _n=name, _f=form: calls.append(_n) or _f(*args)  # noqa: E731
-        monkeypatch.setattr(Q, name, spy)
-    w, _ = samplers.rotvecs(dtype=dtype)
-    scale = torch.logspace(-3, 3, w.shape[0], dtype=dtype).unsqueeze(-1)
-    q = Q.from_rotvec(w) * scale
-    G = torch.randn(q.shape[:-1] + (3, 3), generator=torch.Generator().manual_seed(5), dtype=dtype)
-
-    def run(x, g):
-        leaf = x.detach().requires_grad_()  # a view keeps its strides
-        y = Q.to_matrix(leaf)
-        return y.detach(), torch.autograd.grad(y, leaf, g)[0]
-
-    fast, dq = run(q, G)
-    assert calls == ["_to_matrix_products", "_to_matrix_grad_products"]
-    with monkeypatch.context() as m:
-        m.setattr(Q, "_large_matrix", lambda q: False)
-        plain, dq_plain = run(q, G)
-    with monkeypatch.context() as m:  # other CPUs: the entry-by-entry forms
-        m.setattr(_layout, "ROW_PRODUCTS", False)
-        calls.clear()
-        y, d = run(q, G)
-        assert calls == [] and torch.equal(y, plain) and torch.equal(d, dq_plain)
-    assert ((fast - plain).flatten(-2).norm(dim=-1) <= 4 * eps(dtype)).all()
-    assert rel_err(fast, Q.to_matrix(q.double()), 2).max() <= 4 * eps(dtype)
-    bound = 8 * eps(dtype) * G.flatten(-2).norm(dim=-1) / q.norm(dim=-1)
-    assert ((dq - dq_plain).norm(dim=-1) <= bound).all()
-    # MKL on an Intel CPU sums each row of a product alike wherever it lies in the batch: an
-    # element's bits do not depend on its place; forced on another CPU, within the bounds above
-    intel = _layout.intel_mkl()
-
-    def alike(y, d, index):
-        y, d = y.reshape(-1, 3, 3), d.reshape(-1, 4)
-        y0, d0, g0 = fast[index], dq[index], bound[index]
-        if intel:
-            return torch.equal(y, y0) and torch.equal(d, d0)
-        values = (y - y0).flatten(-2).norm(dim=-1) <= 4 * eps(dtype)
-        return bool(values.all() and ((d - d0).norm(dim=-1) <= g0).all())
-
-    n = q.shape[0]
-    for start in (1, 5, 333):
-        assert alike(*run(q[start:], G[start:]), slice(start, None))
-    assert alike(*run(q[:96].unflatten(0, (8, 12)), G[:96].unflatten(0, (8, 12))), slice(96))
-    big, G_big = q.repeat(25, 1), G.repeat(25, 1, 1)  # blocks (one thread), two threads
-    threads = torch.get_num_threads()
-    try:
-        for k in (1, 2):
-            torch.set_num_threads(k)
-            assert alike(*run(big, G_big), torch.arange(n).repeat(25))
-    finally:
-        torch.set_num_threads(threads)
-    column_major, spaced = q.mT.contiguous().mT, torch.stack((q, q), -1).flatten(-2)[:, ::2]
-    for x, g in ((column_major, G), (spaced, G.mT.contiguous().mT), (q, G.expand(2, *G.shape)[1])):
-        assert alike(*run(x, g), slice(None))
-    assert alike(*run(q[7].expand(100, 4), G[7].expand(100, 3, 3)), torch.full((100,), 7))
-    bad = q[:100].clone()
-    bad[3, 2] = float("nan")
-    y, d = run(bad, G[:100])
-    keep = torch.arange(100) != 3
-    assert y[3].isnan().all() and d[3].isnan().all()
-    assert alike(y[keep], d[keep], torch.arange(100)[keep])
-    calls.clear()
-    monkeypatch.setattr(torch, "get_float32_matmul_precision", lambda: "medium")
-    run(q, G)
-    assert calls == (["_to_matrix_products", "_to_matrix_grad_products"] if dtype == F64 else [])
-
-
-def test_apply_of_large_batches_over_shifted_planes(dtype, monkeypatch):
-    """Large CPU batches of one batch shape rotate over planes stacked with their cyclic shifts
-    where products with constant maps are fast (torchlie._layout.row_products): the bits of the
-    entry-by-entry kernel on finite input, blocks included; broadcast batches, reduced-precision
-    float32 products and other CPUs take the entry-by-entry kernel; a NaN stays in its
-    element."""
-    from torchlie import _autograd, _layout
-
-    monkeypatch.setattr(_layout, "MIN_ROWS", 64)
-    monkeypatch.setattr(_autograd, "BLOCK", 256)  # blocks of 256 rows (float64 128)
-    monkeypatch.setattr(_layout, "ROW_PRODUCTS", True)  # whatever this CPU takes
-    calls = []
-    form = Q._apply_shifted
-    monkeypatch.setattr(Q, "_apply_shifted", lambda *a, **k: calls.append(1) or form(*a, **k))
-    monkeypatch.setattr(Q, "_apply_shifted_blocked", _autograd._blocked(Q._apply_shifted, (1, 1)))
-    g = torch.Generator().manual_seed(7)
-    q = torch.randn(1000, 4, generator=g, dtype=dtype)
-    p = torch.randn(1000, 3, generator=g, dtype=dtype) * 10.0
-    want = Q._apply_entries(q, p)
-    for a, b in ((q, p), (q.view(10, 100, 4), p.view(10, 100, 3)), (q.mT.contiguous().mT, p)):
-        calls.clear()
-        got = Q.apply(a, b)
-        assert calls and torch.equal(got.reshape(want.shape), want)
-    calls.clear()
-    assert torch.equal(
-        Q.apply(q.view(10, 100, 4), p[:100]), Q._apply_entries(q.view(10, 100, 4), p[:100])
-    )
-    assert calls == []
-    bad = p.clone()
-    bad[3, 1] = float("nan")
-    out = Q.apply(q, bad)
-    keep = torch.arange(1000) != 3
-    assert out[3].isnan().all() and torch.equal(out[keep], want[keep])
-    with monkeypatch.context() as m:  # other CPUs: the entry-by-entry kernel
-        m.setattr(_layout, "ROW_PRODUCTS", False)
-        calls.clear()
-        assert torch.equal(Q.apply(q, p), want) and calls == []
-    if dtype == torch.float32:
-        monkeypatch.setattr(torch, "get_float32_matmul_precision", lambda: "medium")
-        calls.clear()
-        torch.testing.assert_close(Q.apply(q, p), want)  # the cross-product formula
-        assert calls == []
 
 
 def test_apply_matches_scipy(dtype):
@@ -1216,7 +1037,6 @@ def test_zero_quaternion_gives_nan_in_its_element_only():
 # ----------------------------------------------------------------------------------------------
 
 
-@pytest.mark.usefixtures("component_kernels")
 def test_vmap():
     q0, q1 = haar(6, 31), haar(6, 32)
     p = torch.randn(6, 3, dtype=F64, generator=torch.Generator().manual_seed(4))

@@ -35,44 +35,6 @@ def test_rotate_e2_by_pi_over_3_about_x():
     torch.testing.assert_close(p, expected, rtol=0, atol=2 * eps(F64))
 
 
-def test_atan2_nonneg_polynomial():
-    """The angle of the compiled float32 logs, ``atan2`` for ``y, x >= 0`` by a polynomial of
-    the smaller over the larger, within 2e-8 relative of torch's ``atan2`` at every angle in
-    ``[0, pi/2]`` (dense, both sides of ``y = x``, the ends, tiny and huge scales)."""
-    a = torch.linspace(0.0, PI / 2, 200_001, dtype=F64)
-    a = torch.cat((a, torch.tensor([1e-30, 1e-8, PI / 4 - 1e-12, PI / 4 + 1e-12], dtype=F64)))
-    for scale in (1e-30, 1.0, 4.0, 1e30):
-        y, x = scale * torch.sin(a), scale * torch.cos(a)
-        x = torch.where(a == PI / 2, torch.zeros_like(x), x)
-        want = torch.atan2(y, x)
-        got = _coeffs.atan2_nonneg(y, x)
-        rel = (got - want).abs() / want.clamp_min(torch.finfo(F64).tiny)
-        assert float(rel.max()) <= 2e-8
-        assert float(got[0]) == 0.0 and float(got[200_000]) == PI / 2
-
-
-def test_jl_inv_log_values_polynomial():
-    """The coefficients of ``Jl^-1`` in the float32 backward passes of the logs, by a polynomial
-    in float64: within 3e-10 of the closed forms at every angle from 0 to float32's pi (``D``
-    relative, ``e = (t/2) cot(t/2)`` absolute; it reaches 0 at pi)."""
-    t = torch.linspace(0.0, PI, 100_001, dtype=torch.float32)
-    t = torch.cat((t, torch.tensor([1e-30, 1e-8, 1e-4, PI], dtype=torch.float32)))
-    w = torch.stack((t, torch.zeros_like(t), torch.zeros_like(t)), -1)
-    e, d = _coeffs.jl_inv_log_values(w)
-    e_want, d_want = _coeffs.jl_inv_values(w.double())
-    # below t2 = 1e-2 the closed form of D cancels: its series (Bernoulli numbers) there
-    t2 = t.double().square()
-    series = 1 / 12 + t2 * (1 / 720 + t2 * (1 / 30240 + t2 * (1 / 1209600 + t2 / 47900160)))
-    d_want = torch.where(t2 < 1e-2, series, d_want)
-    assert e.dtype == d.dtype == F64
-    assert float((d / d_want - 1.0).abs().max()) <= 3e-10
-    assert float((e - e_want).abs().max()) <= 3e-10
-    assert float(e[0]) == 1.0 and abs(float(d[0]) * 12.0 - 1.0) <= 3e-10
-    w64 = w.double()  # float64 input: the closed forms themselves
-    for a, b in zip(_coeffs.jl_inv_log_values(w64), _coeffs.jl_inv_values(w64), strict=True):
-        assert torch.equal(a, b)
-
-
 @pytest.mark.parametrize(
     "R, omega",
     [

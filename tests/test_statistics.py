@@ -455,7 +455,6 @@ def test_keyframes_gradcheck():
     )
 
 
-@pytest.mark.usefixtures("component_kernels")
 def test_keyframes_vmap_over_queries():
     times, R = _keys(5, seed=12)
     q = torch.rand(8, generator=gen(13), dtype=F64) * 10

@@ -24,10 +24,7 @@ name               value                                            series at 0
 Forward-only evaluations (``*_values``) serve the forward passes of the custom autograd Functions,
 which run without autograd: there no branch needs to be safe to differentiate, so a clamp of the
 half angle replaces the series and its ``where`` (``sin(h)/h`` is exact to rounding for every
-``h > 0``, and equals 1 for the clamped value).  They must not be differentiated.  Two of them
-are polynomial fits over a bounded range, for float32 results, evaluated in float64:
-:func:`atan2_nonneg` (:data:`ATAN_POLY`) and :func:`jl_inv_log_values` (:data:`JINV_POLY`, angles
-up to pi).
+``h > 0``, and equals 1 for the clamped value).  They must not be differentiated.
 """
 
 from __future__ import annotations
@@ -288,81 +285,12 @@ def jl_inv_values(
     return e, (1.0 - e).div_(t2.clamp_min(H_MIN[t2.dtype]))
 
 
-#: ``D(t2) = (1 - (t/2) cot(t/2)) / t2`` ``(= 1/12 + t2/720 + ...)`` for ``t2`` in ``[0, 10]``
-#: (angles up to pi, and past it by rounding): the coefficients of a polynomial in ``t2``, lowest
-#: degree first, fitted in relative error (within 3e-10 of ``D``; its poles are at ``(2 pi)^2``).
-JINV_POLY = (
-    0.08333333335681338,
-    0.0013888887903244654,
-    3.306904198893915e-05,
-    8.264567797042072e-07,
-    2.1008393785956626e-08,
-    4.919518888985661e-10,
-    1.9182304545104596e-11,
-    -1.7589179895569074e-13,
-    3.066926053396646e-14,
-)
-
-
-def _estrin8(s: Tensor, c: Sequence[float]) -> Tensor:
-    """``c[0] + c[1] s + ... + c[8] s^8`` by Estrin's scheme (independent products: shorter
-    dependency chains in a compiled loop than Horner's rule)."""
-    s2 = s * s
-    s4 = s2 * s2
-    p = (c[0] + c[1] * s) + s2 * (c[2] + c[3] * s)
-    return p + s4 * ((c[4] + c[5] * s) + s2 * (c[6] + c[7] * s) + s4 * c[8])
-
-
-def jl_inv_log_values(w: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor]:
-    """:func:`jl_inv_values` of rotation vectors of angle at most pi (a log's, as in the backward
-    passes of the logs).  For float32 input, ``D`` by :data:`JINV_POLY` and ``e = 1 - t2 D`` in
-    float64, within 3e-10 (relative, and absolute for ``e``): far below float32's precision, with
-    no ``sin``, ``cos`` or division (a compiled backward of ``so3.log`` in 4.7 ns per element
-    rather than 7.7); float64 input: :func:`jl_inv_values`.  Forward-only (module docstring)."""
-    x = w[0] if not isinstance(w, Tensor) else w
-    if x.dtype != torch.float32:
-        return jl_inv_values(w)
-    t2 = theta2(w)
-    d = _estrin8(t2, JINV_POLY)
-    return torch.addcmul(torch.ones_like(t2), t2, d, value=-1.0), d
-
-
-#: ``atan(r) = r P(r^2)`` for ``r`` in ``[0, 1]``: the coefficients of ``P``, lowest degree
-#: first, fitted in relative error (within 1.6e-8 of ``atan`` over the interval).
-ATAN_POLY = (
-    0.9999999847501353,
-    -0.33333073144366354,
-    0.19992615169542852,
-    -0.14203610645081147,
-    0.10640801023651227,
-    -0.07504010583026437,
-    0.04268816135835052,
-    -0.016066561511482252,
-    0.0028493725423138078,
-)
-
-
-def atan2_nonneg(y: Tensor, x: Tensor) -> Tensor:
-    """``atan2(y, x)`` for ``y, x >= 0``, not both 0 (a value in ``[0, pi/2]``), to 2e-8
-    relative: ``atan(r)`` of ``r = min / max`` by :data:`ATAN_POLY` (Estrin's scheme), and
-    ``pi/2 - atan(r)`` where ``y > x``.  For float32 results, evaluated in float64: in a
-    compiled CPU loop it costs two thirds of torch's ``atan2`` (Sleef's 1-ulp ``atan2`` in
-    double-float arithmetic), for float32 results as accurate (see :mod:`torchlie.compiled`).
-    Forward-only (module docstring)."""
-    r = torch.minimum(y, x) / torch.maximum(y, x)
-    t = r * _estrin8(r * r, ATAN_POLY)
-    return torch.where(y > x, (math.pi / 2) - t, t)
-
-
 def step(x: Tensor) -> Tensor:
     """``1.0`` where ``x > 0``, else ``0.0`` (NaN included, as ``x > 0``; torch's ``sign`` is
-    0 there), in ``x``'s dtype, without boolean tensors: on CPU a comparison costs as much as
-    7 float kernels, its conversion to float as much again, and a ``where`` 7 to 35 (float32,
-    one thread, 65 536 elements: 110, 100 and 100-490 us, the latter for a mask without
-    pattern, against 12-15 us for a float kernel and 40 for this one).  For selections of the
-    forward-only evaluations, as ``f a + (1 - f) b`` (exact for finite ``a`` and ``b``);
-    ``step(a - b)`` is ``a > b`` exactly, since ``a - b > 0`` iff ``a > b`` with gradual
-    underflow."""
+    0 there), in ``x``'s dtype, without boolean tensors (on CPU a comparison, its conversion
+    and a ``where`` each cost several float kernels).  For selections of the forward-only
+    evaluations, as ``f a + (1 - f) b`` (exact for finite ``a`` and ``b``); ``step(a - b)`` is
+    ``a > b`` exactly, since ``a - b > 0`` iff ``a > b`` with gradual underflow."""
     return torch.sign(x).clamp_min_(0.0)
 
 

@@ -13,43 +13,22 @@ global changes: ``torchlie.so3`` stays eager.  Constructors that take a ``torch.
 only shapes (``identity``, ``random``) are passed through uncompiled.
 
 Vectorised CPU loops.  Inductor's C++ code generator leaves a fused loop scalar when strided
-loads and stores are many against its arithmetic (its ``cpp.enable_tiling_heuristics``), and the
-ops here read and write the components of ``(..., 3)``, ``(..., 4)`` and ``(..., 3, 3)`` tensors
-with strides of 3 to 16, so nearly every kernel is judged so: the scalar loop then calls the
-scalar ``sin``, ``cos``, ``atan2`` and ``sqrt`` once per element.  The functions here are compiled
-with that heuristic off (:func:`inductor_options`), which vectorises the loop (the strided
-components are gathered 16 or 8 at a time) and runs the transcendental functions on vectors:
-measured at N = 10^6, one thread, float32: ``so3.exp`` 46 -> 14 ns per element, ``so3.log``
-64 -> 13, ``quaternion.from_matrix`` 34 -> 11, ``se3.log`` 126 -> 34 (float64 ``so3.exp``
-218 -> 53).  A few functions that are only multiply-adds and copies are slower with the gathers
-than without and keep Inductor's default (:data:`KEEP_HEURISTIC`).  ``torch.compile`` of one's own
-code that calls torchlie can pass the same options: ``torch.compile(fn,
+loads and stores are many against its arithmetic (its ``cpp.enable_tiling_heuristics``); the ops
+here read and write the components of ``(..., 3)``, ``(..., 4)`` and ``(..., 3, 3)`` tensors with
+small strides, so nearly every kernel would be judged so and call the scalar ``sin``, ``cos``,
+``atan2`` and ``sqrt`` once per element.  The functions here are compiled with that heuristic off
+(:func:`inductor_options`), which vectorises the loop (the strided components are gathered) and
+runs the transcendental functions on vectors.  A few functions that are only multiply-adds and
+copies are faster with the heuristic and keep it (:data:`KEEP_HEURISTIC`).  ``torch.compile`` of
+one's own code that calls torchlie can pass the same options: ``torch.compile(fn,
 options={"cpp.enable_tiling_heuristics": False})``.  GPU code generation does not read them.
 
-One loop per op.  Inductor fuses two element-wise computations into one loop only when they
-read a common buffer, and the constant entries of a result (the ``(0, 0, 0, 1)`` row of a pose)
-read none: each was written by a loop of its own, one more pass over the whole result for each of
-them (float64 ``se3.exp``: six passes over its 128 bytes per element).  Every function here is
-compiled with :data:`FUSION` as well, which lets such computations share the op's loop.  A few
-ops take another formula while compiling, with the same values: ``se3.compose`` and
-``se3.inverse`` (forward and backward) and ``quaternion.apply`` entry by entry instead of a
-batched matmul (a library call of its own) or ``linalg.cross`` (lowered to modular gathers),
-and components are read in place instead of through a transposing copy (which
-AOTAutograd would otherwise keep for the backward).  Measured at N = 10^6, one thread,
-float32, forward (forward and backward): ``se3.exp`` 62 -> 28 ns per element, ``se3.compose``
-134 -> 23 (~400 -> 50), ``se3.inverse`` 53 -> 18, ``quaternion.apply`` (175 -> 18).  ``se3.log``
-is computed from the components of its rotation vector, stacked once (stacked first, that vector
-was read again by a loop of its own): 33 -> 28.
-
-Angles by polynomials.  In a vectorised CPU loop torch's ``atan2`` is Sleef's 1-ulp one, in
-double-float arithmetic: 2 of the 6.9 ns per element of a compiled float32 ``so3.log``.  On CPU
-the float32 logs of rotation matrices (``so3.log``, ``se3.log``, the conversions to rotation
-vectors) take the half angle here from :func:`torchlie._coeffs.atan2_nonneg`, a polynomial of
-the smaller of ``|c_v|`` and ``|c_w|`` over the larger in float64 (6.9 -> 6.2 ns per element;
-against the 60-digit references the values stay within 1.6 eps, eager's 1.45).  The float32
-backward of ``so3.log`` (eager too) takes the coefficients of ``Jl^-1`` from a polynomial in
-``theta^2`` (:func:`torchlie._coeffs.jl_inv_log_values`) instead of ``sin``, ``cos`` and
-divisions: compiled forward+backward 15.2 -> 12.1.
+One loop per op.  Inductor fuses two element-wise computations into one loop only when they read
+a common buffer, and the constant entries of a result (the ``(0, 0, 0, 1)`` row of a pose) read
+none; every function here is compiled with :data:`FUSION` as well, which lets such computations
+share the op's loop.  The compiled functions run the same formulas as the eager ones; their
+values agree with eager's within a few ulp (the fused loop contracts and orders some products
+differently).  The first call of each function compiles it, which takes seconds.
 """
 
 from __future__ import annotations
@@ -91,8 +70,7 @@ KEEP_HEURISTIC: dict[str, frozenset[str]] = {
 #: of a result among them) are fused into one loop too, and the C++ backend's limit of 16 such
 #: computations per loop is raised to 64.  An intermediate of more than 25 operations that is
 #: used twice is kept in a variable of the loop instead of being re-expanded into each use
-#: (``realize_opcount_threshold``, 50 by default on CPU): the generated code is the same, its
-#: generation is 2-5x faster for the large kernels (float64 ``se3.exp`` 95 -> 20 s).
+#: (``realize_opcount_threshold``, 50 by default on CPU): the same code, generated faster.
 FUSION: dict[str, bool | int] = {
     "aggressive_fusion": True,
     "score_fusion_memory_threshold": 0,

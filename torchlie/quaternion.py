@@ -23,8 +23,8 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, _layout, _small
-from ._autograd import _blocked, custom_function
+from . import _checks, _coeffs, _layout
+from ._autograd import blocked, custom_function
 from ._typing import Bool, Float, Shaped
 
 __all__ = [
@@ -125,114 +125,31 @@ def _hamilton(
     return result
 
 
-def _product(a: Sequence[Tensor], b: Sequence[Tensor], dest: Tensor | None, **conj: bool):
-    """:func:`_hamilton`, interleaved (into ``dest`` if given)."""
-    o = _layout.outputs((a[0], b[0]), 4, dest=dest)  # batches may broadcast
-    return _layout.interleave(_hamilton(a, b, out=o, **conj), o, dest)
-
-
-def _pairs(q: Tensor) -> Tensor | None:
-    """``q`` as the complex pair ``(w + x i, y + z i)`` (shape ``(..., 2)``, a view: ``q = z1 +
-    z2 j``), or None where its strides do not allow a complex view."""
-    if q.stride(-1) != 1 or q.storage_offset() % 2 or any(st % 2 for st in q.stride()[:-1]):
-        return None
-    return torch.view_as_complex(q.unflatten(-1, (2, 2)))
-
-
-def _complex_product(
-    a: Tensor, b: Tensor, conj_a: bool = False, conj_b: bool = False, dest: Tensor | None = None
-) -> Tensor | None:
-    """``a b`` (``conj(a)``, ``conj(b)`` if asked) with ``a = z1 + z2 j``, ``b = u1 + u2 j``:
-    ``(z1 u1 - z2 conj(u2)) + (z1 u2 + z2 conj(u1)) j``, in complex arithmetic on the pairs as
-    they lie in memory (no transposition; batch shapes broadcast).  None where a complex view
-    is not possible.
-
-    ``conj(a) = conj(z1) - z2 j``.  Each real component sums the same four rounded products
-    as :func:`_hamilton`, in the complex products' own order and rounding, then one addition:
-    the two agree to about two ulp of the terms (the tests hold them to that), not bit for bit,
-    and a kernel's vectorised and scalar loops may differ in the last bit.
-    """
-    A, B = _pairs(a), _pairs(b)
-    if A is None or B is None:
-        return None
-    z1, z2, u1, u2 = A[..., 0], A[..., 1], B[..., 0], B[..., 1]
-    # conjugates copied once each: a product by a conj() view copies it first, at every use
-    # (every form takes conj(u1) and conj(u2), both at once; float32 N = 10^6, one thread:
-    # forward 13.1 -> 11.8 ns per element, forward+backward 56.9 -> 55.7)
-    u1c, u2c = torch.conj_physical(B).unbind(-1)
-    p1 = torch.conj_physical(z1) if conj_a else z1  # used twice
-    v1, v1c = (u1c, u1) if conj_b else (u1, u1c)
-    shape = torch.broadcast_shapes(a.shape, b.shape)
-    out = torch.empty(shape, dtype=a.dtype, device=a.device) if dest is None else dest.view(shape)
-    pairs = _pairs(out)
-    if pairs is None:
-        return None
-    c1, c2 = pairs.unbind(-1)
-    # c1 = p1 v1 - s z2 conj(u2), s = (-1 if conj_a) (-1 if conj_b)
-    (torch.add if conj_a != conj_b else torch.sub)(p1 * v1, z2 * u2c, out=c1)
-    # c2 = (-1 if conj_b) p1 u2 + (-1 if conj_a) z2 conj(v1)
-    t1, t2 = p1 * u2, z2 * v1c
-    if conj_b:
-        torch.sub(t2, t1, out=c2)
-    else:
-        (torch.sub if conj_a else torch.add)(t1, t2, out=c2)
-    return out
-
-
-def _large_pair(a: Tensor, b: Tensor) -> bool:
-    """Whether a product of ``a`` and ``b`` takes the complex form (a large CPU batch)."""
-    return _layout.large(a, _layout.broadcast(a.shape[:-1], b.shape[:-1]).numel())
-
-
-def _multiply_block(a: Tensor, b: Tensor, *, dest: Tensor | None = None) -> Tensor:
-    return _product(_planes(a, 4), _planes(b, 4), dest)
-
-
-_multiply_blocks = _blocked(_multiply_block, (1, 1))
+def _product(a: Sequence[Tensor], b: Sequence[Tensor], **conj: bool) -> Tensor:
+    """:func:`_hamilton`, interleaved."""
+    o = _layout.outputs((a[0], b[0]), 4)  # batches may broadcast
+    return _layout.interleave(_hamilton(a, b, out=o, **conj), o)
 
 
 def _multiply_values(a: Tensor, b: Tensor) -> Tensor:
-    """``a b`` without autograd: on large CPU batches in complex arithmetic (measured, float32
-    N = 10^6, one thread: 26-34 -> 20-29 ns per element; float64 55-58 -> 36-46), elsewhere
-    component by component; on small ones by one small matrix product
-    (:func:`torchlie._small.multiply`)."""
-    if _small.matrix_form(a, _layout.broadcast(a.shape[:-1], b.shape[:-1]).numel()):
-        return _small.multiply(a, b)
-    if _large_pair(a, b):
-        out = _complex_product(a, b)
-        if out is not None:
-            return out
-    return _multiply_blocks(a, b)
+    """``a b`` component by component."""
+    return _product(_planes(a, 4), _planes(b, 4))
 
 
-def _multiply_grads_block(
-    a: Tensor, b: Tensor, g: Tensor, *, dest: _layout.Dest2 = (None, None)
-) -> tuple[Tensor, Tensor]:
-    """``(g conj(b), conj(a) g)``, the plain backward of ``a b`` (one block of rows; in complex
-    arithmetic on large CPU batches, as :func:`_multiply_values`)."""
-    da, db = dest
-    if _large_pair(a, b):  # as the forward (g has the product's batch shape)
-        ga = _complex_product(g, b, conj_b=True, dest=da)
-        gb = _complex_product(a, g, conj_a=True, dest=db)
-        if ga is not None and gb is not None:
-            return ga, gb
+def _multiply_grads(a: Tensor, b: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
+    """``(g conj(b), conj(a) g)``: the backward of ``a b``."""
     ap, bp, gp = _planes(a, 4), _planes(b, 4), _planes(g, 4)
-    return _product(gp, bp, da, conj_b=True), _product(ap, gp, db, conj_a=True)
+    return _product(gp, bp, conj_b=True), _product(ap, gp, conj_a=True)
 
 
-_multiply_grads = _blocked(_multiply_grads_block, (1, 1, 1))
+_multiply_grads_blocked = blocked(_multiply_grads, (1, 1, 1))
 
 
 def _multiply_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]:
     # d(a b) = da b + a db: dL/da = g conj(b), dL/db = conj(a) g (two products instead of
     # autograd's graph of 16 multiply-adds, each with two products in its backward).
     a, b = saved
-    if torch.is_grad_enabled():  # create_graph: differentiable ops
-        da, db = _multiply(g, _conjugate(b)), _multiply(_conjugate(a), g)
-    elif _small.matrix_form(g, g.shape[:-1].numel()):
-        da, db = _small.multiply_backward(a, b, g)
-    else:
-        da, db = _multiply_grads(a, b, g)
+    da, db = _multiply_grads_blocked(a, b, g)
     return da.sum_to_size(a.shape), db.sum_to_size(b.shape)
 
 
@@ -243,7 +160,6 @@ _MultiplyFn = custom_function(
     backward=_multiply_backward,
     jvp=lambda saved, da, db: _multiply_values(da, saved[1]) + _multiply_values(saved[0], db),
     event_dims=(1, 1),
-    blocked=False,  # the component form is blocked by itself (_multiply_blocks)
 )
 
 
@@ -331,55 +247,7 @@ def to_matrix(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 3 3"]:
 
 
 def _to_matrix_forward(q: Tensor) -> Tensor:
-    rows = q.shape[:-1].numel()
-    if _small.matrix_form(q, rows):
-        return _small.to_matrix(q)
-    if _large_matrix(q):
-        return _to_matrix_products(q)
-    return _to_matrix_entries(q)
-
-
-def _large_matrix(q: Tensor) -> bool:
-    """Whether :func:`to_matrix` of ``q`` takes :func:`_to_matrix_products_block` and its
-    backward :func:`_to_matrix_grad_products_block`: a large eager CPU batch whose matrix
-    products are exact (see :func:`_layout.by_product`), on a CPU where they sum fast and alike
-    (:func:`_layout.row_products`)."""
-    return _layout.by_product(q, 1) and _layout.row_products(q.dtype, 9)
-
-
-def _to_matrix_products_block(q: Tensor, *, dest: Tensor | None = None) -> Tensor:
-    """:func:`to_matrix` of a large eager CPU batch (where :func:`_layout.by_product` holds) as
-    two matrix products: the components as planes (a product with the identity), the ten
-    products ``q_a q_b`` (``a <= b``; four element-wise calls), scaled by ``1 / |q|^2`` (five
-    more), and the nine entries from them by one product with a constant ``(10, 9)`` map,
-    written row by row into the result.  Eleven calls where :func:`_to_matrix_entries` makes 28
-    (an Intel Xeon, one thread, N = 10^6, in alternation, ns per element: float32 17.1 against
-    27.7, float64 32.5 against 53.7; taken where MKL is fast for these products, see
-    :func:`_layout.row_products`).  Within four ulp of it; there each row of a product is summed
-    alike whatever the rows around it (tested), so an element's bits do not depend on its place
-    in the batch."""
-    batch = q.shape[:-1]
-    rows = batch.numel()
-    p = _layout.stacked(q, 4).view(4, rows)
-    u = p.new_empty(10, rows)  # q_a q_b, pairs a <= b in row-major order
-    torch.mul(p[:1], p, out=u[:4])
-    torch.mul(p[1:2], p[1:], out=u[4:7])
-    torch.mul(p[2:3], p[2:], out=u[7:9])
-    torch.mul(p[3], p[3], out=u[9])
-    n = u[0] + u[4]
-    n += u[7]
-    n += u[9]
-    u *= torch.reciprocal(n, out=n)
-    out = q.new_empty(batch + (3, 3)) if dest is None else dest
-    torch.mm(u.T, _small.constant("to_matrix_pairs", q.dtype), out=out.view(rows, 9))
-    return out
-
-
-_to_matrix_products = _blocked(_to_matrix_products_block, (1,))
-
-
-def _to_matrix_entries_block(q: Tensor, *, dest: Tensor | None = None) -> Tensor:
-    """:func:`to_matrix` entry by entry (one block of rows)."""
+    """:func:`to_matrix` entry by entry."""
     w, x, y, z = _planes(q, 4)
     ww, yy = w * w, y * y
     # Diagonal as (w^2 + x^2 - y^2 - z^2) / |q|^2: two terms bounded by |q|^2, where
@@ -392,17 +260,14 @@ def _to_matrix_entries_block(q: Tensor, *, dest: Tensor | None = None) -> Tensor
     u, v = torch.addcmul(ww, x, x, value=-1.0), torch.addcmul(yy, z, z, value=-1.0)
     xs, ys, zs = x * s, y * s, z * s
     xy, xz, yz = x * ys, x * zs, y * zs
-    o = _layout.outputs(w, 9, dest=dest)
+    o = _layout.outputs(w, 9)
     mul, fma = torch.mul, torch.addcmul
     entries = (
         mul(a - b, hs, out=o[0]), fma(xy, w, zs, value=-1.0, out=o[1]), fma(xz, w, ys, out=o[2]),
         fma(xy, w, zs, out=o[3]), mul(u + v, hs, out=o[4]), fma(yz, w, xs, value=-1.0, out=o[5]),
         fma(xz, w, ys, value=-1.0, out=o[6]), fma(yz, w, xs, out=o[7]), mul(u - v, hs, out=o[8]),
     )  # fmt: skip
-    return _layout.interleave(entries, o, dest).unflatten(-1, (3, 3))
-
-
-_to_matrix_entries = _blocked(_to_matrix_entries_block, (1,))
+    return _layout.interleave(entries, o).unflatten(-1, (3, 3))
 
 
 def _norm2(w: Tensor, x: Tensor, y: Tensor, z: Tensor) -> Tensor:
@@ -454,61 +319,25 @@ def _to_matrix_backward(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor]:
         a = _skew_vee(R.transpose(-1, -2) @ G)
         k = 2.0 / (q * q).sum(-1, keepdim=True)
         return (k * _multiply(q, torch.nn.functional.pad(a, (1, 0))),)
-    if _small.matrix_form(q, q.shape[:-1].numel()):
-        return (_small.to_matrix_backward(q, R, G),)
-    if _large_matrix(q):
-        return (_to_matrix_grad_products(q, G),)
     return (_to_matrix_grad_values(q, R, G),)
 
 
-def _to_matrix_grad_products_block(q: Tensor, G: Tensor, *, dest: Tensor | None = None) -> Tensor:
-    """The plain backward of :func:`to_matrix` where its forward takes
-    :func:`_to_matrix_products_block`, by products too.
-
-    With ``N(q) = |q|^2 R`` (entries ``q^T M_e q``), ``<G, N> = q^T H q / 2`` for the symmetric
-    ``H = sum_e G_e (M_e + M_e^T)``, one product of the upstream gradient's rows with a constant
-    ``(16, 9)`` map; the gradient of ``<G, R> = <G, N> / |q|^2`` is then
-    ``(H q - (q^T H q / |q|^2) q) / |q|^2`` (orthogonal to ``q``), over planes, and its rows
-    one product with the identity.  In alternation with :func:`_to_matrix_grad_values` (which
-    reads ``R`` as well), one thread, N = 10^6, ns per element: float32 38.2 -> 25.5, float64
-    75.4 -> 51.7; within eight ulp of it, relative to ``|G| / |q|`` (tested)."""
-    batch = q.shape[:-1]
-    rows = batch.numel()
-    p = _layout.stacked(q, 4).view(4, rows)
-    forms = _small.constant("to_matrix_gradient", q.dtype)
-    h = torch.mm(forms, G.reshape(rows, 9).T).view(4, 4, rows)
-    hq = h[:, 0] * p[0]  # (4, rows): H q
-    for b in range(1, 4):
-        hq.addcmul_(h[:, b], p[b])
-    r = torch.reciprocal(_norm2(*p.unbind(0)))
-    k = (p * hq).sum(0).mul_(r)  # q^T H q / |q|^2
-    dq = torch.addcmul(hq, p, k, value=-1.0).mul_(r)
-    out = q.new_empty(batch + (4,)) if dest is None else dest
-    torch.mm(dq.T, _layout.eye(q.dtype, 4), out=out.view(rows, 4))
-    return out
-
-
-_to_matrix_grad_products = _blocked(_to_matrix_grad_products_block, (1, 2))
-
-
-def _to_matrix_grad_values_block(
-    q: Tensor, R: Tensor, G: Tensor, *, dest: Tensor | None = None
-) -> Tensor:
-    """The plain backward of :func:`to_matrix` from components (one block of rows)."""
+def _to_matrix_grad_values_block(q: Tensor, R: Tensor, G: Tensor) -> Tensor:
+    """The plain backward of :func:`to_matrix` from components."""
     w, x, y, z = _planes(q, 4)
     a1, a2, a3 = _rt_g_vee(R, G)
     k = 2.0 / _norm2(w, x, y, z)
-    o = _layout.outputs(w, 4, dest=dest)
+    o = _layout.outputs(w, 4)
     gw = torch.mul(torch.addcmul(torch.addcmul(x * a1, y, a2), z, a3), k, out=o[0]).neg_()
     c = _cross_planes((x, y, z), (a1, a2, a3))
     gv = [
         torch.mul(torch.addcmul(ci, w, ai), k, out=oi)
         for ai, ci, oi in zip((a1, a2, a3), c, o[1:], strict=True)
     ]
-    return _layout.interleave((gw, *gv), o, dest)
+    return _layout.interleave((gw, *gv), o)
 
 
-_to_matrix_grad_values = _blocked(_to_matrix_grad_values_block, (1, 2, 2))
+_to_matrix_grad_values = blocked(_to_matrix_grad_values_block, (1, 2, 2))
 
 
 def _to_matrix_jvp(saved: tuple[Tensor, ...], dq: Tensor) -> Tensor:
@@ -525,7 +354,6 @@ _ToMatrixFn = custom_function(
     backward=_to_matrix_backward,
     jvp=_to_matrix_jvp,
     event_dims=(1,),
-    blocked=False,  # each form is blocked by itself
 )
 
 
@@ -611,16 +439,14 @@ def _from_matrix_parts(
     return cw, pick(s21, d1, a01, a02), pick(s02, a01, d2, a12), pick(s10, a02, a12, d3), sign
 
 
-def _from_matrix_forward(R: Tensor, *, dest: Tensor | None = None) -> Tensor:
-    if dest is None and _small.matrix_form(R, R.shape[:-2].numel()):
-        return _small.from_matrix(R)
+def _from_matrix_forward(R: Tensor) -> Tensor:
     cw, cx, cy, cz, sign = _from_matrix_parts(R)
     # |c| = 4 q_p >= 2 for a rotation: the division is safe, and a NaN element stays in its row.
     n2 = _norm2(cw, cx, cy, cz)
     scale = torch.rsqrt(n2) * sign
-    o = _layout.outputs(cw, 4, dest=dest)
+    o = _layout.outputs(cw, 4)
     parts = [torch.mul(c, scale, out=oi) for c, oi in zip((cw, cx, cy, cz), o, strict=True)]
-    return _layout.interleave(parts, o, dest)
+    return _layout.interleave(parts, o)
 
 
 def _cross_planes(
@@ -637,12 +463,12 @@ def _cross_planes(
     )
 
 
-def _r_hat_values(R: Tensor, u: Sequence[Tensor], dest: Tensor | None = None) -> Tensor:
+def _r_hat_values(R: Tensor, u: Sequence[Tensor]) -> Tensor:
     """``R hat(u)`` from components: row ``i`` is ``cross(R_i, u)``."""
     r = _planes(R, 9)
-    o = _layout.outputs(r[0], 9, dest=dest)
+    o = _layout.outputs(r[0], 9)
     out = [c for i in (0, 3, 6) for c in _cross_planes(r[i : i + 3], u, o[i : i + 3])]
-    return _layout.interleave(out, o, dest).unflatten(-1, (3, 3))
+    return _layout.interleave(out, o).unflatten(-1, (3, 3))
 
 
 def _from_matrix_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:
@@ -651,8 +477,7 @@ def _from_matrix_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]
     # step).  So dL/dd = u = vec(conj(q) g) / 2 and G = R hat(u) / 2, the gradient that
     # autograd gives through the step and Shepperd's formula at a rotation.
     R, q = saved
-    # create_graph: differentiable ops, which small batches take too (fewer calls)
-    if torch.is_grad_enabled() or _small.matrix_form(g, g.shape[:-1].numel()):
+    if torch.is_grad_enabled():  # create_graph: differentiable ops
         u = 0.25 * _conj_product_vec(q, g)
         return (torch.linalg.cross(R, u.unsqueeze(-2).expand_as(R), dim=-1),)
     w, x, y, z = _planes(q, 4)
@@ -686,16 +511,14 @@ def _from_matrix(R: Tensor) -> Tensor:
     return _FromMatrixFn(R)
 
 
-def _log_of_matrix(R: Tensor, dest: Tensor | None = None) -> Tensor:
+def _log_of_matrix(R: Tensor) -> Tensor:
     """Rotation vector of ``R`` (forward of :func:`torchlie.so3.log`; runs without autograd).
 
     ``2 atan2(|c_v|, |c_w|) c_v / |c_v|`` with the sign of the canonical quaternion, straight
     from the unnormalised Shepperd candidate ``c`` (atan2 is scale-invariant).  At ``c_v = 0``
     (the identity) the quotient's denominator is clamped, which gives exactly 0.
     """
-    if dest is None and _small.matrix_form(R, R.shape[:-2].numel()):
-        return _small.log(R)
-    return _layout.interleave(_log_of_matrix_components(R), dest=dest)
+    return _layout.interleave(_log_of_matrix_components(R))
 
 
 def _log_of_matrix_components(R: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
@@ -716,15 +539,8 @@ def _log_and_cot(
     nv = torch.addcmul(torch.addcmul(cx * cx, cy, cy), cz, cz).sqrt_()
     nv = nv.clamp_min_(_coeffs.H_MIN[nv.dtype])
     a = cw.abs()
-    if torch.compiler.is_compiling() and nv.dtype == torch.float32 and nv.device.type == "cpu":
-        # In a fused CPU loop, the angle by a polynomial in float64 costs two thirds of atan2.
-        nv64 = nv.double()
-        half = _coeffs.atan2_nonneg(nv64, a.double())
-        theta = (2.0 * half).float()
-        f = (2.0 * half / nv64).float() * sign
-    else:
-        theta = torch.atan2(nv, a).mul_(2.0)
-        f = torch.div(theta, nv).mul_(sign)
+    theta = torch.atan2(nv, a).mul_(2.0)
+    f = torch.div(theta, nv).mul_(sign)
     phi = (f * cx, f * cy, f * cz)
     if not cot:
         return phi, None, None
@@ -874,18 +690,18 @@ def apply(q: Float[Tensor, "*b1 4"], points: Float[Tensor, "*b2 3"]) -> Float[Te
 
 
 def _apply_values(q: Tensor, p: Tensor) -> Tensor:
-    same_batch = q.shape[:-1] == p.shape[:-1]
-    if same_batch and _layout.by_product(q, 1) and _layout.row_products(q.dtype, 3):
-        return _apply_shifted_blocked(q, p)
-    if torch.compiler.is_compiling() or _layout.by_product(q, 1) or _layout.by_product(p, 1):
-        return _apply_entries_blocked(q, p)
-    w = q[..., :1]
-    v = q[..., 1:]
-    if v.dim() != p.dim():  # linalg.cross broadcasts sizes, not numbers of dimensions
-        v, p = torch.broadcast_tensors(v, p)
-    s = 2.0 / (q * q).sum(-1, keepdim=True)
-    c = torch.linalg.cross(v, p, dim=-1)
-    return torch.addcmul(p, s, torch.addcmul(torch.linalg.cross(v, c, dim=-1), w, c))
+    """:func:`apply` from components: ``p + s (w (v x p) + v x (v x p))``, ``s = 2 / |q|^2``."""
+    w, *v = _planes(q, 4)
+    pc = _planes(p, 3)
+    s = 2.0 / _norm2(w, *v)
+    c = _cross_planes(v, pc)
+    vc = _cross_planes(v, c)
+    o = _layout.outputs((w, pc[0]), 3)  # batches may broadcast
+    parts = [
+        torch.addcmul(pi, s, torch.addcmul(vci, w, ci), out=oi)
+        for pi, ci, vci, oi in zip(pc, c, vc, o, strict=True)
+    ]
+    return _layout.interleave(parts, o)
 
 
 def _apply_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]:
@@ -893,8 +709,7 @@ def _apply_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tenso
     # change dq turns R into R Exp(d), d = 2 vec(conj(q) dq) / |q|^2, so dy = R (d x p) and
     # <g, dy> = <p x R^T g, d>: dL/dq = 2 q (0, p x R^T g) / |q|^2 (orthogonal to q).
     q, p = saved
-    # create_graph: differentiable ops, which small batches take too (fewer calls)
-    if torch.is_grad_enabled() or _small.matrix_form(g, g.shape[:-1].numel()):
+    if torch.is_grad_enabled():  # create_graph: differentiable ops
         dp = _apply(_conjugate(q), g)
         a = torch.linalg.cross(p.expand_as(dp), dp, dim=-1)
         # q (0, a) spelled out, not _multiply: its complex form on large batches rounds
@@ -907,17 +722,14 @@ def _apply_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tenso
     return dq.sum_to_size(q.shape), dp.sum_to_size(p.shape)
 
 
-def _apply_grads_block(
-    q: Tensor, p: Tensor, g: Tensor, *, dest: _layout.Dest2 = (None, None)
-) -> tuple[Tensor, Tensor]:
-    """The plain backward of :func:`apply` from components (one block of rows)."""
+def _apply_grads_block(q: Tensor, p: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
+    """The plain backward of :func:`apply` from components."""
     w, *v = _planes(q, 4)
     pc, gc = _planes(p, 3), _planes(g, 3)
     s = 2.0 / _norm2(w, *v)
-    dq_dest, dp_dest = dest
     like = gc[0]  # the batch shape of the result: q's and p's broadcast
-    oq = _layout.outputs(like, 4, dest=dq_dest)
-    op = _layout.outputs(like, 3, dest=dp_dest)
+    oq = _layout.outputs(like, 4)
+    op = _layout.outputs(like, 3)
     # R^T g = g + s (v x (v x g) - w (v x g))
     c = _cross_planes(v, gc)
     dp = [
@@ -932,10 +744,10 @@ def _apply_grads_block(
         torch.mul(torch.addcmul(ci, w, ai), s, out=oi)
         for ai, ci, oi in zip(a, _cross_planes(v, a), oq[1:], strict=True)
     ]
-    return _layout.interleave(dq, oq, dq_dest), _layout.interleave(dp, op, dp_dest)
+    return _layout.interleave(dq, oq), _layout.interleave(dp, op)
 
 
-_apply_grads = _blocked(_apply_grads_block, (1, 1, 1), other_cpu=2)
+_apply_grads = blocked(_apply_grads_block, (1, 1, 1))
 
 
 def _apply_jvp(saved: tuple[Tensor, ...], dq: Tensor | None, dp: Tensor | None) -> Tensor:
@@ -956,68 +768,11 @@ _ApplyFn = custom_function(
     backward=_apply_backward,
     jvp=_apply_jvp,
     event_dims=(1, 1),
-    blocked=False,  # the component form is blocked by itself (_apply_entries_blocked)
 )
 
 
 def _apply(q: Tensor, p: Tensor) -> Tensor:
     return _ApplyFn(q, p)
-
-
-def _apply_entries(q: Tensor, p: Tensor, *, dest: Tensor | None = None) -> Tensor:
-    """:func:`_apply` from components: one fused loop when compiled, forward and backward,
-    where ``linalg.cross`` is lowered to modular gathers over the last dimension; in eager mode
-    on large batches, whose planes are split apart and results stored strided without a
-    transposing copy (see :mod:`._layout`)."""
-    w, *v = _planes(q, 4)
-    pc = _planes(p, 3)
-    s = 2.0 / _norm2(w, *v)
-    c = _cross_planes(v, pc)
-    vc = _cross_planes(v, c)
-    # no columns where autograd records (q or p requiring grad); batches may broadcast
-    o = _layout.outputs((w, pc[0]), 3, q, p, dest=dest)
-    # p + s (w (v x p) + v x (v x p)), s = 2 / |q|^2: the scale applied once per component.
-    parts = [
-        torch.addcmul(pi, s, torch.addcmul(vci, w, ci), out=oi)
-        for pi, ci, vci, oi in zip(pc, c, vc, o, strict=True)
-    ]
-    return _layout.interleave(parts, o, dest)
-
-
-_apply_entries_blocked = _blocked(_apply_entries, (1, 1), other_cpu=2)
-
-
-def _apply_shifted(q: Tensor, p: Tensor, *, dest: Tensor | None = None) -> Tensor:
-    """:func:`_apply_entries` (the same operations, the same bits on finite input) for ``q`` and
-    ``p`` of one batch shape where matrix products are exact (a large eager CPU batch, see
-    :func:`_layout.by_product`), three planes at a time.
-
-    Each operand is split into planes by one product with a selection that repeats its first
-    planes after the last, ``(w, x, y, z, x, y)`` and ``(p_0, p_1, p_2, p_0, p_1)``, so that the
-    cyclic shifts of a cross product are slices: ``v x p`` is ``v[1:4] p[2:5] - v[2:5] p[1:4]``,
-    two calls over three planes each.  Fifteen calls where :func:`_apply_entries` makes 27, the
-    result's rows by one product with the identity (taken where that product is fast, see
-    :func:`_layout.row_products`; an Intel Xeon, one thread, N = 10^6, in alternation, ns per
-    element: float32 19.4-19.9 -> 17.9-18.1, float64 36.0 -> 34.9; the same operations written
-    out without blocks took 16.4-17.1 and 31.6, and storing the result's columns strided instead
-    of the product 17.8)."""
-    batch = q.shape[:-1]
-    rows = batch.numel()
-    qs = torch.mm(_layout.selection(q.dtype, 4, (0, 1, 2, 3, 1, 2)), q.reshape(rows, 4).T)
-    ps = torch.mm(_layout.selection(q.dtype, 3, (0, 1, 2, 0, 1)), p.reshape(rows, 3).T)
-    w, v1, v2 = qs[:1], qs[2:5], qs[3:6]  # v shifted by one and by two
-    s = 2.0 / _norm2(*qs[:4].unbind(0))
-    c = q.new_empty(5, rows)  # v x p, then its first two planes again
-    torch.mul(v1, ps[2:5], out=c[:3]).addcmul_(v2, ps[1:4], value=-1.0)
-    c[3:] = c[:2]
-    e = (v1 * c[2:5]).addcmul_(v2, c[1:4], value=-1.0).addcmul_(w, c[:3])  # v x c + w c
-    out = q.new_empty(batch + (3,)) if dest is None else dest
-    y = torch.addcmul(ps[:3], s, e)  # p + s e
-    torch.mm(y.T, _layout.eye(q.dtype, 3), out=out.view(rows, 3))
-    return out
-
-
-_apply_shifted_blocked = _blocked(_apply_shifted, (1, 1))
 
 
 def exp(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:

@@ -33,9 +33,9 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, _compensated, _layout, _rows, _small, so3
+from . import _checks, _coeffs, _layout, so3
 from . import quaternion as _quat
-from ._autograd import _blocked, custom_function
+from ._autograd import blocked, custom_function
 from ._typing import Bool, Float
 
 __all__ = [
@@ -226,12 +226,9 @@ def _between(A: Tensor, B: Tensor) -> Tensor:
 # ----------------------------------------------------------------------------------------------
 # compose / inverse / act kernels (private)
 #
-# Each op is one forward that allocates its result once and a custom backward in the same
-# style (autograd's own graph of the slices, matmuls and concatenations costs about twice as
-# many passes over memory): a tiny batched matmul for the 3x3 and 3x4 products and a few
-# strided writes; on large eager CPU batches the kernels of `torchlie._rows`; while compiling,
-# entry by entry (one fused loop, where the batched matmul is a library call of its own with
-# a copy on each side).
+# Each op is one forward entry by entry over the 12 entries of the top block, and a closed-form
+# backward in the same style (autograd's own graph of the slices and concatenations costs
+# about twice as many passes over memory).
 # ----------------------------------------------------------------------------------------------
 
 
@@ -262,11 +259,11 @@ def _rotation_and_translation(T: Tensor) -> tuple[list[Tensor], list[Tensor]]:
 
 
 def _top_outputs(
-    like: Tensor | Sequence[Tensor], *inputs: Tensor, dest: Tensor | None = None
+    like: Tensor | Sequence[Tensor],
 ) -> tuple[tuple[Tensor | None, ...], list[list[Tensor | None]]]:
-    """The 16 columns of :func:`_layout.outputs` for a 4x4 result (in ``dest`` if given), and
-    the 12 of its top block row by row (where the entries are to be written)."""
-    o = _layout.outputs(like, 16, *inputs, dest=dest)
+    """The 16 columns of :func:`_layout.outputs` for a 4x4 result, and the 12 of its top block
+    row by row (where the entries are to be written)."""
+    o = _layout.outputs(like, 16)
     return o, [list(o[4 * i : 4 * i + 4]) for i in range(3)]
 
 
@@ -274,11 +271,9 @@ def _stack_top(
     rows: Sequence[Sequence[Tensor]],
     corner: float = 1.0,
     out: Sequence[Tensor | None] | None = None,
-    dest: Tensor | None = None,
 ) -> Tensor:
     """``[[rows], [0, 0, 0, corner]]``: a 4x4 matrix from the 12 entries of its top block (row by
-    row, all of one shape; written to the columns ``out`` of :func:`_top_outputs` or not), into
-    ``dest`` if given."""
+    row, all of one shape; written to the columns ``out`` of :func:`_top_outputs` or not)."""
     if isinstance(out, _layout.Columns):
         bottom = out.result[..., 12:]
         bottom[..., :3].zero_()
@@ -288,20 +283,18 @@ def _stack_top(
         zero = (torch.zeros_like(rows[0][0]),) * 3
         last = zero[0] if corner == 0.0 else torch.full_like(zero[0], corner)
     entries = (*rows[0], *rows[1], *rows[2], *zero, last)
-    return _layout.interleave(entries, out, dest).unflatten(-1, (4, 4))
+    return _layout.interleave(entries, out).unflatten(-1, (4, 4))
 
 
 def _stack_rows(
-    rows: Sequence[Sequence[Tensor]],
-    out: Sequence[Tensor | None] | None = None,
-    dest: Tensor | None = None,
+    rows: Sequence[Sequence[Tensor]], out: Sequence[Tensor | None] | None = None
 ) -> Tensor:
     """:func:`_stack_top` with a zero last row (a gradient: the bottom row is not read)."""
-    return _stack_top(rows, 0.0, out, dest)
+    return _stack_top(rows, 0.0, out)
 
 
 def _compose_entries(A: Tensor, B: Tensor) -> Tensor:
-    """:func:`_compose_fwd` entry by entry (the compiled path)."""
+    """``A B`` entry by entry."""
     a, b = _top_entries(A), _top_entries(B)
     o, top = _top_outputs((a[0][0], b[0][0]))  # batches may broadcast
     rows = []
@@ -316,7 +309,7 @@ def _compose_entries(A: Tensor, B: Tensor) -> Tensor:
 
 
 def _inverse_entries(T: Tensor) -> Tensor:
-    """:func:`_inverse_fwd` entry by entry (the compiled path)."""
+    """``T^-1 = [[R^T, -R^T t], [0, 1]]`` entry by entry."""
     r = _top_entries(T)
     o, top = _top_outputs(r[0][0])
     rows = []
@@ -327,41 +320,18 @@ def _inverse_entries(T: Tensor) -> Tensor:
     return _stack_top(rows, out=o)
 
 
-def _compose_fwd(A: Tensor, B: Tensor) -> Tensor:
-    if torch.compiler.is_compiling():
-        return _compose_entries(A, B)
-    rows = max(A.numel(), B.numel()) // 16
-    if _rows.taken((A, B), rows):
-        return _rows.compose(A, B)
-    if _small.pose_form(A, rows) and _layout.eager_cpu(B):
-        return _small.pose_compose(A, B)
-    top = _small.matmul(A[..., :3, :3], B[..., :3, :])  # [R1 R2, R1 t2]
-    top.select(-1, 3).add_(A[..., :3, 3])
-    return _with_last_row(top)
-
-
 def _compose_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor, Tensor]:
     A, B = saved
-    if torch.compiler.is_compiling():
-        dA, dB = _compose_bwd_entries(A, B, G)
-    elif _rows.taken((A, B, G), G.numel() // 16):
-        dA, dB = _rows.compose_grads(A, B, G)
-    elif _small.pose_form(G, G.numel() // 16):
-        dA, dB = _small.pose_compose_grads(A, B, G)
-    else:
-        G3 = G[..., :3, :]
-        dR1 = _small.matmul(G3, B[..., :3, :].transpose(-1, -2))  # G_R R2^T + g t2^T
-        dA = _pad_row(torch.cat((dR1, G3[..., 3:]), dim=-1))
-        dB = _pad_row(_small.matmul(A[..., :3, :3].transpose(-1, -2), G3))
+    dA, dB = _compose_grads(A, B, G)
     return dA.sum_to_size(A.shape), dB.sum_to_size(B.shape)
 
 
 def _compose_bwd_entries(A: Tensor, B: Tensor, G: Tensor) -> tuple[Tensor, Tensor]:
-    """:func:`_compose_bwd` entry by entry (the compiled path; differentiable):
-    ``dA_ij = sum_k G_ik B_jk`` (``j < 3``), ``dA_i3 = G_i3``, ``dB_kj = sum_i A_ik G_ij``."""
+    """The backward of ``A B`` entry by entry: ``dA_ij = sum_k G_ik B_jk`` (``j < 3``),
+    ``dA_i3 = G_i3``, ``dB_kj = sum_i A_ik G_ij``."""
     a, b, g = _top_entries(A), _top_entries(B), _top_entries(G)
-    oa, top_a = _top_outputs(g[0][0], A, B, G)
-    ob, top_b = _top_outputs(g[0][0], A, B, G)
+    oa, top_a = _top_outputs(g[0][0])
+    ob, top_b = _top_outputs(g[0][0])
     da = [
         [
             torch.addcmul(
@@ -387,6 +357,9 @@ def _compose_bwd_entries(A: Tensor, B: Tensor, G: Tensor) -> tuple[Tensor, Tenso
     return _stack_rows(da, oa), _stack_rows(db, ob)
 
 
+_compose_grads = blocked(_compose_bwd_entries, (2, 2, 2))
+
+
 def _compose_jvp(saved: tuple[Tensor, ...], dA: Tensor, dB: Tensor) -> Tensor:
     A, B = saved
     top = torch.matmul(dA[..., :3, :3], B[..., :3, :])
@@ -397,52 +370,33 @@ def _compose_jvp(saved: tuple[Tensor, ...], dA: Tensor, dB: Tensor) -> Tensor:
 
 _ComposeFn = custom_function(
     "Se3Compose",
-    forward=_compose_fwd,
+    forward=_compose_entries,
     save=lambda inputs, out: (inputs[0], inputs[1]),
     backward=_compose_bwd,
     jvp=_compose_jvp,
     event_dims=(2, 2),
-    blocked=False,
 )
 
 
-def _inverse_fwd(T: Tensor) -> Tensor:
-    if torch.compiler.is_compiling():
-        return _inverse_entries(T)
-    if _rows.inverse_taken(T):
-        return _rows.inverse(T)
-    if _small.pose_form(T, T.numel() // 16):
-        return _small.pose_inverse(T)
-    Rt = T[..., :3, :3].transpose(-1, -2)
-    return _with_last_row(torch.cat((Rt, _small.matmul(Rt, T[..., :3, 3:]).neg_()), dim=-1))
-
-
 def _inverse_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor]:
-    # out = [R^T, -R^T t]: dR = G_R^T - t g^T and dt = -R g (g = the translation column of G).
     (T,) = saved
-    if torch.compiler.is_compiling():
-        return (_inverse_bwd_entries(T, G),)
-    if _rows.taken((T, G), G.numel() // 16):
-        return (_rows.inverse_grads(T, G),)
-    if _small.pose_form(G, G.numel() // 16):
-        return (_small.pose_inverse_grads(T, G),)
-    h = -G[..., :3, 3:]
-    dR = torch.addcmul(G[..., :3, :3].transpose(-1, -2), T[..., :3, 3:], h.transpose(-1, -2))
-    dt = _small.matmul(T[..., :3, :3], h)
-    return (_pad_row(torch.cat((dR, dt), dim=-1)),)
+    return (_inverse_grads(T, G),)
 
 
 def _inverse_bwd_entries(T: Tensor, G: Tensor) -> Tensor:
-    """:func:`_inverse_bwd` entry by entry (the compiled path; differentiable):
+    """The backward of ``T^-1`` entry by entry (``out = [R^T, -R^T t]``):
     ``dR_ij = G_ji - t_i G_j3``, ``dt_i = -sum_j R_ij G_j3``."""
     r, g = _top_entries(T), _top_entries(G)
-    o, top = _top_outputs(g[0][0], T, G)
+    o, top = _top_outputs(g[0][0])
     rows = []
     for i, oi in zip(range(3), top, strict=True):
         dR = [torch.addcmul(g[j][i], r[i][3], g[j][3], value=-1.0, out=oi[j]) for j in range(3)]
         dt = torch.addcmul(torch.addcmul(r[i][0] * g[0][3], r[i][1], g[1][3]), r[i][2], g[2][3])
         rows.append([*dR, torch.neg(dt, out=oi[3])])
     return _stack_rows(rows, o)
+
+
+_inverse_grads = blocked(_inverse_bwd_entries, (2, 2))
 
 
 def _inverse_jvp(saved: tuple[Tensor, ...], dT: Tensor) -> Tensor:
@@ -455,12 +409,11 @@ def _inverse_jvp(saved: tuple[Tensor, ...], dT: Tensor) -> Tensor:
 
 _InverseFn = custom_function(
     "Se3Inverse",
-    forward=_inverse_fwd,
+    forward=_inverse_entries,
     save=lambda inputs, out: (inputs[0],),
     backward=_inverse_bwd,
     jvp=_inverse_jvp,
     event_dims=(2,),
-    blocked=False,
 )
 
 
@@ -469,19 +422,22 @@ def _homogeneous(p: Tensor) -> Tensor:
 
 
 def _act_fwd(T: Tensor, p: Tensor) -> Tensor:
-    if _rows.taken((T, p), max(T.numel() // 16, p.numel() // 3)):
-        return _rows.act(T[..., :3, :3], p, T[..., :3, 3])
-    return _small.matmul(T[..., :3, :], _homogeneous(p).unsqueeze(-1)).squeeze(-1)
+    """``R p + t``, column by column (as :func:`torchlie.so3.act`)."""
+    return torch.add(_mv(T[..., :3, :3], p), T[..., :3, 3])
+
+
+def _act_grads(T: Tensor, p: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
+    # out = [R, t] (p, 1): d[R, t] = g (p, 1)^T and dp = R^T g.
+    dT = _pad_row(g.unsqueeze(-1) * _homogeneous(p).unsqueeze(-2))
+    return dT, _mv(T[..., :3, :3].transpose(-1, -2), g)
+
+
+_act_grads_blocked = blocked(_act_grads, (2, 1, 1))
 
 
 def _act_bwd(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]:
-    # out = [R, t] (p, 1): d[R, t] = g (p, 1)^T and dp = R^T g.
     T, p = saved
-    if _rows.taken((T, p, g), g.numel() // 3):
-        dT, dp = _rows.pose_act_grads(T, p, g)
-    else:
-        dT = _pad_row(g.unsqueeze(-1) * _homogeneous(p).unsqueeze(-2))
-        dp = _small.matmul(T[..., :3, :3].transpose(-1, -2), g.unsqueeze(-1)).squeeze(-1)
+    dT, dp = _act_grads_blocked(T, p, g)
     return dT.sum_to_size(T.shape), dp.sum_to_size(p.shape)
 
 
@@ -506,7 +462,6 @@ _ActFn = custom_function(
     backward=_act_bwd,
     jvp=_act_jvp,
     event_dims=(2, 1),
-    blocked=False,
 )
 
 
@@ -515,25 +470,15 @@ _ActFn = custom_function(
 # ----------------------------------------------------------------------------------------------
 
 
-def _exp_forward(xi: Tensor, *, dest: Tensor | None = None) -> Tensor:
+def _exp_forward(xi: Tensor) -> Tensor:
     """``[[Exp(phi), Jl(phi) rho], [0, 1]]`` from components, one set of coefficients for both
     blocks (runs without autograd: forward-only coefficients); the rotation block is
-    :func:`torchlie.so3.exp`'s, bit for bit (in float64 its compensated kernel, on small float32
-    batches its matrix form, with which the whole of it is a matrix form,
-    :func:`torchlie._small.se3_exp_float32`)."""
-    phi = xi[..., 3:]
-    R = None  # the rotation block from a kernel of its own, or entry by entry below
-    if xi.dtype == torch.float64:
-        R = _compensated.exp_entries(phi)
-    elif dest is None and _small.matrix_form(xi, xi.shape[:-1].numel()):
-        return _small.se3_exp_float32(xi)
-    xyz, coeffs = so3._rodrigues(phi, "abcd" if R is None else "abc")  # d: for the entries
-    a, b, c = coeffs[:3]
-    o, top = _top_outputs(xyz[0], dest=dest)
-    if R is None:
-        R = so3._exp_entries(xyz, a, b, coeffs[3], [e for row in top for e in row[:3]])
+    :func:`torchlie.so3.exp`'s, bit for bit."""
+    xyz, (a, b, c, d) = so3._rodrigues(xi[..., 3:], "abcd")
+    o, top = _top_outputs(xyz[0])
+    R = so3._exp_entries(xyz, a, b, d, [e for row in top for e in row[:3]])
     t = so3._jl_components(xyz, _quat._planes(xi[..., :3], 3), a, b, c, [r[3] for r in top])
-    return _stack_top([(*R[0:3], t[0]), (*R[3:6], t[1]), (*R[6:9], t[2])], out=o, dest=dest)
+    return _stack_top([(*R[0:3], t[0]), (*R[3:6], t[1]), (*R[6:9], t[2])], out=o)
 
 
 def _exp_backward(saved, G: Tensor):
@@ -543,8 +488,6 @@ def _exp_backward(saved, G: Tensor):
     #     g_phi = Jl(phi) vee(R^T G_R - G_R^T R) + Jr(phi) (t x g_t) + Q(-rho, -phi) g_t.
     xi, T = saved
     if not torch.is_grad_enabled():
-        if _small.matrix_form(xi, xi.shape[:-1].numel()):
-            return (_small.se3_exp_backward(xi, T, G),)
         return (_exp_grad_values(xi, T, G),)
     rho, phi = xi[..., :3], xi[..., 3:]  # create_graph: differentiable ops
     R, t = _rot(T), _trans(T)
@@ -555,7 +498,7 @@ def _exp_backward(saved, G: Tensor):
     return (torch.cat((g_rho, g_phi + _q_apply(-rho, -phi, g_t)), dim=-1),)
 
 
-def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor, *, dest: Tensor | None = None) -> Tensor:
+def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor) -> Tensor:
     """:func:`_exp_backward` from components, forward-only coefficients (plain backward)."""
     x = _quat._planes(xi, 6)
     xyz = x[3:]
@@ -565,7 +508,7 @@ def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor, *, dest: Tensor | Non
     a, b, c = (v.to(xi.dtype) for v in (a, b, c))
     R, t = _rotation_and_translation(T)
     G_R, g_t = _rotation_and_translation(G)
-    o = _layout.outputs(x[0], 6, dest=dest)
+    o = _layout.outputs(x[0], 6)
     g_rho = so3._jl_components(xyz, g_t, a, -b, c, o[:3])
     u = so3._rt_g_vee(R, G_R)
     g_phi = so3._jl_components(xyz, u, a, b, c)
@@ -575,10 +518,10 @@ def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor, *, dest: Tensor | Non
     g_phi = [
         torch.add(p, r, out=oi).add_(s) for p, r, s, oi in zip(g_phi, g_tx, q, o[3:], strict=True)
     ]
-    return _layout.interleave((*g_rho, *g_phi), o, dest)
+    return _layout.interleave((*g_rho, *g_phi), o)
 
 
-_exp_grad_values = _blocked(_exp_backward_values, (1, 2, 2))
+_exp_grad_values = blocked(_exp_backward_values, (1, 2, 2))
 
 
 def _exp_jvp(saved, dxi: Tensor) -> Tensor:
@@ -606,25 +549,15 @@ def _exp(xi: Tensor) -> Tensor:
     return _ExpFn(xi)
 
 
-def _log_forward(T: Tensor, *, dest: Tensor | None = None) -> Tensor:
-    """From components, stacked once: compiled, every intermediate is per element and the whole
-    map is one loop over the batch (a stacked rotation vector read again by components would be
-    a loop of its own); eager, one stack fewer.  Small batches: :func:`torchlie._small.se3_log`."""
-    if dest is None and _small.matrix_form(T, T.shape[:-2].numel()):
-        return _small.se3_log(T)
+def _log_forward(T: Tensor) -> Tensor:
+    """From components, stacked once.  ``Jl(phi)^-1 t`` with the coefficients
+    ``e = (theta/2) cot(theta/2)`` and ``D = (1 - e) / theta^2`` from the log's own angle and
+    cotangent (:func:`torchlie.quaternion._log_and_cot`)."""
     R, t = _rotation_and_translation(T)  # one transposition of the top block
-    if T.dtype != torch.float32:
-        phi = _quat._log_of_matrix_components(R)
-        return _layout.interleave((*so3._jl_inv_apply_values(phi, t), *phi), dest=dest)
-    # float32: Jl^-1's coefficients e = (theta/2) cot(theta/2) and D = (1 - e) / theta^2 from the
-    # log's own angle and cotangent (the formula of _small.se3_log), in float32, rather than
-    # from |phi| in float64: as accurate (within 1.1 eps of the exact result norm-wise for angles
-    # of 1e-8 to 3, 1.4 near pi), N = 10^6 in 33-36 ms rather than 44-54.  Float64 keeps the
-    # evaluation from |phi| (benchmarks/README.md, "float64 so3.exp, and float32 coefficients").
     phi, theta, e = _quat._log_and_cot(R, cot=True)
     d = torch.rsub(e, 1.0).div_(theta.mul_(theta).clamp_min_(_coeffs.H_MIN[T.dtype]))
     rho = so3._jl_components(phi, t, e, e.new_full((), -0.5), d)
-    return _layout.interleave((*rho, *phi), dest=dest)
+    return _layout.interleave((*rho, *phi))
 
 
 def _log_backward(saved, g: Tensor):
@@ -634,8 +567,6 @@ def _log_backward(saved, g: Tensor):
     # so G_t = R h_rho and G_R = R hat(h_phi) / 2.
     T, xi = saved
     if not torch.is_grad_enabled():
-        if _small.matrix_form(xi, xi.shape[:-1].numel()):
-            return (_small.se3_log_backward(T, xi, g),)
         return (_log_grad_values(T, xi, g),)
     R = _rot(T)  # create_graph: differentiable ops
     rho, phi = xi[..., :3], xi[..., 3:]
@@ -646,7 +577,7 @@ def _log_backward(saved, g: Tensor):
     return (torch.cat((top, torch.zeros_like(top[..., :1, :])), dim=-2),)
 
 
-def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor, *, dest: Tensor | None = None) -> Tensor:
+def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
     """:func:`_log_backward` from components, forward-only coefficients (plain backward)."""
     x = _quat._planes(xi, 6)
     gs = _quat._planes(g, 6)
@@ -659,7 +590,7 @@ def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor, *, dest: Tensor | Non
     v = [(gi - qi).mul_(0.5) for gi, qi in zip(gs[3:], q, strict=True)]
     u = so3._jl_components(x[3:], v, e, minus_half, d)  # h_phi / 2
     r = _quat._planes(_rot(T), 9)
-    o, top = _top_outputs(r[0], dest=dest)
+    o, top = _top_outputs(r[0])
     G_R = [so3._cross(r[3 * i : 3 * i + 3], u, top[i][:3]) for i in range(3)]  # rows of R hat(u)
     G_t = [
         torch.addcmul(
@@ -667,10 +598,10 @@ def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor, *, dest: Tensor | Non
         )
         for i, oi in zip((0, 3, 6), top, strict=True)
     ]
-    return _stack_rows([(*G_R[i], G_t[i]) for i in range(3)], o, dest)
+    return _stack_rows([(*G_R[i], G_t[i]) for i in range(3)], o)
 
 
-_log_grad_values = _blocked(_log_backward_values, (2, 1, 1))
+_log_grad_values = blocked(_log_backward_values, (2, 1, 1))
 
 
 def _log_jvp(saved, dT: Tensor) -> Tensor:

@@ -21,9 +21,9 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, _compensated, _layout, _rows, _small
+from . import _checks, _coeffs, _layout
 from . import quaternion as _quat
-from ._autograd import _blocked, custom_function
+from ._autograd import blocked, custom_function
 from ._typing import Bool, Float
 
 __all__ = [
@@ -140,25 +140,16 @@ def _exp_entries(
     ]  # fmt: skip
 
 
-def _exp(w: Tensor, *, dest: Tensor | None = None) -> Tensor:
-    """Forward of :func:`exp` (runs without autograd: forward-only coefficients).
-
-    float64 takes the compensated kernel of :mod:`torchlie._compensated` (within 1.1 ulp
-    norm-wise at every angle instead of 3); float32 evaluates its coefficients in float64, and
-    small batches all of it (:func:`torchlie._small.exp_float32`).
-    """
-    if w.dtype == torch.float64:
-        return _compensated.exp(w, dest=dest)
-    if dest is None and _small.matrix_form(w, w.shape[:-1].numel()):
-        return _small.exp_float32(w)
+def _exp(w: Tensor) -> Tensor:
+    """Forward of :func:`exp` (runs without autograd: forward-only coefficients)."""
     xyz, (a, b, d) = _rodrigues(w, "abd")
-    o = _layout.outputs(xyz[0], 9, dest=dest)
-    return _layout.interleave(_exp_entries(xyz, a, b, d, o), o, dest).unflatten(-1, (3, 3))
+    o = _layout.outputs(xyz[0], 9)
+    return _layout.interleave(_exp_entries(xyz, a, b, d, o), o).unflatten(-1, (3, 3))
 
 
-def _log(R: Tensor, *, dest: Tensor | None = None) -> Tensor:
+def _log(R: Tensor) -> Tensor:
     """Forward of :func:`log` (runs without autograd)."""
-    return _quat._log_of_matrix(R, dest)
+    return _quat._log_of_matrix(R)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -193,17 +184,15 @@ def _jl_components(
     return result
 
 
-def _jl_apply_values(
-    w: Tensor, v: tuple[Tensor, ...], sign: float = 1.0, dest: Tensor | None = None
-) -> Tensor:
+def _jl_apply_values(w: Tensor, v: tuple[Tensor, ...], sign: float = 1.0) -> Tensor:
     """``Jl(w) v`` (``sign=1``) or ``Jr(w) v`` (``sign=-1``) from components; forward-only.
 
     ``Jl(w) v = a v + b (w x v) + c (w . v) w`` with :func:`torchlie._coeffs.rodrigues_values`
     (not differentiable: backward passes without ``create_graph`` only).
     """
     xyz, (a, b, c) = _rodrigues(w, "abc")
-    o = _layout.outputs(xyz[0], 3, dest=dest)
-    return _layout.interleave(_jl_components(xyz, v, a, b if sign > 0 else -b, c, o), o, dest)
+    o = _layout.outputs(xyz[0], 3)
+    return _layout.interleave(_jl_components(xyz, v, a, b if sign > 0 else -b, c, o), o)
 
 
 def _exp_backward(saved, g: Tensor):
@@ -212,18 +201,14 @@ def _exp_backward(saved, g: Tensor):
     if torch.is_grad_enabled():  # create_graph: differentiable ops
         M = R.transpose(-1, -2) @ g
         return (_jl_apply(w, 2.0 * _vee(M)),)
-    if _small.matrix_form(w, w.shape[:-1].numel()):
-        return (_small.exp_backward(w, R, g),)
     return (_exp_grad_values(w, R, g),)
 
 
-def _exp_grad_values_block(
-    w: Tensor, R: Tensor, g: Tensor, *, dest: Tensor | None = None
-) -> Tensor:
-    return _jl_apply_values(w, _rt_g_vee(R, g), dest=dest)
+def _exp_grad_values_block(w: Tensor, R: Tensor, g: Tensor) -> Tensor:
+    return _jl_apply_values(w, _rt_g_vee(R, g))
 
 
-_exp_grad_values = _blocked(_exp_grad_values_block, (1, 2, 2))
+_exp_grad_values = blocked(_exp_grad_values_block, (1, 2, 2))
 
 
 def _exp_jvp(saved, dw: Tensor) -> Tensor:
@@ -248,7 +233,7 @@ def _jl_inv_apply_values(
     pi (a log's); forward-only.  ``w`` and ``v`` as ``(..., 3)`` tensors or as their three
     components."""
     wc = _quat._planes(w, 3)
-    e, d = (t.to(wc[0].dtype) for t in _coeffs.jl_inv_log_values(wc))
+    e, d = (t.to(wc[0].dtype) for t in _coeffs.jl_inv_values(wc))
     out = _jl_components(wc, _quat._planes(v, 3), e, e.new_full((), -0.5), d)
     return out[0], out[1], out[2]
 
@@ -262,18 +247,14 @@ def _log_backward(saved, g: Tensor):
     # Gradient of log o polar: G = R hat(Jl^-1(w) g) / 2 (tangent part only).
     if torch.is_grad_enabled():  # create_graph: differentiable ops
         return (0.5 * (R @ _hat(_jl_inv_apply(w, g))),)
-    if _small.matrix_form(w, w.shape[:-1].numel()):
-        return (_small.log_backward(R, w, g),)
     return (_log_grad_values(R, w, g),)
 
 
-def _log_grad_values_block(
-    R: Tensor, w: Tensor, g: Tensor, *, dest: Tensor | None = None
-) -> Tensor:
-    return _r_hat_values(R, _jl_inv_apply_values(w, 0.5 * g), dest)
+def _log_grad_values_block(R: Tensor, w: Tensor, g: Tensor) -> Tensor:
+    return _r_hat_values(R, _jl_inv_apply_values(w, 0.5 * g))
 
 
-_log_grad_values = _blocked(_log_grad_values_block, (2, 1, 1))
+_log_grad_values = blocked(_log_grad_values_block, (2, 1, 1))
 
 
 def _log_jvp(saved, dR: Tensor) -> Tensor:
@@ -407,35 +388,34 @@ def act(R: Float[Tensor, "*b1 3 3"], points: Float[Tensor, "*b2 3"]) -> Float[Te
 
 
 def _mv(M: Tensor, v: Tensor) -> Tensor:
-    """``M @ v`` for a batch of matrices and vectors (batch shapes broadcast)."""
-    return _small.matmul(M, v.unsqueeze(-1)).squeeze(-1)
+    """``M @ v`` for a batch of matrices and vectors (batch shapes broadcast), column by
+    column: each element's result is summed alike whatever the batch around it."""
+    out = M[..., 0] * v[..., :1]
+    out = torch.addcmul(out, M[..., 1], v[..., 1:2])
+    return torch.addcmul(out, M[..., 2], v[..., 2:3])
 
 
-def _act_fwd(R: Tensor, p: Tensor) -> Tensor:
-    if _rows.taken((R, p), max(R.numel() // 9, p.numel() // 3)):
-        return _rows.act(R, p)
-    return _mv(R, p)
+def _act_grads(R: Tensor, p: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
+    """``dR = g p^T``, ``dp = R^T g``."""
+    return g.unsqueeze(-1) * p.unsqueeze(-2), _mv(R.transpose(-1, -2), g)
+
+
+_act_grads_blocked = blocked(_act_grads, (2, 1, 1))
 
 
 def _act_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]:
-    """``dR = g p^T``, ``dp = R^T g``."""
     R, p = saved
-    if _rows.taken((R, p, g), g.numel() // 3):
-        dR = g.new_empty(g.shape + (3,))
-        dp = _rows.act_grads(R, p, g, dR)
-    else:
-        dR, dp = g.unsqueeze(-1) * p.unsqueeze(-2), _mv(R.transpose(-1, -2), g)
+    dR, dp = _act_grads_blocked(R, p, g)  # recorded as it is under create_graph
     return dR.sum_to_size(R.shape), dp.sum_to_size(p.shape)
 
 
 _ActFn = custom_function(
     "So3Act",
-    forward=_act_fwd,
+    forward=_mv,
     save=lambda inputs, out: (inputs[0], inputs[1]),
     backward=_act_backward,
     jvp=lambda saved, dR, dp: _mv(dR, saved[1]) + _mv(saved[0], dp),
     event_dims=(2, 1),
-    blocked=False,
 )
 
 
