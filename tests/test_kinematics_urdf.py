@@ -112,24 +112,24 @@ def test_error_names_the_file(tmp_path):
     with pytest.raises(URDFError) as info:
         Chain.from_urdf(path)
     assert info.value.source == str(path)
-    assert str(info.value).startswith(f"{path}: <joint name=\"j\">: unknown joint type 'hinge'")
+    assert str(info.value).startswith(f"{path}: <joint name='j'>: unknown joint type 'hinge'")
 
 
 def test_missing_parent_link():
     e = bad(robot(joint(parent="ghost")))
-    assert e.element == '<joint name="j"> <parent>'
+    assert e.element == "<joint name='j'> <parent>"
     assert e.problem == "link 'ghost' is not declared by any <link> element"
 
 
 def test_missing_child_link():
     e = bad(robot(joint(child="ghost")))
-    assert e.element == '<joint name="j"> <child>'
+    assert e.element == "<joint name='j'> <child>"
     assert "link 'ghost' is not declared" in e.problem
 
 
 def test_missing_parent_element():
     e = bad(robot('<joint name="j" type="fixed"><child link="b"/></joint>'))
-    assert e.element == '<joint name="j">' and e.problem == "missing required element <parent>"
+    assert e.element == "<joint name='j'>" and e.problem == "missing required element <parent>"
 
 
 def test_cycle():
@@ -151,12 +151,12 @@ def test_cycle():
 
 def test_self_loop():
     e = bad(robot(joint("aa", "fixed", "a", "a")))
-    assert e.element == '<joint name="aa">' and e.problem == "cycle: link 'a' is its own parent"
+    assert e.element == "<joint name='aa'>" and e.problem == "cycle: link 'a' is its own parent"
 
 
 def test_link_with_two_parents():
     e = bad(robot(joint("j1", "fixed", "a", "c") + joint("j2", "fixed", "b", "c"), ("a", "b", "c")))
-    assert e.element == '<joint name="j2">'
+    assert e.element == "<joint name='j2'>"
     assert e.problem == "link 'c' is already the child of joint 'j1' (not a tree)"
 
 
@@ -168,7 +168,7 @@ def test_two_roots():
 
 def test_unknown_joint_type():
     e = bad(robot(joint(jtype="spherical")))
-    assert e.element == '<joint name="j">'
+    assert e.element == "<joint name='j'>"
     assert e.problem.startswith("unknown joint type 'spherical' (expected one of revolute,")
 
 
@@ -177,7 +177,7 @@ def test_unknown_joint_type():
     [
         ('<origin xyz="0 0 abc"/>', "<origin>", "attribute 'xyz' is not a number: 'abc'"),
         ('<origin rpy="0 0"/>', "<origin>", "attribute 'rpy' must be three numbers, got '0 0'"),
-        ('<origin xyz="0 nan 0"/>', "<origin>", "attribute 'xyz' is not finite: 'nan'"),
+        ('<origin xyz="0 NaN 0"/>', "<origin>", "attribute 'xyz' is not finite: 'NaN'"),
         ('<axis xyz="1,0,0"/>', "<axis>", "attribute 'xyz' must be three numbers, got '1,0,0'"),
         ('<axis xyz="0 0 0"/>', "<axis>", "the axis is the zero vector"),
         ('<limit lower="-1" upper="x1"/>', "<limit>", "attribute 'upper' is not a number: 'x1'"),
@@ -188,7 +188,7 @@ def test_malformed_numbers(inner, element, problem):
     if "<limit" not in inner:
         inner += '<limit lower="-1" upper="1"/>'
     e = bad(robot(joint(inner=inner)))
-    assert e.element == f'<joint name="j"> {element}'
+    assert e.element == f"<joint name='j'> {element}"
     assert e.problem == problem
 
 
@@ -199,25 +199,25 @@ def test_malformed_mimic_number():
         ("a", "b", "c"),
     )
     e = bad(text)
-    assert e.element == '<joint name="j2"> <mimic>'
+    assert e.element == "<joint name='j2'> <mimic>"
     assert e.problem == "attribute 'multiplier' is not a number: 'two'"
 
 
 @pytest.mark.parametrize(
     ("text", "element", "problem"),
     [
-        (robot('<joint name="j"><parent link="a"/><child link="b"/></joint>'), '<joint name="j">',
+        (robot('<joint name="j"><parent link="a"/><child link="b"/></joint>'), "<joint name='j'>",
          "missing required attribute 'type'"),
         (robot('<joint type="fixed"><parent link="a"/><child link="b"/></joint>'), "<joint> #1",
          "missing required attribute 'name'"),
         (robot('<joint name="j" type="fixed"><parent/><child link="b"/></joint>'),
-         '<joint name="j"> <parent>', "missing required attribute 'link'"),
+         "<joint name='j'> <parent>", "missing required attribute 'link'"),
         ('<robot name="r"><link/></robot>', "<link> #1", "missing required attribute 'name'"),
         ('<robot><link name="a"/></robot>', "<robot>", "missing required attribute 'name'"),
-        (robot(joint(inner='<axis/><limit lower="0" upper="1"/>')), '<joint name="j"> <axis>',
+        (robot(joint(inner='<axis/><limit lower="0" upper="1"/>')), "<joint name='j'> <axis>",
          "missing required attribute 'xyz'"),
-        (robot(joint(inner="")), '<joint name="j">', "a revolute joint requires a <limit> element"),
-        (robot(joint(inner='<limit lower="0" upper="1"/><mimic/>')), '<joint name="j"> <mimic>',
+        (robot(joint(inner="")), "<joint name='j'>", "a revolute joint requires a <limit> element"),
+        (robot(joint(inner='<limit lower="0" upper="1"/><mimic/>')), "<joint name='j'> <mimic>",
          "missing required attribute 'joint'"),
         (robot(joint(name="")), "<joint> #1", "attribute 'name' is empty"),
     ],
@@ -229,7 +229,7 @@ def test_missing_required_attributes(text, element, problem):
 
 def test_mimic_pointing_at_nothing():
     e = bad(robot(joint(inner='<limit lower="0" upper="1"/><mimic joint="ghost"/>')))
-    assert e.element == '<joint name="j"> <mimic>'
+    assert e.element == "<joint name='j'> <mimic>"
     assert e.problem == "mimicked joint 'ghost' does not exist"
 
 
@@ -253,7 +253,7 @@ def test_mimic_cycle():
         + joint("j2", "revolute", "b", "c", '<limit/><mimic joint="j1"/>'),
         ("a", "b", "c"),
     )
-    assert bad(text).problem.startswith("mimic cycle: j1 -> j2")
+    assert bad(text).problem.startswith("mimic cycle: 'j1' -> 'j2'")
 
 
 def test_duplicates():

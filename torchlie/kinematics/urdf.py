@@ -9,21 +9,33 @@ kinematics adds no runtime dependency, and URDF's kinematic subset is small enou
 checks a robot needs (one root, no cycles, known joint types, finite numbers) are clearer written
 out here than inherited from a general-purpose URDF library.
 
-Numbers are parsed with Python's ``float`` (correctly rounded to float64) and kept as Python
-floats; no float32 rounding happens on the way to :class:`~torchlie.kinematics.Chain`.
+Numbers must be written in the XML Schema ``double`` syntax: an optional sign, ASCII digits
+with an optional fraction, an optional exponent, e.g. ``-1``, ``.5``, ``2.``, ``1e-3``,
+``+4.5E+2``; ``INF``, ``+INF``, ``-INF`` and ``NaN`` are the Schema's spellings of the
+non-finite values, which are then rejected as not finite.  Anything else (``1_000``, ``0x10``,
+``inf``, ``nan``, ``Infinity``, non-ASCII digits, ...) is not a number, although Python's
+``float`` would read it: a deliberate convention, so that a file means the same here as in
+other XML tools.  Surrounding XML whitespace (space, tab, CR, LF) is ignored, and lists such as
+``xyz`` are separated by it (not by other Unicode spaces).  A number is correctly rounded to
+float64 and kept as a Python float; no float32 rounding happens on the way to
+:class:`~torchlie.kinematics.Chain`.  Every finite double is accepted here; what a chain does
+with values beyond its dtype's range is in :mod:`torchlie.kinematics.chain`.
 
 Defaults follow the URDF specification: a missing ``<origin>`` is the identity, missing
 ``xyz``/``rpy`` are zeros, a missing ``<axis>`` is ``(1, 0, 0)``, ``<limit lower/upper>``
 default to 0, ``<mimic multiplier>`` to 1 and ``offset`` to 0.
 
 Every problem raises :class:`URDFError` (a :class:`ValueError`) naming the file (or
-``"<string>"``), the element and what is wrong.
+``"<string>"``), the element and what is wrong.  Names and values taken from the file are
+quoted with :func:`repr` in these messages, so a name containing a newline or another control
+character shows as an escape and cannot forge a line of a log.
 """
 
 from __future__ import annotations
 
 import math
 import os
+import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
@@ -41,21 +53,32 @@ JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed", "floating", "plan
 
 _ONE_DOF = ("revolute", "continuous", "prismatic")
 
+# XML Schema 1.1 ``xsd:double`` (1.0 plus "+INF"); ASCII digits only.
+_DOUBLE = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|[+-]?INF|NaN")
+# XML whitespace (Python's str.split/strip would also take Unicode spaces).
+_XML_SPACE = " \t\r\n"
+_XML_SPLIT = re.compile(r"[ \t\r\n]+")
+
 
 class URDFError(ValueError):
     """A malformed or unsupported URDF.
 
     Attributes:
         source: the file name, or ``"<string>"`` for XML text.
-        element: the offending element, e.g. ``'<joint name="elbow"> <origin>'``.
-        problem: what is wrong with it.
+        element: the offending element, e.g. ``"<joint name='elbow'> <origin>"`` (the name as
+            :func:`repr` writes it).
+        problem: what is wrong with it (values from the file quoted by :func:`repr`).
+
+    The message is ``"{source}: {element}: {problem}"``; a file name with a non-printable
+    character is written as its :func:`repr` there.
     """
 
     def __init__(self, source: str, element: str, problem: str) -> None:
         self.source = source
         self.element = element
         self.problem = problem
-        super().__init__(f"{source}: {element}: {problem}")
+        label = source if source.isprintable() else repr(source)
+        super().__init__(f"{label}: {element}: {problem}")
 
 
 @dataclass(frozen=True)
@@ -121,7 +144,7 @@ class RobotSpec:
 
 
 def _describe(tag: str, name: str | None, index: int, sub: str | None = None) -> str:
-    head = f'<{tag} name="{name}">' if name else f"<{tag}> #{index + 1}"
+    head = f"<{tag} name={name!r}>" if name else f"<{tag}> #{index + 1}"
     return f"{head} <{sub}>" if sub else head
 
 
@@ -142,29 +165,30 @@ class _Reader:
         value = el.get(key)
         if value is None:
             raise self.fail(where, f"missing required attribute '{key}'")
-        value = value.strip()
+        value = value.strip(_XML_SPACE)
         if not value:
             raise self.fail(where, f"attribute '{key}' is empty")
         return value
 
     def number(self, text: str, key: str, where: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise self.fail(where, f"attribute '{key}' is not a number: {text!r}") from None
+        """``text`` (XML whitespace already stripped) as an XML Schema double, finite."""
+        if _DOUBLE.fullmatch(text) is None:
+            raise self.fail(where, f"attribute '{key}' is not a number: {text!r}")
+        value = float(text)  # every string _DOUBLE matches is one float() reads the same way
         if not math.isfinite(value):
             raise self.fail(where, f"attribute '{key}' is not finite: {text!r}")
         return value
 
     def opt_number(self, el: ET.Element, key: str, where: str) -> float | None:
         text = el.get(key)
-        return None if text is None else self.number(text.strip(), key, where)
+        return None if text is None else self.number(text.strip(_XML_SPACE), key, where)
 
     def vec3(self, el: ET.Element, key: str, where: str) -> tuple[float, float, float] | None:
         text = el.get(key)
         if text is None:
             return None
-        parts = text.split()
+        stripped = text.strip(_XML_SPACE)
+        parts = _XML_SPLIT.split(stripped) if stripped else []
         if len(parts) != 3:
             raise self.fail(where, f"attribute '{key}' must be three numbers, got {text!r}")
         x, y, z = (self.number(p, key, where) for p in parts)
@@ -173,8 +197,9 @@ class _Reader:
     def children(self, el: ET.Element, tag: str) -> list[ET.Element]:
         return [c for c in el if _local(c.tag) == tag]
 
-    def single(self, el: ET.Element, tag: str, where: str) -> ET.Element | None:
-        found = self.children(el, tag)
+    def single(self, subs: dict[str, list[ET.Element]], tag: str, where: str) -> ET.Element | None:
+        """The one ``<tag>`` among ``subs`` (an element's children by tag), if any."""
+        found = subs.get(tag, ())
         if len(found) > 1:
             raise self.fail(where, f"more than one <{tag}> element")
         return found[0] if found else None
@@ -185,6 +210,9 @@ def _read_joint(r: _Reader, el: ET.Element, index: int) -> JointSpec:
     where = _describe("joint", name_attr, index)
     name = r.attr(el, "name", where)
     jtype = r.attr(el, "type", where)
+    subs: dict[str, list[ET.Element]] = {}  # children by tag, read once
+    for c in el:
+        subs.setdefault(_local(c.tag), []).append(c)
     if jtype not in JOINT_TYPES:
         raise r.fail(
             where, f"unknown joint type {jtype!r} (expected one of {', '.join(JOINT_TYPES)})"
@@ -192,20 +220,20 @@ def _read_joint(r: _Reader, el: ET.Element, index: int) -> JointSpec:
 
     links = {}
     for tag in ("parent", "child"):
-        sub = r.single(el, tag, where)
+        sub = r.single(subs, tag, where)
         if sub is None:
             raise r.fail(where, f"missing required element <{tag}>")
         links[tag] = r.attr(sub, "link", _describe("joint", name, index, tag))
 
     xyz = rpy = None
-    origin = r.single(el, "origin", where)
+    origin = r.single(subs, "origin", where)
     if origin is not None:
         w = _describe("joint", name, index, "origin")
         xyz = r.vec3(origin, "xyz", w)
         rpy = r.vec3(origin, "rpy", w)
 
     axis = None
-    axis_el = r.single(el, "axis", where)
+    axis_el = r.single(subs, "axis", where)
     if axis_el is not None:
         w = _describe("joint", name, index, "axis")
         axis = r.vec3(axis_el, "xyz", w)
@@ -215,7 +243,7 @@ def _read_joint(r: _Reader, el: ET.Element, index: int) -> JointSpec:
             raise r.fail(w, "the axis is the zero vector")
 
     lower = upper = effort = velocity = None
-    limit = r.single(el, "limit", where)
+    limit = r.single(subs, "limit", where)
     if limit is not None:
         w = _describe("joint", name, index, "limit")
         effort = r.opt_number(limit, "effort", w)
@@ -231,7 +259,7 @@ def _read_joint(r: _Reader, el: ET.Element, index: int) -> JointSpec:
         raise r.fail(where, f"a {jtype} joint requires a <limit> element")
 
     mimic = None
-    mimic_el = r.single(el, "mimic", where)
+    mimic_el = r.single(subs, "mimic", where)
     if mimic_el is not None:
         w = _describe("joint", name, index, "mimic")
         if jtype not in _ONE_DOF:
@@ -301,12 +329,12 @@ def _check_tree(r: _Reader, links: list[str], joints: list[JointSpec]) -> str:
     for link in links:
         if link in reachable:
             continue
-        seen: list[str] = []
+        seen: dict[str, int] = {}  # link -> position on the walk up
         cur = link
         while cur not in seen:
-            seen.append(cur)
+            seen[cur] = len(seen)
             cur = parent_of[cur].parent
-        cycle = seen[seen.index(cur) :]
+        cycle = list(seen)[seen[cur] :]
         down = list(reversed(cycle))  # joints in parent -> child order
         names = " -> ".join(repr(parent_of[x].name) for x in down)
         loop = ", ".join(repr(parent_of[x].parent) for x in down)
@@ -318,7 +346,14 @@ def _check_tree(r: _Reader, links: list[str], joints: list[JointSpec]) -> str:
 
 
 def _check_mimics(r: _Reader, joints: list[JointSpec]) -> None:
+    """Each mimic names an existing one-DoF joint, and following mimics never loops.
+
+    Linear in the number of joints: a chain of mimics is walked once; every joint on a walk
+    that ends (at a joint with its own DoF, or at a missing joint reported when that joint is
+    checked) is remembered as ending, and later walks stop there.
+    """
     by_name = {j.name: j for j in joints}
+    ends: set[str] = set()  # joints whose mimic chain is known to end
     for j in joints:
         if j.mimic is None:
             continue
@@ -330,17 +365,16 @@ def _check_mimics(r: _Reader, joints: list[JointSpec]) -> None:
             raise r.fail(
                 where, f"mimicked joint {target.name!r} is {target.type}, not a one-DoF joint"
             )
-        # Follow mimic chains to make sure they end at a joint with its own DoF.
-        seen = [j.name]
-        cur = target
-        while cur.mimic is not None:
-            if cur.name in seen:
-                raise r.fail(where, "mimic cycle: " + " -> ".join(seen + [cur.name]))
-            seen.append(cur.name)
-            nxt = by_name.get(cur.mimic.joint)
-            if nxt is None:  # reported when that joint itself is checked
-                break
-            cur = nxt
+        # Follow the chain of mimics to make sure it ends at a joint with its own DoF.
+        walk: dict[str, int] = {}  # joint -> position on this walk
+        cur: JointSpec | None = j
+        while cur is not None and cur.mimic is not None and cur.name not in ends:
+            if cur.name in walk:
+                names = list(walk) + [cur.name]
+                raise r.fail(where, "mimic cycle: " + " -> ".join(repr(n) for n in names))
+            walk[cur.name] = len(walk)
+            cur = by_name.get(cur.mimic.joint)
+        ends.update(walk)
 
 
 def _parse_root(r: _Reader, root: ET.Element) -> RobotSpec:
@@ -348,12 +382,12 @@ def _parse_root(r: _Reader, root: ET.Element) -> RobotSpec:
         raise r.fail(f"<{_local(root.tag)}>", "the root element must be <robot>")
     name = r.attr(root, "name", "<robot>")
 
-    links: list[str] = []
+    links: dict[str, None] = {}  # an ordered set: document order, constant-time lookups
     for i, el in enumerate(r.children(root, "link")):
         lname = r.attr(el, "name", _describe("link", None, i))
         if lname in links:
             raise r.fail(_describe("link", lname, i), "duplicate link name")
-        links.append(lname)
+        links[lname] = None
     if not links:
         raise r.fail("<robot>", "no <link> elements")
 
@@ -366,7 +400,7 @@ def _parse_root(r: _Reader, root: ET.Element) -> RobotSpec:
         names.add(j.name)
         joints.append(j)
 
-    root_link = _check_tree(r, links, joints)
+    root_link = _check_tree(r, list(links), joints)
     _check_mimics(r, joints)
     return RobotSpec(name, tuple(links), tuple(joints), root_link, r.source)
 
