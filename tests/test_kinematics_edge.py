@@ -3,9 +3,12 @@ malformed URDF numbers, hostile names, and robots with thousands of links or joi
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 from torchlie.kinematics import Chain, URDFError, parse_urdf, sample_robot
+from torchlie.kinematics import validate as V
 
 F64 = torch.float64
 
@@ -63,9 +66,61 @@ def tree() -> Chain:
 # ----------------------------------------------------------------------------------------------
 
 
+@pytest.mark.parametrize("batch", [(0,), (3, 0), (0, 2)])
+def test_empty_batch_gives_empty_poses_and_jacobians(tree, batch):
+    # tree has every joint type, mimic joints included.
+    q = torch.zeros(*batch, tree.n_dof, dtype=F64)
+    poses = tree.forward_kinematics(q)
+    assert list(poses) == list(tree.link_names)
+    assert all(T.shape == (*batch, 4, 4) for T in poses.values())
+    T = tree.forward_kinematics(q, stacked=True)
+    assert T.shape == (*batch, len(tree.link_names), 4, 4)
+    for link in ("drone_camera", "right_index", "left_finger_b", tree.root):
+        assert tree.jacobian(q, link).shape == (*batch, 6, tree.n_dof)
+    assert tree.random_configuration(*batch).shape == (*batch, tree.n_dof)
+
+
+def test_empty_batch_keeps_gradients_flowing(tree):
+    q = torch.zeros(0, tree.n_dof, dtype=F64, requires_grad=True)
+    T = tree.forward_kinematics(q, "drone_camera")["drone_camera"]
+    J = tree.jacobian(q, "right_index")
+    (g,) = torch.autograd.grad(T.sum() + J.sum(), q)
+    assert g.shape == (0, tree.n_dof)
+
+
+def test_no_links_asked_for_gives_an_empty_result(tree):
+    q = tree.random_configuration(2)
+    assert tree.forward_kinematics(q, []) == {}
+    assert tree.forward_kinematics(q, [], stacked=True).shape == (2, 0, 4, 4)
+
+
 # ----------------------------------------------------------------------------------------------
 # Robots without degrees of freedom
 # ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "text", [FIXED_ONLY, SINGLE_LINK], ids=["fixed_only", "single_link"]
+)
+def test_robot_without_dof_has_constant_poses_and_empty_jacobians(text):
+    chain = Chain.from_urdf(text, dtype=F64)
+    assert chain.n_dof == 0
+    for batch in [(), (4,), (0,), (2, 3)]:
+        q = chain.random_configuration(*batch)
+        assert q.shape == (*batch, 0)
+        for link in chain.link_names:
+            assert chain.jacobian(q, link).shape == (*batch, 6, 0)
+        T = chain.forward_kinematics(q, stacked=True)
+        assert T.shape == (*batch, len(chain.link_names), 4, 4)
+    T = chain.forward_kinematics(torch.zeros(5, 0, dtype=F64))
+    expected = torch.eye(4, dtype=F64)
+    if "b" in T:
+        expected[:3, 3] = torch.tensor([1.0, 2.0, 3.0], dtype=F64)
+        torch.testing.assert_close(T["b"], expected.expand(5, 4, 4), rtol=0, atol=0)
+        torch.testing.assert_close(T["c"], expected.expand(5, 4, 4), rtol=0, atol=0)
+    torch.testing.assert_close(
+        T["a"], torch.eye(4, dtype=F64).expand(5, 4, 4), rtol=0, atol=0
+    )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -73,9 +128,96 @@ def tree() -> Chain:
 # ----------------------------------------------------------------------------------------------
 
 
+def test_random_configuration_rejects_negative_or_non_integer_sizes(tree):
+    fn = "torchlie.kinematics.Chain.random_configuration"
+    with pytest.raises(
+        ValueError, match=rf"{fn}: expected batch sizes >= 0, got batch=\(-1,\)"
+    ):
+        tree.random_configuration(-1)
+    with pytest.raises(ValueError, match=rf"{fn}: .* got batch=\(2, -3\)"):
+        tree.random_configuration(2, -3)
+    for size in (2.0, "2", None, True):
+        with pytest.raises(
+            TypeError, match=f"{fn}: expected batch sizes to be integers"
+        ):
+            tree.random_configuration(size)
+    assert tree.random_configuration(torch.tensor(2)).shape == (2, tree.n_dof)
+
+
+def test_links_of_the_wrong_type_are_a_clear_type_error(tree):
+    q = tree.random_configuration(2)
+    fk = "torchlie.kinematics.Chain.forward_kinematics"
+    with pytest.raises(
+        TypeError, match=rf"{fk}: expected links to be a link name, .* got int 3"
+    ):
+        tree.forward_kinematics(q, links=3)
+    with pytest.raises(TypeError, match=rf"{fk}: .* got a list whose item 1 is int 7"):
+        tree.forward_kinematics(q, ["world", 7])
+    with pytest.raises(TypeError, match=rf"{fk}: .* got set"):
+        tree.forward_kinematics(
+            q, {"world"}
+        )  # no order: a dict or stack would be arbitrary
+    with pytest.raises(
+        ValueError, match=rf"{fk}: unknown link 'nope' \(the links are 'world',"
+    ):
+        tree.forward_kinematics(q, ("world", "nope"))
+    jac = "torchlie.kinematics.Chain.jacobian"
+    for link, got in ((["drone", "puck"], "list"), (None, "NoneType"), (3, "int")):
+        with pytest.raises(TypeError, match=rf"{jac}: expected link to be one link name \(str\), "
+                           rf"got {got}.*call jacobian once per link"):  # fmt: skip
+            tree.jacobian(q, link)
+
+
 # ----------------------------------------------------------------------------------------------
 # Extreme numbers
 # ----------------------------------------------------------------------------------------------
+
+
+def test_huge_finite_origin_is_computed_in_float64_and_rejected_in_float32():
+    text = robot(joint(inner='<origin xyz="1e308 0 0"/>') + joint("k", "revolute", "b", "c"),
+                 ("a", "b", "c"))  # fmt: skip
+    assert parse_urdf(text).joints[0].xyz == (1e308, 0.0, 0.0)
+    chain = Chain.from_urdf(text, dtype=F64)
+    q = torch.tensor([[0.3, -0.2]], dtype=F64)
+    T = chain.forward_kinematics(q)
+    assert T["c"][0, 0, 3].item() == 1e308  # no overflow here: computed exactly
+    assert bool(torch.isfinite(T["c"]).all())
+    J = chain.jacobian(q, "c")
+    assert bool(torch.isfinite(J).all()) and J[0, 3:, 1].tolist() == pytest.approx(
+        T["b"][0, :3, 0].tolist()
+    )
+    with pytest.raises(URDFError) as info:
+        Chain.from_urdf(text)  # float32: the constant itself would be inf
+    e = info.value
+    assert e.source == "<string>" and e.element == "<joint name='j'> <origin>"
+    assert e.problem.startswith("attribute 'xyz' value 1e+308 overflows torch.float32")
+    assert V.main([text, "--samples", "2", "--dtype", "float32", "--no-pk"]) == 2
+
+
+def test_overflowing_sum_of_origins_is_inf_not_an_error():
+    text = robot(
+        joint("j", "fixed", "a", "b", '<origin xyz="1e308 0 0"/>')
+        + joint("k", "fixed", "b", "c", '<origin xyz="1e308 0 0"/>'),
+        ("a", "b", "c"),
+    )
+    T = Chain.from_urdf(text, dtype=F64).forward_kinematics(torch.zeros(0, dtype=F64))
+    assert T["c"][0, 3].item() == math.inf  # IEEE overflow, as documented
+
+
+def test_mimic_multipliers_whose_product_overflows_are_rejected():
+    text = robot(
+        joint("j1", "revolute", "a", "b")
+        + joint("j2", "revolute", "b", "c", '<mimic joint="j1" multiplier="1e200"/>')
+        + joint("j3", "revolute", "c", "d", '<mimic joint="j2" multiplier="1e200"/>'),
+        ("a", "b", "c", "d"),
+    )
+    with pytest.raises(URDFError) as info:
+        Chain.from_urdf(text, dtype=F64)
+    assert info.value.element == "<joint name='j3'> <mimic>"
+    assert (
+        "the multiplier composed along its chain of mimic joints, inf"
+        in info.value.problem
+    )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -187,6 +329,31 @@ def test_parses_twenty_thousand_links():
     )
 
 
+@pytest.mark.parametrize("reverse", [False, True], ids=["forward", "reverse"])
+def test_long_chain_of_mimic_joints_composes(reverse):
+    n = 2_000
+    chain = Chain.from_urdf(serial(n, mimic=True, reverse=reverse), dtype=F64)
+    assert chain.joint_names == (f"j{n - 1}" if reverse else "j0",)
+    # Joint j{k}'s value is q + 0.001 * (its distance along the mimics from the joint with
+    # the DoF), each with multiplier 1: the end's angular Jacobian column is the sum of the
+    # joints' world axes (all n mimic columns folded into the one DoF) ...
+    q = torch.tensor([[0.2]], dtype=F64)
+    J = chain.jacobian(q, f"l{n}")
+    T = chain.forward_kinematics(q, [f"l{k}" for k in range(1, n + 1)], stacked=True)[0]
+    axes = T[:, :3, :3] @ torch.tensor(
+        [0.0, 0.6, 0.8], dtype=F64
+    )  # joint k's, child l{k+1}
+    torch.testing.assert_close(J[0, 3:, 0], axes.sum(0), atol=1e-9, rtol=0)
+    # ... and joint j{k} turns its child by its own value relative to its parent.
+    one = Chain.from_urdf(serial(1), dtype=F64)
+    for k in (1, n // 2, n - 1):
+        value = 0.2 + 0.001 * (n - 1 - k if reverse else k)
+        expected = one.forward_kinematics(torch.tensor([value], dtype=F64), "l1")["l1"]
+        torch.testing.assert_close(
+            torch.linalg.solve(T[k - 1], T[k]), expected, atol=1e-9, rtol=0
+        )
+
+
 def _geometric_jacobian(chain: Chain, q: torch.Tensor, n: int) -> torch.Tensor:
     """Column by column from the poses: (a_k x (p_end - p_k); a_k) for revolute joint k."""
     T = chain.forward_kinematics(q, [f"l{k}" for k in range(1, n + 1)], stacked=True)
@@ -194,3 +361,42 @@ def _geometric_jacobian(chain: Chain, q: torch.Tensor, n: int) -> torch.Tensor:
     p = T[..., :3, 3]
     lin = torch.linalg.cross(a, p[..., -1:, :] - p, dim=-1)
     return torch.cat((lin, a), dim=-1).transpose(-1, -2)  # (B, 6, n)
+
+
+def test_jacobian_of_a_three_thousand_joint_chain():
+    n = 3_000
+    chain = Chain.from_urdf(serial(n), dtype=F64)
+    q = chain.random_configuration(2, generator=torch.Generator().manual_seed(0))
+    J = chain.jacobian(q, f"l{n}")
+    assert J.shape == (2, 6, n)
+    torch.testing.assert_close(J, _geometric_jacobian(chain, q, n), atol=1e-10, rtol=0)
+    # A link halfway: the columns of the joints below it are zero.
+    Jm = chain.jacobian(q, f"l{n // 2}")
+    assert bool((Jm[..., n // 2 :] == 0).all())
+    torch.testing.assert_close(
+        Jm[..., : n // 2], _geometric_jacobian(chain, q, n // 2), atol=1e-10, rtol=0
+    )
+
+
+def test_jacobian_of_a_chain_with_mimics_matches_jacrev():
+    for chain in (
+        Chain.from_urdf(serial(40, mimic=True), dtype=F64),
+        Chain.from_urdf(serial(40), dtype=F64),
+    ):
+        q = chain.random_configuration(3, generator=torch.Generator().manual_seed(1))
+
+        def position(x, chain=chain):
+            return chain.forward_kinematics(x, "l40")["l40"][..., :3, 3]
+
+        Jp = torch.vmap(torch.func.jacrev(position))(q)  # (B, 3, n_dof)
+        assert Jp.shape == (3, 3, chain.n_dof)
+        torch.testing.assert_close(
+            chain.jacobian(q, "l40")[:, :3], Jp, atol=1e-12, rtol=0
+        )
+
+
+def test_mimic_jacobian_under_vmap(tree):
+    q = tree.random_configuration(3, 2, generator=torch.Generator().manual_seed(2))
+    for link in ("right_index", "left_finger_b"):
+        J = torch.func.vmap(lambda x, link=link: tree.jacobian(x, link))(q)
+        torch.testing.assert_close(J, tree.jacobian(q, link), atol=1e-15, rtol=0)

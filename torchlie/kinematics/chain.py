@@ -32,20 +32,39 @@ Conventions
   in world coordinates at the link's origin: column ``i`` holds ``(dp/dq_i, w_i)`` where
   ``dR/dq_i = hat(w_i) R``.  Same meaning as pytorch-kinematics' ``jacobian``.
 
+Deliberate conventions at the edges:
+
+* Every batch shape is accepted, empty ones included: ``q`` of shape ``(0, n_dof)`` gives
+  poses ``(0, 4, 4)`` and Jacobians ``(0, 6, n_dof)``, like every torchlie op.
+* A robot without degrees of freedom (one link, or fixed joints only) takes ``q`` of shape
+  ``(..., 0)``; its poses are constants and its Jacobians have no columns, ``(..., 6, 0)``.
+* Numbers: a constant of the chain that does not fit its dtype (an ``<origin>`` translation
+  beyond ``3.4e38`` in a float32 chain, or mimic multipliers whose product overflows) raises
+  :class:`~torchlie.kinematics.URDFError` naming the joint and the value when the chain is
+  built.  With constants that fit, poses follow plain IEEE arithmetic: a pose whose
+  translation overflows (two origins of ``1e308`` in float64) is ``inf`` there, and the links
+  below it get ``nan`` entries (the 4x4 products multiply that ``inf`` by the bottom row's
+  zeros).  No check on values is made at run time (it would cost a device sync).
+
 Implementation: the joints of each tree depth are computed together, per joint kind, with one
 matrix product per depth.  A child pose is linear in a few features of its joint value
 (``T_parent @ T_origin @ M(q) = sum_f feat_f(q) T_parent @ C_f`` with constant ``C_f``, e.g.
 ``1, sin q, 1 - cos q`` for a revolute joint), so a depth costs one GEMM of the parents'
 poses against the stacked ``C_f`` plus a few fused multiply-adds.  Poses are kept internally
 as ``(4, 4, batch)`` (batch innermost) so those element-wise ops run over long contiguous
-rows; the public results are ordinary contiguous ``(..., 4, 4)`` tensors.  Everything is plain
+rows; the public results are ordinary contiguous ``(..., 4, 4)`` tensors.  A Jacobian is one
+column per moving joint on the link's path (a world direction, and for a rotation its moment
+about the link), each added into its DoF's column by one ``index_add`` (mimic joints share a
+DoF), so time and memory are linear in the number of joints.  Everything is plain
 differentiable torch, so first and second derivatives with respect to ``q`` are exact.
 """
 
 from __future__ import annotations
 
 import math
+import operator
 import os
+import reprlib
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
@@ -55,7 +74,7 @@ from torch import Tensor
 from .. import _checks
 from .. import so3 as _so3
 from .._typing import Float
-from .urdf import JointSpec, RobotSpec, parse_urdf
+from .urdf import JointSpec, RobotSpec, URDFError, _describe, parse_urdf
 
 __all__ = ["Chain", "rpy_matrix"]
 
@@ -196,6 +215,73 @@ def _columns(
     ), None
 
 
+def _resolve_mimics(spec: RobotSpec, dof_of: dict[str, int]) -> dict[str, tuple[int, float, float]]:
+    """Mimic joint -> ``(DoF, mult, off)`` with value ``mult * q[DoF] + off``, chains composed.
+
+    Each joint is resolved once (memoised), so a chain of ``n`` mimics costs ``O(n)``.
+    """
+    by_name = {j.name: j for j in spec.joints}
+    resolved: dict[str, tuple[int, float, float]] = {}
+    for j in spec.joints:
+        if j.mimic is None or j.name in resolved:
+            continue
+        stack: list[JointSpec] = []  # mimic joints not yet resolved, j first
+        on_stack: set[str] = set()
+        cur = j
+        while cur.mimic is not None and cur.name not in resolved:
+            if cur.name in on_stack:  # parse_urdf rejects this; a hand-made RobotSpec may not
+                raise ValueError(f"{_NAME}__init__: mimic cycle through joint {cur.name!r}")
+            stack.append(cur)
+            on_stack.add(cur.name)
+            cur = by_name[cur.mimic.joint]
+        src, mult, off = (
+            resolved[cur.name] if cur.mimic is not None else (dof_of[cur.name], 1.0, 0.0)
+        )
+        for k in reversed(stack):  # value(k) = m * (mult * q + off) + c
+            spec_k = k.mimic
+            assert spec_k is not None
+            mult, off = spec_k.multiplier * mult, spec_k.multiplier * off + spec_k.offset
+            resolved[k.name] = (src, mult, off)
+    return {j.name: resolved[j.name] for j in spec.joints if j.mimic is not None}
+
+
+def _check_representable(
+    spec: RobotSpec, dtype: torch.dtype, mimic_mult: list[float], mimic_off: list[float]
+) -> None:
+    """Raise :class:`URDFError` where a constant of the chain overflows ``dtype``.
+
+    The origins' translations and the mimic joints' composed multipliers and offsets become
+    constants of the chain; one beyond the dtype's range (``3.4e38`` for float32; in float64
+    only a product of mimic multipliers can get there) would be ``inf`` and make every pose
+    below it ``nan``, so it is an error naming the joint and the value.  Rotations and axes are
+    bounded by construction; a limit beyond the range is ``inf`` (no limit).
+    """
+
+    def first_overflow(values: list[float]) -> int | None:
+        ok = torch.isfinite(torch.tensor(values, dtype=torch.float64).to(dtype))
+        return None if bool(ok.all()) else int((~ok).nonzero()[0, 0])
+
+    big = f"{dtype} (largest finite {torch.finfo(dtype).max:.6g})"
+    k = first_overflow([x for j in spec.joints for x in j.xyz])
+    if k is not None:
+        j = spec.joints[k // 3]
+        raise URDFError(
+            spec.source,
+            _describe("joint", j.name, 0, "origin"),
+            f"attribute 'xyz' value {j.xyz[k % 3]!r} overflows {big}; use dtype=torch.float64",
+        )
+    mimics = [j for j in spec.joints if j.mimic is not None]
+    for what, values in (("multiplier", mimic_mult), ("offset", mimic_off)):
+        k = first_overflow(values)
+        if k is not None:
+            raise URDFError(
+                spec.source,
+                _describe("joint", mimics[k].name, 0, "mimic"),
+                f"the {what} composed along its chain of mimic joints, {values[k]!r}, "
+                f"overflows {big}",
+            )
+
+
 # ----------------------------------------------------------------------------------------------
 # Static description of the tree (dtype-free)
 # ----------------------------------------------------------------------------------------------
@@ -242,7 +328,13 @@ class _JacPlan:
     n_rot_const: int  # the first n_rot_const of them are rotational
     rot_children: list[int]  # the child link (rotation centre) of each
     floats: list[tuple[int, int, int, Tensor]]  # floating joints: parent, child, rotvec dof, O_R
-    weights: Tensor  # (n_dof, n_cols): columns -> DoFs (mimic multipliers included)
+    # Column k of the link's motion adds col_weight[k] times itself to the Jacobian column of
+    # DoF dof_index[k] (several columns feed one DoF through mimic joints); col_weight is None
+    # when every weight is 1.  Two vectors of the columns' length, so memory is linear in the
+    # number of joints.
+    dof_index: Tensor  # (n_cols,) long
+    col_weight: Tensor | None  # (n_cols,)
+    in_dof_order: bool  # column k is DoF k's, for every DoF (a serial arm): no scatter needed
 
 
 def _rows_index(rows: Sequence[int], device: torch.device) -> object:
@@ -332,24 +424,17 @@ class Chain:
         self.upper = self._limits64[1].to(dtype=dtype, device=self.device)
 
         # Mimic joints: value row = n_dof + k, q[src] * mult + off (chains resolved).
-        by_name = {j.name: j for j in spec.joints}
         mimic_src: list[int] = []
         mimic_mult: list[float] = []
         mimic_off: list[float] = []
         row_of: dict[str, int] = {}
-        for j in spec.joints:
-            if j.mimic is None:
-                continue
-            mult, off, cur = 1.0, 0.0, j
-            while cur.mimic is not None:  # value(j) = mult * value(cur) + off
-                off += mult * cur.mimic.offset
-                mult *= cur.mimic.multiplier
-                cur = by_name[cur.mimic.joint]
-            row_of[j.name] = self.n_dof + len(mimic_src)
-            mimic_src.append(dof_of[cur.name])
+        for name, (src, mult, off) in _resolve_mimics(spec, dof_of).items():
+            row_of[name] = self.n_dof + len(mimic_src)
+            mimic_src.append(src)
             mimic_mult.append(mult)
             mimic_off.append(off)
         self._mimic = (mimic_src, mimic_mult, mimic_off)
+        _check_representable(spec, dtype, mimic_mult, mimic_off)
         # Per DoF column of the Jacobian: which joints (and with which multiplier) move it.
         self._mimic_of = {
             j.name: (
@@ -469,7 +554,9 @@ class Chain:
         Coordinates without limits are drawn from ``[-pi, pi]`` (continuous joints, planar
         rotation), ``[-1, 1]`` m (planar and floating translations) and
         ``[-pi/sqrt(3), pi/sqrt(3)]`` per rotation-vector component (floating rotations).
-        Drawn on the CPU in float64 (with ``generator`` if given), then converted.
+        Drawn on the CPU in float64 (with ``generator`` if given), then converted.  Each batch
+        size is a non-negative integer (0 gives an empty batch); anything else raises
+        ``TypeError``/``ValueError``.
 
         Example:
             >>> from torchlie.kinematics import sample_robot
@@ -478,6 +565,21 @@ class Chain:
             >>> bool(((q >= arm.lower) & (q <= arm.upper)).all())
             True
         """
+        fn = _NAME + "random_configuration"
+        sizes: list[int] = []
+        for b in batch:
+            try:
+                if isinstance(b, bool):
+                    raise TypeError
+                size = operator.index(b)  # ints, numpy integers, integer 0-d tensors
+            except TypeError:
+                raise TypeError(
+                    f"{fn}: expected batch sizes to be integers, got {type(b).__name__} "
+                    f"{reprlib.repr(b)} in batch={reprlib.repr(batch)}"
+                ) from None
+            if size < 0:
+                raise ValueError(f"{fn}: expected batch sizes >= 0, got batch={batch!r}")
+            sizes.append(size)
         lo, hi = self._limits64[0].clone(), self._limits64[1].clone()
         for i, name in enumerate(self.joint_names):
             if math.isfinite(lo[i]) and math.isfinite(hi[i]):
@@ -490,7 +592,7 @@ class Chain:
             else:
                 r = _FREE_ANGLE
             lo[i], hi[i] = -r, r
-        u = torch.rand(*batch, self.n_dof, generator=generator, dtype=torch.float64)
+        u = torch.rand(*sizes, self.n_dof, generator=generator, dtype=torch.float64)
         return (lo + (hi - lo) * u).to(dtype=self.dtype, device=self.device)
 
     # ------------------------------------------------------------------------------------------
@@ -620,16 +722,18 @@ class Chain:
         B = q2.shape[0]
         v = self._values(q2)
         # Feature banks, shaped (rows, 1, 1, B) to broadcast over a group's (n, 4, 4, B).
-        banks: dict[str, Tensor] = {"v": v.view(-1, 1, 1, B)}
+        # Every size is spelled out: with an empty batch (B = 0) a -1 would be ambiguous.
+        banks: dict[str, Tensor] = {"v": v.view(v.shape[0], 1, 1, B)}
         if plan.rot_sel is not None:
             x = _take(v, plan.rot_sel)
-            banks["s"] = torch.sin(x).view(-1, 1, 1, B)
-            banks["c"] = (1.0 - torch.cos(x)).view(-1, 1, 1, B)
+            banks["s"] = torch.sin(x).view(x.shape[0], 1, 1, B)
+            banks["c"] = (1.0 - torch.cos(x)).view(x.shape[0], 1, 1, B)
         if plan.float_idx is not None:
-            vals = v.index_select(0, plan.float_idx).view(-1, 6, B)
+            nf = plan.float_idx.shape[0] // 6
+            vals = v.index_select(0, plan.float_idx).view(nf, 6, B)
             R = _so3.exp(vals[:, 3:].transpose(1, 2))  # (n, B, 3, 3)
-            F = torch.cat((R.permute(0, 2, 3, 1).reshape(-1, 9, B), vals[:, :3]), dim=1)
-            banks["F"] = F.view(-1, 1, 1, B)
+            F = torch.cat((R.permute(0, 2, 3, 1).reshape(nf, 9, B), vals[:, :3]), dim=1)
+            banks["F"] = F.view(nf * 12, 1, 1, B)
 
         out: list[list[Tensor]] = []
         for groups in plan.levels:
@@ -642,8 +746,9 @@ class Chain:
                     how, gi, sel = g.parent_src
                     prev = out[-1][gi] if how == "group" else torch.cat(out[-1], dim=0)
                     P = prev if sel is None else _take(prev, sel)
-                    n = P.shape[0]
-                    Y = torch.bmm(g.ct, P.reshape(n, 4, 4 * B)).view(n, -1, 4, 4, B).unbind(1)
+                    n, K4 = g.ct.shape[:2]
+                    prod = torch.bmm(g.ct, P.reshape(n, 4, 4 * B))
+                    Y = prod.view(n, K4 // 4, 4, 4, B).unbind(1)
                 if not g.feats:
                     res.append(Y[0].expand(-1, 4, 4, B) if g.parent_src is None else Y[0])
                     continue
@@ -677,18 +782,34 @@ class Chain:
         return x.reshape(math.prod(batch), self.n_dof), out_dtype, batch
 
     def _targets(self, links: str | Sequence[str] | None, fn: str) -> tuple[int, ...]:
+        """Indices of ``links``: a name, a sequence of names (not a set: order matters), None."""
         if links is None:
             names: Sequence[str] = self.link_names
         elif isinstance(links, str):
             names = (links,)
-        else:
+        elif isinstance(links, Sequence) and not isinstance(links, (bytes, bytearray)):
             names = tuple(links)
-        bad = [n for n in names if n not in self._index]
-        if bad:
-            raise ValueError(
-                f"{_NAME}{fn}: unknown link {bad[0]!r} (the links are {', '.join(self.link_names)})"
+            for k, n in enumerate(names):
+                if not isinstance(n, str):
+                    raise TypeError(
+                        f"{_NAME}{fn}: expected links to be a link name, a sequence of link "
+                        f"names or None, got a {type(links).__name__} whose item {k} is "
+                        f"{type(n).__name__} {reprlib.repr(n)}"
+                    )
+        else:
+            raise TypeError(
+                f"{_NAME}{fn}: expected links to be a link name, a sequence of link names or "
+                f"None, got {type(links).__name__} {reprlib.repr(links)}"
             )
+        for n in names:
+            if n not in self._index:
+                raise ValueError(f"{_NAME}{fn}: unknown link {n!r} ({self._some_links()})")
         return tuple(self._index[n] for n in names)
+
+    def _some_links(self, shown: int = 12) -> str:
+        names = ", ".join(repr(n) for n in self.link_names[:shown])
+        more = len(self.link_names) - shown
+        return f"the links are {names}" + (f" and {more} more" if more > 0 else "")
 
     def forward_kinematics(
         self,
@@ -724,6 +845,10 @@ class Chain:
         """
         q2, out_dtype, batch = self._prepare(q, "forward_kinematics")
         targets = self._targets(links, "forward_kinematics")
+        if not targets:  # links=[]: nothing asked for
+            if stacked:
+                return _checks.out(q2.new_zeros(*batch, 0, 4, 4), out_dtype)
+            return {}
         plan = self._plan(targets)
         B = q2.shape[0]
         out = self._run(plan, q2)
@@ -775,24 +900,27 @@ class Chain:
                     (link.parent, link.index, d0, torch.tensor(O_R, dtype=dt, device=dev))
                 )
 
-        n_rot = len(rot) + 3 * len(floats)
-        weights = [[0.0] * (n_rot + len(tr)) for _ in range(self.n_dof)]
-        for k, (_, _, _, d, w) in enumerate(rot):
-            weights[d][k] += w
-        for f, (_, _, d0, _) in enumerate(floats):
-            for k in range(3):
-                weights[d0 + k][len(rot) + 3 * f + k] += 1.0
-        for k, (_, _, d, w) in enumerate(tr):
-            weights[d][n_rot + k] += w
+        # Columns in the order they are stacked: constant rotations, floating rotations,
+        # translations.
+        dofs = [d for *_, d, _ in rot]
+        dofs += [d0 + k for _, _, d0, _ in floats for k in range(3)]
+        dofs += [d for *_, d, _ in tr]
+        col_w = [w for *_, w in rot] + [1.0] * (3 * len(floats)) + [w for *_, w in tr]
         vs = [list(v) for _, v, *_ in rot] + [list(v) for _, v, *_ in tr]
         plan = _JacPlan(
             fk=self._plan((target,)),
             parents=[p for p, *_ in rot] + [p for p, *_ in tr],
-            vs=torch.tensor(vs, dtype=dt, device=dev).view(-1, 1, 3) if vs else None,
+            vs=torch.tensor(vs, dtype=dt, device=dev).view(len(vs), 1, 3) if vs else None,
             n_rot_const=len(rot),
             rot_children=[c for _, _, c, _, _ in rot],
             floats=floats,
-            weights=torch.tensor(weights, dtype=dt, device=dev).view(self.n_dof, -1),
+            dof_index=torch.tensor(dofs, dtype=torch.long, device=dev),
+            in_dof_order=dofs == list(range(self.n_dof)),
+            col_weight=(
+                None
+                if all(w == 1.0 for w in col_w)
+                else torch.tensor(col_w, dtype=dt, device=dev).view(len(col_w), 1, 1)
+            ),
         )
         if not torch.compiler.is_compiling():
             self._jac_plans[target] = plan
@@ -800,6 +928,13 @@ class Chain:
 
     def jacobian(self, q: Float[Tensor, "*b n_dof"], link: str) -> Float[Tensor, "*b 6 n_dof"]:
         """Geometric Jacobian of ``link``'s frame, ``(..., 6, n_dof)``, in closed form.
+
+        ``link`` is one link name (a ``str``): unlike :meth:`forward_kinematics`, which takes
+        several links and returns a dict, the Jacobian is of one frame, so a list or ``None``
+        raises ``TypeError`` (call it once per link; only the links on the path from the root
+        are computed, so a call costs what that one link needs).  A robot without degrees of
+        freedom, or the root link, gives an all-zero or empty ``(..., 6, n_dof)``; an empty
+        batch gives an empty result.
 
         Rows are (linear; angular) velocity in world coordinates, the linear part at the link's
         origin: column ``i`` is ``(z x (p - p_i); z)`` for a revolute joint with world axis
@@ -818,6 +953,12 @@ class Chain:
             (torch.Size([2, 6, 7]), tensor([0., 0., 1.]))
         """
         q2, out_dtype, batch = self._prepare(q, "jacobian")
+        if not isinstance(link, str):
+            raise TypeError(
+                f"{_NAME}jacobian: expected link to be one link name (str), got "
+                f"{type(link).__name__} {reprlib.repr(link)}; for several links call jacobian "
+                "once per link"
+            )
         (target,) = self._targets(link, "jacobian")
         jp = self._jac_plan(target)
         B = q2.shape[0]
@@ -851,6 +992,11 @@ class Chain:
             J = q2.new_zeros(B, 6, self.n_dof)
         else:
             C = torch.cat(cols) if len(cols) > 1 else cols[0]  # (n_cols, 6, B)
-            Jd = torch.matmul(jp.weights, C.reshape(C.shape[0], 6 * B)).view(self.n_dof, 6, B)
+            if jp.col_weight is not None:
+                C = C * jp.col_weight
+            if jp.in_dof_order:
+                Jd = C
+            else:  # each column into its DoF's column (summed where mimic joints share one)
+                Jd = C.new_zeros(self.n_dof, 6, B).index_add(0, jp.dof_index, C)
             J = Jd.permute(2, 1, 0)
         return _checks.out(J.reshape(*batch, 6, self.n_dof).contiguous(), out_dtype)

@@ -89,8 +89,8 @@ def _motion(j: JointSpec, vals: Tensor) -> Tensor:
     """``(B, 4, 4)`` joint motion ``M(q)`` for the joint's values ``vals`` ``(B, k)``."""
     B = vals.shape[0]
     M = torch.eye(4, dtype=torch.float64).repeat(B, 1, 1)
-    ax = torch.tensor(j.axis, dtype=torch.float64)
-    ax = ax / math.sqrt(float(ax @ ax))
+    norm = math.hypot(*j.axis)  # no overflow for huge components (ax @ ax would be inf)
+    ax = torch.tensor([x / norm for x in j.axis], dtype=torch.float64)
     if j.type in ("revolute", "continuous"):
         M[:, :3, :3] = _rodrigues(ax, vals[:, 0])
     elif j.type == "prismatic":
@@ -139,25 +139,37 @@ def reference_forward_kinematics(spec: RobotSpec, q: Tensor) -> dict[str, Tensor
     for i, n in enumerate(names):
         start.setdefault(n.split(":")[0], i)
 
-    def values(j: JointSpec) -> Tensor:
-        if j.mimic is not None:
-            target = by_joint[j.mimic.joint]
-            return values(target) * j.mimic.multiplier + j.mimic.offset
+    def own(j: JointSpec) -> Tensor:
         if j.type == "fixed":
             return q[:, :0]
         k = {"planar": 3, "floating": 6}.get(j.type, 1)
         return q[:, start[j.name] : start[j.name] + k]
 
+    # Mimic values, each computed once: walk a chain of mimics up to its first known value,
+    # then back down (no recursion, so chains of any length).
+    memo: dict[str, Tensor] = {}
+
+    def values(j: JointSpec) -> Tensor:
+        chain: list[JointSpec] = []
+        cur = j
+        while cur.mimic is not None and cur.name not in memo:
+            chain.append(cur)
+            cur = by_joint[cur.mimic.joint]
+        v = memo[cur.name] if cur.mimic is not None else own(cur)
+        for m in reversed(chain):
+            assert m.mimic is not None
+            v = memo[m.name] = v * m.mimic.multiplier + m.mimic.offset
+        return v
+
+    children: dict[str, list[JointSpec]] = {}
+    for j in spec.joints:
+        children.setdefault(j.parent, []).append(j)
     poses = {spec.root: torch.eye(4, dtype=torch.float64).repeat(B, 1, 1)}
-    pending = list(spec.joints)
-    while pending:
-        rest = []
-        for j in pending:
-            if j.parent not in poses:
-                rest.append(j)
-                continue
+    stack = [spec.root]  # parents before children
+    while stack:
+        for j in children.get(stack.pop(), ()):
             poses[j.child] = poses[j.parent] @ _origin(j) @ _motion(j, values(j))
-        pending = rest
+            stack.append(j.child)
     return {link: poses[link] for link in spec.links}
 
 
