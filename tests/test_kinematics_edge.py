@@ -3,10 +3,12 @@ malformed URDF numbers, hostile names, and robots with thousands of links or joi
 
 from __future__ import annotations
 
+import io
 import math
 
 import pytest
 import torch
+
 from torchlie.kinematics import Chain, URDFError, parse_urdf, sample_robot
 from torchlie.kinematics import validate as V
 
@@ -14,18 +16,11 @@ F64 = torch.float64
 
 
 def robot(body: str, links: tuple[str, ...] = ("a", "b")) -> str:
-    return (
-        '<robot name="r">'
-        + "".join(f'<link name="{n}"/>' for n in links)
-        + body
-        + "</robot>"
-    )
+    return '<robot name="r">' + "".join(f'<link name="{n}"/>' for n in links) + body + "</robot>"
 
 
 def joint(name="j", jtype="revolute", parent="a", child="b", inner="") -> str:
-    limit = (
-        '<limit lower="-1" upper="1"/>' if jtype in ("revolute", "prismatic") else ""
-    )
+    limit = '<limit lower="-1" upper="1"/>' if jtype in ("revolute", "prismatic") else ""
     return (
         f'<joint name="{name}" type="{jtype}"><parent link="{parent}"/>'
         f'<child link="{child}"/>{inner}{limit}</joint>'
@@ -33,8 +28,7 @@ def joint(name="j", jtype="revolute", parent="a", child="b", inner="") -> str:
 
 
 FIXED_ONLY = robot(
-    joint("m", "fixed", "a", "b", '<origin xyz="1 2 3"/>')
-    + joint("t", "fixed", "b", "c"),
+    joint("m", "fixed", "a", "b", '<origin xyz="1 2 3"/>') + joint("t", "fixed", "b", "c"),
     ("a", "b", "c"),
 )
 SINGLE_LINK = robot("", ("a",))
@@ -99,9 +93,7 @@ def test_no_links_asked_for_gives_an_empty_result(tree):
 # ----------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize(
-    "text", [FIXED_ONLY, SINGLE_LINK], ids=["fixed_only", "single_link"]
-)
+@pytest.mark.parametrize("text", [FIXED_ONLY, SINGLE_LINK], ids=["fixed_only", "single_link"])
 def test_robot_without_dof_has_constant_poses_and_empty_jacobians(text):
     chain = Chain.from_urdf(text, dtype=F64)
     assert chain.n_dof == 0
@@ -118,9 +110,50 @@ def test_robot_without_dof_has_constant_poses_and_empty_jacobians(text):
         expected[:3, 3] = torch.tensor([1.0, 2.0, 3.0], dtype=F64)
         torch.testing.assert_close(T["b"], expected.expand(5, 4, 4), rtol=0, atol=0)
         torch.testing.assert_close(T["c"], expected.expand(5, 4, 4), rtol=0, atol=0)
-    torch.testing.assert_close(
-        T["a"], torch.eye(4, dtype=F64).expand(5, 4, 4), rtol=0, atol=0
-    )
+    torch.testing.assert_close(T["a"], torch.eye(4, dtype=F64).expand(5, 4, 4), rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("text", [FIXED_ONLY, SINGLE_LINK], ids=["fixed_only", "single_link"])
+def test_validate_robot_without_dof_has_nothing_to_compare(text):
+    out = io.StringIO()
+    report = V.validate(text, samples=5, out=out, err=io.StringIO())
+    assert report.status == V.NOTHING_TO_COMPARE == "nothing to compare"
+    assert report.ok  # not a failure ...
+    assert report.links == [] and report.jacobians == [] and report.timings == {}
+    printed = out.getvalue()
+    assert "NOTHING TO COMPARE: the robot has no degree of freedom" in printed
+    assert "PASS" not in printed and "FAIL" not in printed  # ... and not a PASS of nothing
+
+
+def test_cli_robot_without_dof_says_nothing_to_compare_and_exits_0(tmp_path, capsys):
+    path = tmp_path / "fixed.urdf"
+    path.write_text(FIXED_ONLY)
+    assert V.main([str(path), "--samples", "3", "--no-progress"]) == 0
+    captured = capsys.readouterr()
+    assert "NOTHING TO COMPARE" in captured.out and "PASS" not in captured.out
+    assert captured.err == ""  # no traceback
+
+
+def test_validate_status_is_pass_when_everything_is_within_tolerance():
+    report = V.validate("arm7", samples=3, compare_pk=False, out=io.StringIO())
+    assert report.status == V.PASS and report.ok
+
+
+def test_validate_counts_nan_as_outside_tolerance(monkeypatch):
+    fk = Chain.forward_kinematics
+
+    def nan_tool(self, q, links=None, **kw):
+        out = fk(self, q, links, **kw)
+        out["tool_tcp"] = torch.full_like(out["tool_tcp"], math.nan)
+        return out
+
+    monkeypatch.setattr(Chain, "forward_kinematics", nan_tool)
+    text = io.StringIO()
+    report = V.validate("arm7", samples=3, compare_pk=False, out=text)
+    assert report.status == V.FAIL and not report.ok
+    (bad,) = [r for r in report.links if not r.ok]
+    assert bad.link == "tool_tcp" and math.isnan(bad.ref_position)
+    assert "FAIL: outside tolerance: tool_tcp" in text.getvalue()
 
 
 # ----------------------------------------------------------------------------------------------
@@ -130,36 +163,35 @@ def test_robot_without_dof_has_constant_poses_and_empty_jacobians(text):
 
 def test_random_configuration_rejects_negative_or_non_integer_sizes(tree):
     fn = "torchlie.kinematics.Chain.random_configuration"
-    with pytest.raises(
-        ValueError, match=rf"{fn}: expected batch sizes >= 0, got batch=\(-1,\)"
-    ):
+    with pytest.raises(ValueError, match=rf"{fn}: expected batch sizes >= 0, got batch=\(-1,\)"):
         tree.random_configuration(-1)
     with pytest.raises(ValueError, match=rf"{fn}: .* got batch=\(2, -3\)"):
         tree.random_configuration(2, -3)
     for size in (2.0, "2", None, True):
-        with pytest.raises(
-            TypeError, match=f"{fn}: expected batch sizes to be integers"
-        ):
+        with pytest.raises(TypeError, match=f"{fn}: expected batch sizes to be integers"):
             tree.random_configuration(size)
     assert tree.random_configuration(torch.tensor(2)).shape == (2, tree.n_dof)
+
+
+@pytest.mark.parametrize("arg", ["samples", "batch"])
+@pytest.mark.parametrize("value", [0, -1])
+def test_validate_rejects_fewer_than_one_sample_or_batch(arg, value):
+    with pytest.raises(ValueError, match=rf"validate: expected {arg} >= 1, got {value}"):
+        V.validate("arm7", out=io.StringIO(), **{arg: value})
+    with pytest.raises(TypeError, match=rf"validate: expected {arg} to be an integer"):
+        V.validate("arm7", out=io.StringIO(), **{arg: 2.5})
 
 
 def test_links_of_the_wrong_type_are_a_clear_type_error(tree):
     q = tree.random_configuration(2)
     fk = "torchlie.kinematics.Chain.forward_kinematics"
-    with pytest.raises(
-        TypeError, match=rf"{fk}: expected links to be a link name, .* got int 3"
-    ):
+    with pytest.raises(TypeError, match=rf"{fk}: expected links to be a link name, .* got int 3"):
         tree.forward_kinematics(q, links=3)
     with pytest.raises(TypeError, match=rf"{fk}: .* got a list whose item 1 is int 7"):
         tree.forward_kinematics(q, ["world", 7])
     with pytest.raises(TypeError, match=rf"{fk}: .* got set"):
-        tree.forward_kinematics(
-            q, {"world"}
-        )  # no order: a dict or stack would be arbitrary
-    with pytest.raises(
-        ValueError, match=rf"{fk}: unknown link 'nope' \(the links are 'world',"
-    ):
+        tree.forward_kinematics(q, {"world"})  # no order: a dict or stack would be arbitrary
+    with pytest.raises(ValueError, match=rf"{fk}: unknown link 'nope' \(the links are 'world',"):
         tree.forward_kinematics(q, ("world", "nope"))
     jac = "torchlie.kinematics.Chain.jacobian"
     for link, got in ((["drone", "puck"], "list"), (None, "NoneType"), (3, "int")):
@@ -204,6 +236,15 @@ def test_overflowing_sum_of_origins_is_inf_not_an_error():
     assert T["c"][0, 3].item() == math.inf  # IEEE overflow, as documented
 
 
+def test_validate_of_a_huge_origin_robot_ends_with_a_verdict():
+    text = robot(joint(inner='<origin xyz="1e308 0 0"/>') + joint("k", "revolute", "b", "c"),
+                 ("a", "b", "c"))  # fmt: skip
+    out = io.StringIO()
+    report = V.validate(text, samples=3, batch=2, compare_pk=False, out=out)
+    assert report.status == V.PASS  # float64 computes it; no float32 copy to time
+    assert list(report.timings) == ["torchlie float64"] and "PASS" in out.getvalue()
+
+
 def test_mimic_multipliers_whose_product_overflows_are_rejected():
     text = robot(
         joint("j1", "revolute", "a", "b")
@@ -214,10 +255,7 @@ def test_mimic_multipliers_whose_product_overflows_are_rejected():
     with pytest.raises(URDFError) as info:
         Chain.from_urdf(text, dtype=F64)
     assert info.value.element == "<joint name='j3'> <mimic>"
-    assert (
-        "the multiplier composed along its chain of mimic joints, inf"
-        in info.value.problem
-    )
+    assert "the multiplier composed along its chain of mimic joints, inf" in info.value.problem
 
 
 # ----------------------------------------------------------------------------------------------
@@ -231,9 +269,7 @@ def test_mimic_multipliers_whose_product_overflows_are_rejected():
      ("1E+2", 100.0), ("007", 7.0), ("0.1", 0.1), (" \t2.5\n", 2.5)],
 )  # fmt: skip
 def test_numbers_in_xml_schema_double_syntax_are_read(text, value):
-    spec = parse_urdf(
-        robot(joint("j", "revolute").replace('upper="1"', f'upper="{text}"'))
-    )
+    spec = parse_urdf(robot(joint("j", "revolute").replace('upper="1"', f'upper="{text}"')))
     assert spec.joints[0].upper == value
 
 
@@ -261,9 +297,7 @@ def test_lists_are_separated_by_xml_whitespace_only():
     spec = parse_urdf(robot(joint(inner='<origin xyz="1\t2\n 3"/>')))
     assert spec.joints[0].xyz == (1.0, 2.0, 3.0)
     with pytest.raises(URDFError, match="attribute 'xyz' must be three numbers"):
-        parse_urdf(
-            robot(joint(inner='<origin xyz="1\u20032 3"/>'))
-        )  # em space: not XML's
+        parse_urdf(robot(joint(inner='<origin xyz="1\u20032 3"/>')))  # em space: not XML's
 
 
 # ----------------------------------------------------------------------------------------------
@@ -289,10 +323,7 @@ def test_names_in_error_messages_cannot_forge_log_lines(tmp_path):
     )
     with pytest.raises(URDFError) as info:
         parse_urdf(cycle)
-    assert (
-        "\n" not in str(info.value)
-        and "'p\\nq' -> 'r' -> 'p\\nq'" in info.value.problem
-    )
+    assert "\n" not in str(info.value) and "'p\\nq' -> 'r' -> 'p\\nq'" in info.value.problem
     path = tmp_path / "a\nb.urdf"
     path.write_text(robot(joint(jtype="hinge")))
     with pytest.raises(URDFError) as info:
@@ -340,18 +371,14 @@ def test_long_chain_of_mimic_joints_composes(reverse):
     q = torch.tensor([[0.2]], dtype=F64)
     J = chain.jacobian(q, f"l{n}")
     T = chain.forward_kinematics(q, [f"l{k}" for k in range(1, n + 1)], stacked=True)[0]
-    axes = T[:, :3, :3] @ torch.tensor(
-        [0.0, 0.6, 0.8], dtype=F64
-    )  # joint k's, child l{k+1}
+    axes = T[:, :3, :3] @ torch.tensor([0.0, 0.6, 0.8], dtype=F64)  # joint k's, child l{k+1}
     torch.testing.assert_close(J[0, 3:, 0], axes.sum(0), atol=1e-9, rtol=0)
     # ... and joint j{k} turns its child by its own value relative to its parent.
     one = Chain.from_urdf(serial(1), dtype=F64)
     for k in (1, n // 2, n - 1):
         value = 0.2 + 0.001 * (n - 1 - k if reverse else k)
         expected = one.forward_kinematics(torch.tensor([value], dtype=F64), "l1")["l1"]
-        torch.testing.assert_close(
-            torch.linalg.solve(T[k - 1], T[k]), expected, atol=1e-9, rtol=0
-        )
+        torch.testing.assert_close(torch.linalg.solve(T[k - 1], T[k]), expected, atol=1e-9, rtol=0)
 
 
 def _geometric_jacobian(chain: Chain, q: torch.Tensor, n: int) -> torch.Tensor:
@@ -390,9 +417,7 @@ def test_jacobian_of_a_chain_with_mimics_matches_jacrev():
 
         Jp = torch.vmap(torch.func.jacrev(position))(q)  # (B, 3, n_dof)
         assert Jp.shape == (3, 3, chain.n_dof)
-        torch.testing.assert_close(
-            chain.jacobian(q, "l40")[:, :3], Jp, atol=1e-12, rtol=0
-        )
+        torch.testing.assert_close(chain.jacobian(q, "l40")[:, :3], Jp, atol=1e-12, rtol=0)
 
 
 def test_mimic_jacobian_under_vmap(tree):

@@ -21,8 +21,19 @@ Jacobian of every end link (a link without children) computed by :class:`Chain` 
 
 It prints a table (per link: largest position error in m and rotation error in rad, per end
 link: largest Jacobian error) and timings of both libraries, shows a progress bar on stderr for
-long runs, and exits with status 1 if anything is outside its tolerance (0 otherwise, 2 for a
-bad command line or URDF).
+long runs, and ends with one verdict line:
+
+* ``PASS``: every link pose and end-link Jacobian is within tolerance;
+* ``FAIL``: something is outside tolerance; a ``nan`` error (a result that is not a number
+  where the reference is, or an overflow on both sides) counts as outside, never as within;
+* ``NOTHING TO COMPARE``: the robot has no degree of freedom (a single link, or fixed joints
+  only), so there is no configuration to vary and no Jacobian column; nothing is compared and
+  nothing is timed.  This is a deliberate third status: not a failure, and not a PASS of an
+  empty comparison.
+
+Exit status: 0 for ``PASS`` and for ``NOTHING TO COMPARE`` (nothing is outside tolerance; the
+verdict line tells them apart), 1 for ``FAIL`` (only then), 2 for a bad command line or an
+unusable URDF (malformed, or missing).
 """
 
 from __future__ import annotations
@@ -42,11 +53,20 @@ from torch import Tensor
 
 from .. import so3
 from . import SAMPLE_ROBOTS, sample_robot
-from .chain import Chain
+from .chain import Chain, _resolve_mimics
 from .reference import reference_forward_kinematics, reference_jacobians
-from .urdf import RobotSpec, URDFError, parse_urdf
+from .urdf import JointSpec, RobotSpec, URDFError, parse_urdf
 
-__all__ = ["LinkResult", "JacobianResult", "ValidationReport", "validate", "main"]
+__all__ = [
+    "FAIL",
+    "NOTHING_TO_COMPARE",
+    "PASS",
+    "LinkResult",
+    "JacobianResult",
+    "ValidationReport",
+    "validate",
+    "main",
+]
 
 
 @runtime_checkable
@@ -60,6 +80,9 @@ class TextStream(Protocol):
 
 TOL_REFERENCE = {torch.float64: 1e-12, torch.float32: 1e-5}
 TOL_PK = 1e-5
+
+#: :attr:`ValidationReport.status` values.
+PASS, FAIL, NOTHING_TO_COMPARE = "pass", "fail", "nothing to compare"
 
 
 @dataclass
@@ -88,7 +111,12 @@ class JacobianResult:
 
 @dataclass
 class ValidationReport:
-    """Everything :func:`validate` measured; ``ok`` is the verdict."""
+    """Everything :func:`validate` measured.
+
+    ``status`` is the verdict: ``"pass"``, ``"fail"`` or ``"nothing to compare"`` (a robot
+    without degrees of freedom: ``links``, ``jacobians`` and ``timings`` stay empty).  ``ok``
+    is ``status != "fail"``: nothing is outside tolerance.
+    """
 
     robot: str
     source: str
@@ -101,6 +129,7 @@ class ValidationReport:
     timings: dict[str, dict[str, float]] = field(default_factory=dict)
     pk_version: str | None = None
     ok: bool = True
+    status: str = PASS
 
 
 # ----------------------------------------------------------------------------------------------
@@ -159,14 +188,10 @@ class _PK:
         self.E = torch.zeros(len(self.names), n, dtype=torch.float64)
         self.b = torch.zeros(len(self.names), dtype=torch.float64)
         dof = {name: i for i, name in enumerate(chain.joint_names)}
-        by_name = {j.name: j for j in spec.joints}
+        mimic = _resolve_mimics(spec, dof)  # name -> (DoF, mult, off), chains composed
         for k, name in enumerate(self.names):
-            mult, off, j = 1.0, 0.0, by_name[name]
-            while j.mimic is not None:  # value = mult * value(j) + off
-                off += mult * j.mimic.offset
-                mult *= j.mimic.multiplier
-                j = by_name[j.mimic.joint]
-            self.E[k, dof[j.name]] = mult
+            d, mult, off = mimic[name] if name in mimic else (dof[name], 1.0, 0.0)
+            self.E[k, d] = mult
             self.b[k] = off
         self._serial: dict[str, tuple[object, Tensor]] = {}
 
@@ -209,46 +234,64 @@ def _resolve(robot: str | os.PathLike[str]) -> tuple[str | bytes, bytes, str]:
     return path, data, path
 
 
+def _top_down(spec: RobotSpec) -> list[JointSpec]:
+    """The joints, every parent's joint before its children's (breadth-first from the root)."""
+    children: dict[str, list[JointSpec]] = {}
+    for j in spec.joints:
+        children.setdefault(j.parent, []).append(j)
+    order: list[JointSpec] = []
+    frontier = [spec.root]
+    while frontier:
+        nxt: list[str] = []
+        for link in frontier:
+            for j in children.get(link, ()):
+                order.append(j)
+                nxt.append(j.child)
+        frontier = nxt
+    return order
+
+
 def _reach(spec: RobotSpec) -> float:
     """Longest root-to-link sum of joint offsets and joint travel, in m."""
     total = {spec.root: 0.0}
-    pending = list(spec.joints)
-    while pending:
-        rest = []
-        for j in pending:
-            if j.parent not in total:
-                rest.append(j)
-                continue
-            extra = 0.0
-            if j.type == "prismatic":
-                extra = max(abs(j.lower or 0.0), abs(j.upper or 0.0))
-            elif j.type == "planar":
-                extra = math.sqrt(2.0)
-            elif j.type == "floating":
-                extra = math.sqrt(3.0)
-            total[j.child] = total[j.parent] + math.hypot(*j.xyz) + extra
-        pending = rest
+    for j in _top_down(spec):
+        extra = 0.0
+        if j.type == "prismatic":
+            extra = max(abs(j.lower or 0.0), abs(j.upper or 0.0))
+        elif j.type == "planar":
+            extra = math.sqrt(2.0)
+        elif j.type == "floating":
+            extra = math.sqrt(3.0)
+        total[j.child] = total[j.parent] + math.hypot(*j.xyz) + extra
     return max(total.values())
 
 
 def _below(spec: RobotSpec, types: tuple[str, ...]) -> dict[str, str]:
     """Links below a joint of one of ``types``: link -> that joint's name."""
     out: dict[str, str] = {}
-    pending = list(spec.joints)
-    done = {spec.root}
-    while pending:
-        rest = []
-        for j in pending:
-            if j.parent not in done:
-                rest.append(j)
-                continue
-            if j.type in types:
-                out[j.child] = j.name
-            elif j.parent in out:
-                out[j.child] = out[j.parent]
-            done.add(j.child)
-        pending = rest
+    for j in _top_down(spec):
+        if j.type in types:
+            out[j.child] = j.name
+        elif j.parent in out:
+            out[j.child] = out[j.parent]
     return out
+
+
+def _worse(a: float, b: float) -> float:
+    """The larger error; ``nan`` if either is (Python's ``max`` drops a ``nan`` first)."""
+    return math.nan if math.isnan(a) or math.isnan(b) else max(a, b)
+
+
+def _count(value: object, name: str) -> int:
+    """A positive integer argument of :func:`validate`."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise TypeError(
+            f"torchlie.kinematics.validate: expected {name} to be an integer >= 1, got "
+            f"{type(value).__name__} {value!r}"
+        )
+    if value < 1:
+        raise ValueError(f"torchlie.kinematics.validate: expected {name} >= 1, got {value}")
+    return value
 
 
 def _pose_errors(T: Tensor, T_ref: Tensor) -> tuple[float, float]:
@@ -316,16 +359,22 @@ def validate(
     Args:
         robot: a URDF path, a bundled robot name (``"arm7"``, ``"tree"``, ``"panda"``) or the
             URDF text.
-        samples: number of random configurations within the joint limits.
+        samples: number of random configurations within the joint limits, at least 1.
         dtype: torchlie's dtype (pytorch-kinematics always runs in float32).
         seed: seed of the configurations.
-        batch: configurations per batch (and batch size of the timings).
+        batch: configurations per batch (and batch size of the timings), at least 1.
         compare_pk: compare with pytorch-kinematics when it is installed.
         progress: progress bar on ``err``; ``None`` shows it when there is more than one batch.
         out, err: streams for the report and the progress bar (default stdout, stderr).
 
     Returns:
-        The :class:`ValidationReport`; ``report.ok`` is False on any mismatch.
+        The :class:`ValidationReport`; ``report.status`` is ``"pass"``, ``"fail"`` (and then
+        ``report.ok`` is False) or ``"nothing to compare"`` for a robot without degrees of
+        freedom (see the module docstring).
+
+    Raises:
+        ValueError: ``samples`` or ``batch`` below 1 (``TypeError`` if not an integer).
+        URDFError: a malformed URDF.
 
     Example:
         >>> import io
@@ -333,6 +382,8 @@ def validate(
         >>> report.ok, len(report.links), [j.link for j in report.jacobians]
         (True, 12, ['tool_tcp', 'wrist_camera'])
     """
+    samples = _count(samples, "samples")
+    batch = _count(batch, "batch")
     out = sys.stdout if out is None else out
     err = sys.stderr if err is None else err
     source, text, label = _resolve(robot)
@@ -342,6 +393,17 @@ def validate(
     scale = 1.0 + reach
     tol_ref = TOL_REFERENCE[dtype]
     report = ValidationReport(spec.name, label, samples, dtype, reach)
+    if chain.n_dof == 0:
+        report.status = NOTHING_TO_COMPARE
+        what = "a single link" if len(spec.links) == 1 else "fixed joints only"
+        out.write(
+            f"torchlie.kinematics.validate: robot {report.robot!r} ({label})\n"
+            f"NOTHING TO COMPARE: the robot has no degree of freedom ({what}, "
+            f"{len(spec.links)} links): there is no configuration to vary and its Jacobians "
+            "have no columns\n"
+        )
+        out.flush()
+        return report
 
     q = chain.random_configuration(samples, generator=torch.Generator().manual_seed(seed))
     q64 = q.to(torch.float64)  # exactly the values torchlie sees
@@ -419,18 +481,18 @@ def validate(
         for n in spec.links:
             dp, dr = _pose_errors(T[n], T_ref[n])
             s = stats[n]
-            s[0], s[1] = max(s[0], dp), max(s[1], dr)
+            s[0], s[1] = _worse(s[0], dp), _worse(s[1], dr)
             if s[2] is not None and pk_T is not None:
                 dp, dr = _pose_errors(T[n], pk_T[n])
-                s[2], s[3] = max(s[2], dp), max(s[3], dr)
+                s[2], s[3] = _worse(s[2], dp), _worse(s[3], dr)
         J_ref = reference_jacobians(spec, qc64, list(chain.leaf_links))
         for n in chain.leaf_links:
             J = chain.jacobian(qc, n).to(torch.float64)
             js = jstats[n]
-            js[0] = max(js[0], float((J - J_ref[n]).abs().max()) if J.numel() else 0.0)
+            js[0] = _worse(js[0], float((J - J_ref[n]).abs().max()))
             if js[1] is not None and pkc is not None and th is not None and n != spec.root:
                 J_pk = pkc.jacobian(th, n)
-                js[1] = max(js[1], float((J - J_pk).abs().max()) if J.numel() else 0.0)
+                js[1] = _worse(js[1], float((J - J_pk).abs().max()))
         bar.update(b)
     bar.close()
 
@@ -457,6 +519,7 @@ def validate(
         ok = js[0] <= tol_ref * scale and (js[1] is None or js[1] <= TOL_PK * scale)
         report.jacobians.append(JacobianResult(n, js[0], js[1], ok))
     report.ok = all(r.ok for r in report.links) and all(r.ok for r in report.jacobians)
+    report.status = PASS if report.ok else FAIL
 
     # Timings on one batch: FK of all links (dict) and the first end link's Jacobian.
     nb = min(batch, samples)
@@ -486,7 +549,10 @@ def _time_all(
         leaf = chain.leaf_links[0]
         runs: list[tuple[str, Chain | None]] = [(f"torchlie {str(dtype)[6:]}", chain)]
         if dtype != torch.float32:
-            runs.append(("torchlie float32", chain.to(dtype=torch.float32)))
+            try:
+                runs.append(("torchlie float32", chain.to(dtype=torch.float32)))
+            except URDFError:  # a constant beyond float32's range: no float32 chain to time
+                pass
         for name, c in runs:
             assert c is not None
             qt = q[:nb].to(c.dtype)
@@ -510,7 +576,7 @@ def _print_report(
 ) -> None:
     w = out.write
     n_joints = len(chain.spec.joints)
-    w(f"torchlie.kinematics.validate: robot '{report.robot}' ({report.source})\n")
+    w(f"torchlie.kinematics.validate: robot {report.robot!r} ({report.source})\n")
     w(
         f"{len(chain.link_names)} links, {n_joints} joints, {chain.n_dof} DoF; "
         f"{report.samples} random configurations within the joint limits; torchlie in "
@@ -579,7 +645,11 @@ def _print_report(
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Command-line entry point (``torchlie-validate``); returns the exit status."""
+    """Command-line entry point (``torchlie-validate``); returns the exit status.
+
+    0: ``PASS`` or ``NOTHING TO COMPARE`` (nothing outside tolerance), 1: ``FAIL`` (something
+    outside tolerance), 2: a bad command line or an unusable URDF (see the module docstring).
+    """
     parser = argparse.ArgumentParser(
         prog="torchlie-validate",
         description="Compare torchlie's forward kinematics and Jacobians of a URDF robot with "
