@@ -9,19 +9,28 @@ summary of the largest errors and the speed-ups over pytorch-kinematics.
 ``--quick`` validates the sample 7-DOF arm with 200 configurations in float64 and float32; the
 full run validates the three bundled robots (arm7, tree, panda) with 1000 configurations each.
 
-Run: ``python examples/kinematics_validation.py [--quick] [--robots arm7 panda ...]``.
+Outputs, in ``--out`` (default ``examples/out/``, ignored by git):
+``kinematics_validation.txt`` (the full validation reports, also printed unless ``--brief``)
+and ``kinematics_validation.json`` (the summary figures).
+
+Run: ``python examples/kinematics_validation.py [--quick] [--robots arm7 panda ...] [--out DIR]``
+(``--help`` lists every option with its default).
 """
 
 from __future__ import annotations
 
 import argparse
 import io
+import json
 import sys
+from pathlib import Path
 
 import torch
 
 from torchlie.kinematics import SAMPLE_ROBOTS
 from torchlie.kinematics.validate import validate
+
+OUT = Path(__file__).resolve().parent / "out"
 
 
 def _max(values) -> float | None:
@@ -58,21 +67,46 @@ def _fmt(x: float | None, spec: str = ".1e") -> str:
     return "-" if x is None else format(x, spec)
 
 
-def parse(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def parser() -> argparse.ArgumentParser:
+    """The command line (options whose default depends on ``--quick`` state both defaults)."""
+    p = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
     p.add_argument("--quick", action="store_true", help="arm7 only, 200 configurations (CI)")
-    p.add_argument("--robots", nargs="+", choices=tuple(SAMPLE_ROBOTS), default=None)
-    p.add_argument("--samples", type=int, default=None)
-    p.add_argument("--dtypes", nargs="+", choices=("float64", "float32"), default=None)
+    p.add_argument(
+        "--robots",
+        nargs="+",
+        choices=tuple(SAMPLE_ROBOTS),
+        default=argparse.SUPPRESS,
+        help=f"bundled robots to validate (default: all of {', '.join(SAMPLE_ROBOTS)}; "
+        "arm7 with --quick)",
+    )
+    p.add_argument(
+        "--samples",
+        type=int,
+        default=argparse.SUPPRESS,
+        help="random joint configurations per robot (default: 1000; 200 with --quick)",
+    )
+    p.add_argument(
+        "--dtypes",
+        nargs="+",
+        choices=("float64", "float32"),
+        default=["float64", "float32"],
+        help="dtypes of torchlie's chain to validate",
+    )
     p.add_argument("--brief", action="store_true", help="print only the summary")
+    p.add_argument("--out", type=Path, default=OUT, help="folder for the reports and figures")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
-    cfg = p.parse_args(argv)
-    if cfg.robots is None:
+    return p
+
+
+def parse(argv: list[str] | None) -> argparse.Namespace:
+    cfg = parser().parse_args(argv)
+    if "robots" not in cfg:
         cfg.robots = ["arm7"] if cfg.quick else list(SAMPLE_ROBOTS)
-    if cfg.samples is None:
+    if "samples" not in cfg:
         cfg.samples = 200 if cfg.quick else 1000
-    if cfg.dtypes is None:
-        cfg.dtypes = ["float64", "float32"]
     return cfg
 
 
@@ -83,9 +117,10 @@ def main(argv: list[str] | None = None) -> dict:
     torch.set_num_threads(cfg.threads)
     try:
         results = {}
+        reports = io.StringIO()
         for robot in cfg.robots:
             for name in cfg.dtypes:
-                out = io.StringIO() if cfg.brief else sys.stdout
+                out = io.StringIO()
                 report = validate(
                     robot,
                     samples=cfg.samples,
@@ -94,8 +129,9 @@ def main(argv: list[str] | None = None) -> dict:
                     out=out,
                 )
                 results[f"{robot} {name}"] = summarise(report)
+                reports.write(out.getvalue() + "\n")
                 if not cfg.brief:
-                    print()
+                    print(out.getvalue())
     finally:
         torch.set_num_threads(threads)
 
@@ -116,8 +152,14 @@ def main(argv: list[str] | None = None) -> dict:
     print("(ref: exact float64 reference; pk: pytorch-kinematics in float32; FK x / J x: speed-up")
     print(" of torchlie float32 over pytorch-kinematics, same batch, one thread)")
     ok = all(f["ok"] for f in results.values())
+    fig = {"ok": ok, "samples": cfg.samples, "results": results}
+    cfg.out.mkdir(parents=True, exist_ok=True)
+    files = (cfg.out / "kinematics_validation.txt", cfg.out / "kinematics_validation.json")
+    files[0].write_text(reports.getvalue())
+    files[1].write_text(json.dumps(fig, indent=1) + "\n")
+    print(f"reports saved to {files[0]}, figures to {files[1]}")
     print("PASS" if ok else "FAIL")
-    return {"ok": ok, "samples": cfg.samples, "results": results}
+    return {**fig, "files": files}
 
 
 if __name__ == "__main__":

@@ -15,14 +15,22 @@ The stored parameter is chosen by ``--representation`` (see
 (default) reaches the optimum in the fewest iterations: at 100 poses and 300 iterations its cost
 was at the optimum while ``"twist"`` was 0.7 % and ``"pos_quat"`` 3 % above it.
 
-Run: ``python examples/pose_graph.py [--quick] [--optimizer lbfgs|adam]``.
+Outputs, in ``--out`` (default ``examples/out/``, ignored by git): ``pose_graph.json`` (the
+figures) and ``pose_graph.png`` (top view of the ground truth, the odometry and the optimised
+trajectory; needs matplotlib, and says so on stderr when it is missing).
+
+Run: ``python examples/pose_graph.py [--quick] [--optimizer lbfgs|adam] [--out DIR]``
+(``--help`` lists every option with its default).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
+import sys
 import time
+from pathlib import Path
 
 import torch
 from torch import nn
@@ -30,6 +38,8 @@ from torch.nn.utils import parametrize
 
 from torchlie import se3, so3
 from torchlie.nn import SE3Parametrization
+
+OUT = Path(__file__).resolve().parent / "out"
 
 
 def ground_truth(n: int, laps: int, dtype: torch.dtype) -> torch.Tensor:
@@ -92,20 +102,45 @@ def trajectory_error(T: torch.Tensor, T_true: torch.Tensor) -> tuple[float, floa
     return float(angle.mean()) * 180.0 / math.pi, float((dist * dist).mean().sqrt())
 
 
-def parse(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--quick", action="store_true", help="small graph (CI)")
-    p.add_argument("--poses", type=int, default=None)
-    p.add_argument("--laps", type=int, default=4)
-    p.add_argument("--optimizer", choices=("lbfgs", "adam"), default="lbfgs")
-    p.add_argument("--representation", choices=("pos_quat", "matrix", "twist"), default="matrix")
-    p.add_argument("--iterations", type=int, default=None)
-    p.add_argument("--seed", type=int, default=0)
+def parser() -> argparse.ArgumentParser:
+    """The command line (options whose default depends on others state them in their help)."""
+    p = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    p.add_argument("--quick", action="store_true", help="small graph (CI): 100 poses")
+    p.add_argument(
+        "--poses",
+        type=int,
+        default=argparse.SUPPRESS,
+        help="poses in the trajectory (default: 500; 100 with --quick)",
+    )
+    p.add_argument("--laps", type=int, default=4, help="laps round the circle (loop closures)")
+    p.add_argument("--optimizer", choices=("lbfgs", "adam"), default="lbfgs", help="the optimiser")
+    p.add_argument(
+        "--representation",
+        choices=("pos_quat", "matrix", "twist"),
+        default="matrix",
+        help="stored parameter of SE3Parametrization",
+    )
+    p.add_argument(
+        "--iterations",
+        type=int,
+        default=argparse.SUPPRESS,
+        help="optimiser iterations (default: lbfgs 1500, adam 15000; a fifth with --quick)",
+    )
+    p.add_argument("--seed", type=int, default=0, help="seed of the measurement noise")
+    p.add_argument("--out", type=Path, default=OUT, help="folder for the JSON figures and plot")
+    p.add_argument("--no-plot", action="store_true", help="write no plot (figures only)")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
-    cfg = p.parse_args(argv)
-    if cfg.poses is None:
+    return p
+
+
+def parse(argv: list[str] | None) -> argparse.Namespace:
+    cfg = parser().parse_args(argv)
+    if "poses" not in cfg:
         cfg.poses = 100 if cfg.quick else 500
-    if cfg.iterations is None:
+    if "iterations" not in cfg:
         cfg.iterations = (300 if cfg.quick else 1500) * (1 if cfg.optimizer == "lbfgs" else 10)
     return cfg
 
@@ -140,6 +175,36 @@ def optimise(model: PoseGraph, cfg, edges, Z, sigma) -> int:
             opt.step(closure)
             sched.step()
     return evals
+
+
+def save_plot(trajectories: dict[str, torch.Tensor], path: Path) -> Path | None:
+    """Top view (x, y) of each ``(N, 4, 4)`` trajectory; ``None`` (said on stderr) without
+    matplotlib."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        print(
+            "pose_graph: matplotlib is not installed, so no plot is written "
+            "(pip install matplotlib)",
+            file=sys.stderr,
+        )
+        return None
+    fig, ax = plt.subplots(figsize=(5, 5))
+    for label, T in trajectories.items():
+        dashed = label == "ground truth"
+        ax.plot(T[:, 0, 3], T[:, 1, 3], "k--" if dashed else "-", label=label, linewidth=1.0)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title("Pose graph: positions seen from above")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -195,7 +260,7 @@ def _run(cfg: argparse.Namespace) -> dict:
     print(f"{'after':<22}{cost1:>14.1f}{rot1:>15.3f}{trans1:>12.4f}")
     print(f"{'ground truth':<22}{cost_true:>14.1f}{0.0:>15.3f}{0.0:>12.4f}")
     print(f"cost reduced {cost0 / cost1:.3g}x; all poses valid SE(3): {valid}")
-    return {
+    fig = {
         "poses": cfg.poses,
         "measurements": n_edges,
         "loop_closures": n_edges - n_odo,
@@ -210,6 +275,15 @@ def _run(cfg: argparse.Namespace) -> dict:
         "evaluations": evals,
         "seconds": seconds,
     }
+    cfg.out.mkdir(parents=True, exist_ok=True)
+    figures = cfg.out / "pose_graph.json"
+    figures.write_text(json.dumps(fig, indent=1) + "\n")
+    print(f"figures saved to {figures}")
+    trajectories = {"odometry": T_init, "optimised": T.detach(), "ground truth": T_true}
+    plot = None if cfg.no_plot else save_plot(trajectories, cfg.out / "pose_graph.png")
+    if plot:
+        print(f"plot saved to {plot}")
+    return {**fig, "figures": figures, "plot": plot}
 
 
 if __name__ == "__main__":

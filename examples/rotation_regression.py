@@ -5,22 +5,32 @@ Haar-random ``R`` and perturbed by Gaussian noise; the network sees the rotated 
 template's point order) and predicts ``R`` through :class:`torchlie.nn.RotationHead`.  The same
 network is trained once per rotation representation ("6d", "9d", "quaternion", "rotvec") on the
 same data stream, with the squared chordal loss, and the mean angular error on a held-out set
-is reported in degrees (and plotted against the training step if matplotlib is installed).
+is reported in degrees.
 
-Run: ``python examples/rotation_regression.py [--quick] [--plot PATH | --no-plot]``.
+Outputs, in ``--out`` (default ``examples/out/``, ignored by git): ``rotation_regression.json``
+(the figures and error curves) and ``rotation_regression.png`` (test error against the training
+step, one curve per representation; needs matplotlib, and says so on stderr when it is missing).
+
+Run: ``python examples/rotation_regression.py [--quick] [--out DIR] [--no-plot]``
+(``--help`` lists every option with its default).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
+import sys
 import time
+from pathlib import Path
 
 import torch
 from torch import nn
 
 from torchlie import so3
 from torchlie.nn import REPRESENTATIONS, RotationHead, geodesic_loss
+
+OUT = Path(__file__).resolve().parent / "out"
 
 
 def make_template(n_points: int, generator: torch.Generator) -> torch.Tensor:
@@ -93,14 +103,19 @@ def train(representation: str, cfg: argparse.Namespace) -> dict:
     }
 
 
-def save_plot(results: dict, path: str) -> str | None:
-    """Error vs step for every representation; ``None`` if matplotlib is not installed."""
+def save_plot(results: dict, path: Path) -> Path | None:
+    """Error vs step for every representation; ``None`` (said on stderr) without matplotlib."""
     try:
         import matplotlib
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError:
+        print(
+            "rotation_regression: matplotlib is not installed, so no plot is written "
+            "(pip install matplotlib)",
+            file=sys.stderr,
+        )
         return None
     fig, ax = plt.subplots(figsize=(6, 4))
     for rep, r in results.items():
@@ -116,16 +131,29 @@ def save_plot(results: dict, path: str) -> str | None:
     return path
 
 
-def parse(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--quick", action="store_true", help="short run (CI): fewer steps")
-    p.add_argument("--steps", type=int, default=None, help="training steps per model")
-    p.add_argument("--plot", default="rotation_regression.png", help="where to save the plot")
-    p.add_argument("--no-plot", action="store_true", help="do not save a plot")
-    p.add_argument("--seed", type=int, default=0)
+def parser() -> argparse.ArgumentParser:
+    """The command line (options whose default depends on ``--quick`` state both defaults)."""
+    p = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    p.add_argument("--quick", action="store_true", help="short run (CI): 600 steps per model")
+    p.add_argument(
+        "--steps",
+        type=int,
+        default=argparse.SUPPRESS,
+        help="training steps per model (default: 4000; 600 with --quick)",
+    )
+    p.add_argument("--out", type=Path, default=OUT, help="folder for the JSON figures and plot")
+    p.add_argument("--no-plot", action="store_true", help="write no plot (figures only)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the data and the initial weights")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads (small models: 1)")
-    cfg = p.parse_args(argv)
-    if cfg.steps is None:
+    return p
+
+
+def parse(argv: list[str] | None) -> argparse.Namespace:
+    cfg = parser().parse_args(argv)
+    if "steps" not in cfg:
         cfg.steps = 600 if cfg.quick else 4000
     cfg.points, cfg.hidden, cfg.batch, cfg.lr = 32, 128, 64, 1e-3
     cfg.noise, cfg.test_size = 0.01, 1000
@@ -152,11 +180,16 @@ def main(argv: list[str] | None = None) -> dict:
             f"{rep:<15}{r['initial_error_deg']:>14.2f}{r['final_error_deg']:>12.2f}"
             f"{r['median_error_deg']:>14.2f}{r['p95_error_deg']:>11.2f}"
         )
-    plot = None if cfg.no_plot else save_plot(results, cfg.plot)
+    fig = {"steps": cfg.steps, "results": results, "seconds": seconds}
+    cfg.out.mkdir(parents=True, exist_ok=True)
+    figures = cfg.out / "rotation_regression.json"
+    figures.write_text(json.dumps(fig, indent=1) + "\n")
+    print(f"figures saved to {figures}")
+    plot = None if cfg.no_plot else save_plot(results, cfg.out / "rotation_regression.png")
     if plot:
         print(f"plot saved to {plot}")
     print(f"time: {seconds:.1f} s")
-    return {"steps": cfg.steps, "results": results, "plot": plot, "seconds": seconds}
+    return {**fig, "figures": figures, "plot": plot}
 
 
 if __name__ == "__main__":

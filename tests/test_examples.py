@@ -1,14 +1,30 @@
-"""The examples run with --quick, in-process, and their figures meet stated bounds."""
+"""The examples: documented command lines, outputs in ``--out``, and with ``--quick`` (run
+in-process) figures that meet stated bounds."""
 
 from __future__ import annotations
 
 import importlib.util
+import json
 import math
+import re
+import sys
 from pathlib import Path
 
 import pytest
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+
+# Every option of each example (besides -h); each must be listed by --help with a default.
+OPTIONS = {
+    "kinematics_validation": (
+        "--quick --robots --samples --dtypes --brief --out --threads".split()
+    ),
+    "rotation_regression": "--quick --steps --out --no-plot --seed --threads".split(),
+    "pose_graph": (
+        "--quick --poses --laps --optimizer --representation --iterations --seed --out "
+        "--no-plot --threads"
+    ).split(),
+}
 
 
 def load(name: str):
@@ -22,10 +38,83 @@ def has_matplotlib() -> bool:
     return importlib.util.find_spec("matplotlib") is not None
 
 
+def help_entries(text: str) -> dict[str, str]:
+    """Option -> its help text (default included), from argparse's ``--help`` output."""
+    entries: dict[str, str] = {}
+    option = None
+    for line in text.split("options:", 1)[1].splitlines():
+        if line.startswith("  -"):
+            option = line.split()[0].rstrip(",")
+            invocation_and_help = re.split(r"\s{2,}", line.strip(), maxsplit=1)
+            entries[option] = invocation_and_help[1] if len(invocation_and_help) > 1 else ""
+        elif option and line.startswith("   "):
+            entries[option] += " " + line.strip()
+    return entries
+
+
+@pytest.mark.parametrize("name", sorted(OPTIONS))
+def test_docstring_says_what_and_how_to_run(name):
+    doc = load(name).__doc__
+    assert len(doc.splitlines()[0]) > 20  # one line saying what it shows
+    assert f"Run: ``python examples/{name}.py" in doc
+    assert "--out" in doc and "examples/out/" in doc
+
+
+@pytest.mark.parametrize("name", sorted(OPTIONS))
+def test_help_lists_every_option_with_help_and_default(name, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        load(name).main(["--help"])
+    assert exit_.value.code == 0
+    entries = help_entries(capsys.readouterr().out)
+    assert sorted(entries) == sorted(["-h", *OPTIONS[name]])
+    for option in OPTIONS[name]:
+        text = entries[option]
+        assert "(default: " in text, option
+        # a description besides the default
+        assert len(re.findall(r"[A-Za-z]{2,}", text.split("(default: ")[0])) >= 2, option
+    assert "examples/out" in entries["--out"]
+
+
+def test_out_folder_is_ignored_by_git():
+    gitignore = (EXAMPLES.parent / ".gitignore").read_text().splitlines()
+    assert "examples/out/" in gitignore
+
+
+@pytest.mark.parametrize(
+    "name, argv, figures, plot",
+    [
+        (
+            "rotation_regression",
+            ["--steps", "2"],
+            "rotation_regression.json",
+            "rotation_regression.png",
+        ),
+        (
+            "pose_graph",
+            ["--poses", "24", "--laps", "2", "--iterations", "3"],
+            "pose_graph.json",
+            "pose_graph.png",
+        ),
+    ],
+)
+def test_missing_matplotlib_is_said_once_on_stderr(
+    name, argv, figures, plot, tmp_path, capsys, monkeypatch
+):
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib -> ImportError
+    monkeypatch.setitem(sys.modules, "matplotlib.pyplot", None)
+    fig = load(name).main([*argv, "--out", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert err.count("matplotlib is not installed") == 1, err
+    assert f"{name}: " in err and "pip install matplotlib" in err
+    assert fig["plot"] is None
+    assert sorted(p.name for p in tmp_path.iterdir()) == [figures]
+    assert json.loads((tmp_path / figures).read_text())["seconds"] == fig["seconds"]
+
+
 @pytest.mark.slow
 def test_rotation_regression(tmp_path, capsys):
-    plot = tmp_path / "error.png"
-    fig = load("rotation_regression").main(["--quick", "--plot", str(plot)])
+    plot = tmp_path / "rotation_regression.png"
+    fig = load("rotation_regression").main(["--quick", "--out", str(tmp_path)])
     res = fig["results"]
     assert set(res) == {"6d", "9d", "quaternion", "rotvec"}
     for rep, r in res.items():
@@ -44,15 +133,19 @@ def test_rotation_regression(tmp_path, capsys):
     assert res["rotvec"]["final_error_deg"] <= 30.0
     out = capsys.readouterr().out
     assert "representation" in out and "6d" in out and "rotvec" in out
+    saved = json.loads((tmp_path / "rotation_regression.json").read_text())
+    assert saved["steps"] == fig["steps"]
+    assert saved["results"]["6d"]["final_error_deg"] == res["6d"]["final_error_deg"]
+    assert saved["results"]["rotvec"]["curve"][-1] == list(res["rotvec"]["curve"][-1])
     if has_matplotlib():
-        assert fig["plot"] == str(plot) and plot.stat().st_size > 1000
+        assert fig["plot"] == plot and plot.stat().st_size > 1000
     else:
         assert fig["plot"] is None and not plot.exists()
 
 
 @pytest.mark.slow
-def test_pose_graph(capsys):
-    fig = load("pose_graph").main(["--quick"])
+def test_pose_graph(tmp_path, capsys):
+    fig = load("pose_graph").main(["--quick", "--out", str(tmp_path)])
     assert fig["poses"] == 100 and fig["loop_closures"] > 0
     # the optimiser reaches a better optimum than the ground truth itself (the noisy
     # measurements' maximum-likelihood poses), starting from the drifted odometry
@@ -64,6 +157,13 @@ def test_pose_graph(capsys):
     assert fig["trans_rmse_after"] <= fig["trans_rmse_before"] / 5
     assert fig["valid"]
     assert "before (odometry)" in capsys.readouterr().out
+    saved = json.loads((tmp_path / "pose_graph.json").read_text())
+    assert saved["cost_after"] == fig["cost_after"] and saved["poses"] == 100
+    plot = tmp_path / "pose_graph.png"
+    if has_matplotlib():
+        assert fig["plot"] == plot and plot.stat().st_size > 1000
+    else:
+        assert fig["plot"] is None and not plot.exists()
 
 
 @pytest.mark.slow
@@ -83,8 +183,8 @@ def test_inverse_kinematics(capsys):
 
 
 @pytest.mark.slow
-def test_kinematics_validation(capsys):
-    fig = load("kinematics_validation").main(["--quick", "--brief"])
+def test_kinematics_validation(tmp_path, capsys):
+    fig = load("kinematics_validation").main(["--quick", "--brief", "--out", str(tmp_path)])
     assert fig["ok"]
     res = fig["results"]
     assert set(res) == {"arm7 float64", "arm7 float32"}
@@ -102,3 +202,12 @@ def test_kinematics_validation(capsys):
         assert math.isfinite(f["speedup_fk"]) and f["speedup_fk"] > 0
     out = capsys.readouterr().out
     assert "summary" in out and out.rstrip().endswith("PASS")
+    # --brief prints only the summary; the full reports are in the --out folder
+    reports = (tmp_path / "kinematics_validation.txt").read_text()
+    assert "Jacobian of end link" not in out
+    assert reports.count("Jacobian of end link") == 2 and reports.count("PASS: all 12") == 2
+    assert json.loads((tmp_path / "kinematics_validation.json").read_text()) == {
+        "ok": True,
+        "samples": 200,
+        "results": res,
+    }
