@@ -21,10 +21,12 @@ from __future__ import annotations
 from pathlib import Path
 
 from .chain import Chain
+from .ik import IKResult
 from .urdf import JOINT_TYPES, JointSpec, MimicSpec, RobotSpec, URDFError, parse_urdf
 
 __all__ = [
     "Chain",
+    "IKResult",
     "JOINT_TYPES",
     "JointSpec",
     "MimicSpec",

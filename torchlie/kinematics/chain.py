@@ -65,8 +65,9 @@ import math
 import operator
 import os
 import reprlib
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -74,6 +75,8 @@ from torch import Tensor
 from .. import _checks
 from .. import so3 as _so3
 from .._typing import Float
+from .ik import IKResult
+from .ik import inverse_kinematics as _inverse_kinematics
 from .urdf import JointSpec, RobotSpec, URDFError, _describe, parse_urdf
 
 __all__ = ["Chain", "rpy_matrix"]
@@ -282,6 +285,24 @@ def _check_representable(
             )
 
 
+def _sampling_ranges(names: Sequence[str], lower: Tensor, upper: Tensor) -> tuple[Tensor, Tensor]:
+    """The limits, with the free ranges of :meth:`Chain.random_configuration` where a
+    coordinate has none (by the suffix of its DoF name)."""
+    lo, hi = lower.clone(), upper.clone()
+    for i, name in enumerate(names):
+        if math.isfinite(lo[i]) and math.isfinite(hi[i]):
+            continue
+        suffix = name.rsplit(":", 1)[-1] if ":" in name else ""
+        if suffix in ("x", "y", "z"):
+            r = _FREE_TRANSLATION
+        elif suffix in ("rx", "ry", "rz"):
+            r = _FREE_ROTVEC
+        else:
+            r = _FREE_ANGLE
+        lo[i], hi[i] = -r, r
+    return lo, hi
+
+
 # ----------------------------------------------------------------------------------------------
 # Static description of the tree (dtype-free)
 # ----------------------------------------------------------------------------------------------
@@ -322,7 +343,6 @@ class _Plan:
 
 @dataclass
 class _JacPlan:
-    fk: _Plan
     parents: list[int]  # parent link of each constant-direction column
     vs: Tensor | None  # (n, 1, 3) those directions in the parent frames
     n_rot_const: int  # the first n_rot_const of them are rotational
@@ -421,6 +441,7 @@ class Chain:
             torch.tensor(upper, dtype=torch.float64),
         )
         self.lower = self._limits64[0].to(dtype=dtype, device=self.device)
+        self._sample64 = _sampling_ranges(names, *self._limits64)
         self.upper = self._limits64[1].to(dtype=dtype, device=self.device)
 
         # Mimic joints: value row = n_dof + k, q[src] * mult + off (chains resolved).
@@ -546,6 +567,11 @@ class Chain:
     # Sampling
     # ------------------------------------------------------------------------------------------
 
+    def _sampling_bounds(self) -> tuple[Tensor, Tensor]:
+        """float64 CPU ``(lower, upper)`` of :meth:`random_configuration`: the limits, and the
+        free ranges it states where a coordinate has none (copies)."""
+        return self._sample64[0].clone(), self._sample64[1].clone()
+
     def random_configuration(
         self, *batch: int, generator: torch.Generator | None = None
     ) -> Float[Tensor, "*batch n_dof"]:
@@ -580,18 +606,7 @@ class Chain:
             if size < 0:
                 raise ValueError(f"{fn}: expected batch sizes >= 0, got batch={batch!r}")
             sizes.append(size)
-        lo, hi = self._limits64[0].clone(), self._limits64[1].clone()
-        for i, name in enumerate(self.joint_names):
-            if math.isfinite(lo[i]) and math.isfinite(hi[i]):
-                continue
-            suffix = name.rsplit(":", 1)[-1] if ":" in name else ""
-            if suffix in ("x", "y", "z"):
-                r = _FREE_TRANSLATION
-            elif suffix in ("rx", "ry", "rz"):
-                r = _FREE_ROTVEC
-            else:
-                r = _FREE_ANGLE
-            lo[i], hi[i] = -r, r
+        lo, hi = self._sampling_bounds()
         u = torch.rand(*sizes, self.n_dof, generator=generator, dtype=torch.float64)
         return (lo + (hi - lo) * u).to(dtype=self.dtype, device=self.device)
 
@@ -908,7 +923,6 @@ class Chain:
         col_w = [w for *_, w in rot] + [1.0] * (3 * len(floats)) + [w for *_, w in tr]
         vs = [list(v) for _, v, *_ in rot] + [list(v) for _, v, *_ in tr]
         plan = _JacPlan(
-            fk=self._plan((target,)),
             parents=[p for p, *_ in rot] + [p for p, *_ in tr],
             vs=torch.tensor(vs, dtype=dt, device=dev).view(len(vs), 1, 3) if vs else None,
             n_rot_const=len(rot),
@@ -925,6 +939,60 @@ class Chain:
         if not torch.compiler.is_compiling():
             self._jac_plans[target] = plan
         return plan
+
+    def _jacobian_columns(
+        self, jp: _JacPlan, pose: Callable[[int], Tensor], q2: Tensor, target: int
+    ) -> Tensor:
+        """World Jacobian at the origin of ``target`` as ``(n_dof, 6, B)`` (batch innermost; see
+        :meth:`jacobian`); ``pose(i)`` gives link ``i``'s internal ``(4, 4, B)`` pose."""
+        B = q2.shape[0]
+        us: list[Tensor] = []
+        if jp.vs is not None:
+            Rs = torch.stack([pose(p)[:3, :3] for p in jp.parents])  # (n, c, r, B)
+            n = Rs.shape[0]
+            U = torch.matmul(jp.vs, Rs.reshape(n, 3, 3 * B)).view(n, 3, B)
+            us.append(U[: jp.n_rot_const])
+        origins = [pose(c)[3, :3] for c in jp.rot_children]
+        for parent, child, d0, O_R in jp.floats:
+            V = torch.matmul(O_R, _so3.jac_left(q2[:, d0 : d0 + 3]))  # (B, c, k)
+            Rp = pose(parent)[:3, :3]  # (c, r, B)
+            us.append((Rp.unsqueeze(0) * V.permute(2, 1, 0).unsqueeze(2)).sum(1))
+            origins += [pose(child)[3, :3]] * 3
+        cols: list[Tensor] = []
+        if origins:
+            Ur = torch.cat(us) if len(us) > 1 else us[0]
+            p = pose(target)[3, :3]
+            lin = torch.linalg.cross(Ur, p - torch.stack(origins), dim=1)
+            cols.append(torch.cat((lin, Ur), dim=1))
+        if jp.vs is not None and jp.n_rot_const < jp.vs.shape[0]:
+            Ut = U[jp.n_rot_const :]
+            cols.append(torch.cat((Ut, torch.zeros_like(Ut)), dim=1))
+        if not cols:
+            return q2.new_zeros(self.n_dof, 6, B)
+        C = torch.cat(cols) if len(cols) > 1 else cols[0]  # (n_cols, 6, B)
+        if jp.col_weight is not None:
+            C = C * jp.col_weight
+        if jp.in_dof_order:
+            return C
+        # Each column into its DoF's column (summed where mimic joints share one).
+        return C.new_zeros(self.n_dof, 6, B).index_add(0, jp.dof_index, C)
+
+    def _poses_and_jacobians(
+        self, q2: Tensor, targets: tuple[int, ...]
+    ) -> tuple[list[Tensor], list[Tensor]]:
+        """Poses and world Jacobians at the origins of ``targets`` for ``q2`` of shape
+        ``(B, n_dof)``, from one forward-kinematics pass over the links they need, batch
+        innermost: poses ``(4, 4, B)`` transposed (entry ``[c, r, b]`` is ``T[b][r, c]``),
+        Jacobians ``(n_dof, 6, B)`` (used by :meth:`jacobian` and the inverse kinematics)."""
+        B = q2.shape[0]
+        plan = self._plan(targets)
+        out = self._run(plan, q2)
+
+        def pose(i: int) -> Tensor:
+            return self._pose(plan, out, i, B, q2)
+
+        Js = [self._jacobian_columns(self._jac_plan(t), pose, q2, t) for t in targets]
+        return [pose(t) for t in targets], Js
 
     def jacobian(self, q: Float[Tensor, "*b n_dof"], link: str) -> Float[Tensor, "*b 6 n_dof"]:
         """Geometric Jacobian of ``link``'s frame, ``(..., 6, n_dof)``, in closed form.
@@ -960,43 +1028,36 @@ class Chain:
                 "once per link"
             )
         (target,) = self._targets(link, "jacobian")
-        jp = self._jac_plan(target)
-        B = q2.shape[0]
-        out = self._run(jp.fk, q2)
-
-        def pose(i: int) -> Tensor:
-            return self._pose(jp.fk, out, i, B, q2)
-
-        us: list[Tensor] = []
-        if jp.vs is not None:
-            Rs = torch.stack([pose(p)[:3, :3] for p in jp.parents])  # (n, c, r, B)
-            n = Rs.shape[0]
-            U = torch.matmul(jp.vs, Rs.reshape(n, 3, 3 * B)).view(n, 3, B)
-            us.append(U[: jp.n_rot_const])
-        origins = [pose(c)[3, :3] for c in jp.rot_children]
-        for parent, child, d0, O_R in jp.floats:
-            V = torch.matmul(O_R, _so3.jac_left(q2[:, d0 : d0 + 3]))  # (B, c, k)
-            Rp = pose(parent)[:3, :3]  # (c, r, B)
-            us.append((Rp.unsqueeze(0) * V.permute(2, 1, 0).unsqueeze(2)).sum(1))
-            origins += [pose(child)[3, :3]] * 3
-        cols: list[Tensor] = []
-        if origins:
-            Ur = torch.cat(us) if len(us) > 1 else us[0]
-            p = pose(target)[3, :3]
-            lin = torch.linalg.cross(Ur, p - torch.stack(origins), dim=1)
-            cols.append(torch.cat((lin, Ur), dim=1))
-        if jp.vs is not None and jp.n_rot_const < jp.vs.shape[0]:
-            Ut = U[jp.n_rot_const :]
-            cols.append(torch.cat((Ut, torch.zeros_like(Ut)), dim=1))
-        if not cols:
-            J = q2.new_zeros(B, 6, self.n_dof)
-        else:
-            C = torch.cat(cols) if len(cols) > 1 else cols[0]  # (n_cols, 6, B)
-            if jp.col_weight is not None:
-                C = C * jp.col_weight
-            if jp.in_dof_order:
-                Jd = C
-            else:  # each column into its DoF's column (summed where mimic joints share one)
-                Jd = C.new_zeros(self.n_dof, 6, B).index_add(0, jp.dof_index, C)
-            J = Jd.permute(2, 1, 0)
+        _, (J,) = self._poses_and_jacobians(q2, (target,))
+        J = J.permute(2, 1, 0)
         return _checks.out(J.reshape(*batch, 6, self.n_dof).contiguous(), out_dtype)
+
+    def inverse_kinematics(
+        self,
+        targets: Tensor | Mapping[str, Tensor],
+        link: str | None = None,
+        **options: Any,
+    ) -> IKResult:
+        """Joint values putting ``link`` at ``targets``: batched Levenberg-Marquardt within the
+        joint limits, differentiable with respect to the targets.
+
+        Same as :func:`torchlie.kinematics.ik.inverse_kinematics(self, targets, link, ...)
+        <torchlie.kinematics.ik.inverse_kinematics>`, which documents the options (``q0``,
+        ``restarts``, weights, tolerances, ``max_iterations``, ``early_exit``, bounds,
+        ``generator``) and the method.  ``targets``: poses ``(..., 4, 4)`` or positions
+        ``(..., 3)``, or a dict link -> targets (then ``link`` is None).
+
+        Returns:
+            :class:`~torchlie.kinematics.IKResult` ``(q, position_error, rotation_error,
+            converged, iterations)``, ``q`` of shape ``(..., n_dof)``, the others ``(...)``.
+
+        Example:
+            >>> from torchlie.kinematics import sample_robot
+            >>> arm = Chain.from_urdf(sample_robot("arm7"))
+            >>> q = arm.random_configuration(3, generator=torch.Generator().manual_seed(1))
+            >>> p = arm.forward_kinematics(q, "tool_tcp")["tool_tcp"][:, :3, 3]
+            >>> res = arm.inverse_kinematics(p, "tool_tcp", restarts=2)  # positions only
+            >>> res.q.shape, res.converged.tolist()
+            (torch.Size([3, 7]), [True, True, True])
+        """
+        return _inverse_kinematics(self, targets, link, **options)

@@ -1,0 +1,400 @@
+"""Inverse kinematics: convergence, limits, batching, implicit gradients and bad input."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from torchlie import se3, so3
+from torchlie.kinematics import Chain, IKResult, sample_robot
+from torchlie.kinematics import ik as ik_module
+
+F64 = torch.float64
+
+# A 6R arm (no redundancy: a pose target has isolated solutions, so the solution is a
+# function of the target and its derivative is unique).
+ARM6 = (
+    '<robot name="arm6">'
+    + "".join(f'<link name="l{i}"/>' for i in range(7))
+    + "".join(
+        f'<joint name="j{i}" type="revolute"><parent link="l{i}"/><child link="l{i + 1}"/>'
+        f'<origin xyz="{x}" rpy="{rpy}"/><axis xyz="{axis}"/>'
+        '<limit lower="-3" upper="3"/></joint>'
+        for i, (x, rpy, axis) in enumerate(
+            [
+                ("0 0 0.3", "0 0 0", "0 0 1"),
+                ("0 0.1 0.1", "0 0 0", "0 1 0"),
+                ("0 0 0.45", "0 0 0", "0 1 0"),
+                ("0.1 0 0.05", "0 0 0", "1 0 0"),
+                ("0.35 0 0", "0 0 0", "0 1 0"),
+                ("0.08 0 0", "0.3 0 0", "1 0 0"),
+            ]
+        )
+    )
+    + "</robot>"
+)
+
+
+ARM = Chain.from_urdf(sample_robot("arm7"), dtype=F64)
+TREE = Chain.from_urdf(sample_robot("tree"), dtype=F64)
+
+
+def _fk(chain: Chain, q: torch.Tensor, link: str) -> torch.Tensor:
+    return chain.forward_kinematics(q, link)[link]
+
+
+def _within_limits(chain: Chain, q: torch.Tensor) -> bool:
+    return bool(((q >= chain.lower) & (q <= chain.upper)).all())
+
+
+# ----------------------------------------------------------------------------------------------
+# Convergence
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, F64], ids=["f32", "f64"])
+@pytest.mark.parametrize("robot, link", [("arm7", "tool_tcp"), ("panda", "panda_hand_tcp")])
+def test_pose_targets_are_reached_within_limits(robot, link, dtype):
+    chain = Chain.from_urdf(sample_robot(robot), dtype=dtype)
+    gen = torch.Generator().manual_seed(3)
+    T = _fk(chain, chain.random_configuration(24, generator=gen), link)
+    res = chain.inverse_kinematics(T, link, restarts=8, generator=gen)
+    assert isinstance(res, IKResult)
+    assert res.q.shape == (24, chain.n_dof) and res.q.dtype == dtype
+    assert res.converged.dtype == torch.bool and res.iterations.dtype == torch.int64
+    assert bool(res.converged.all())
+    assert _within_limits(chain, res.q)
+    # The reported errors are those of the returned q, and within the tolerances.
+    angle, dist = se3.distance(_fk(chain.to(F64), res.q.double(), link), T.double())
+    slack = 1e-5 if dtype == torch.float32 else 1e-12
+    assert float((dist - res.position_error.double()).abs().max()) < slack
+    assert float((angle - res.rotation_error.double()).abs().max()) < 10 * slack
+    assert float(dist.max()) <= 1e-4 + slack and float(angle.max()) <= 1e-3 + 10 * slack
+    assert bool((res.iterations <= 40).all()) and bool((res.iterations > 0).all())
+
+
+def test_float64_converges_to_machine_precision():
+    arm = ARM
+    gen = torch.Generator().manual_seed(0)
+    T = _fk(arm, arm.random_configuration(16, generator=gen), "tool_tcp")
+    res = arm.inverse_kinematics(T, "tool_tcp", restarts=4, generator=gen)
+    assert float(res.position_error.max()) < 1e-12 and float(res.rotation_error.max()) < 1e-12
+
+
+def test_position_targets():
+    arm = ARM
+    gen = torch.Generator().manual_seed(1)
+    p = _fk(arm, arm.random_configuration(10, generator=gen), "tool_tcp")[:, :3, 3]
+    res = arm.inverse_kinematics(p, "tool_tcp", restarts=2, generator=gen)
+    assert bool(res.converged.all())
+    assert torch.equal(res.rotation_error, torch.zeros(10, dtype=F64))
+    got = _fk(arm, res.q, "tool_tcp")[:, :3, 3]
+    assert float((got - p).norm(dim=-1).max()) < 1e-10
+
+
+def test_several_links_of_a_tree_with_every_joint_type():
+    tree = TREE
+    """Both hands (mimic joints on each), the planar puck and the floating drone at once."""
+    gen = torch.Generator().manual_seed(2)
+    links = ["left_tcp", "right_index", "puck_tool", "drone_camera"]
+    q_true = tree.random_configuration(6, generator=gen)
+    T = tree.forward_kinematics(q_true, links)
+    targets = {
+        "left_tcp": T["left_tcp"],
+        "right_index": T["right_index"][:, :3, 3],  # a position target
+        "puck_tool": T["puck_tool"],
+        "drone_camera": T["drone_camera"],
+    }
+    res = tree.inverse_kinematics(targets, restarts=4, generator=gen)
+    assert bool(res.converged.all()), (res.position_error, res.rotation_error)
+    assert _within_limits(tree, res.q)
+    got = tree.forward_kinematics(res.q, links)
+    for link in ("left_tcp", "puck_tool", "drone_camera"):
+        angle, dist = se3.distance(got[link], targets[link])
+        assert float(dist.max()) <= 1e-4 and float(angle.max()) <= 1e-3
+    dist = (got["right_index"][:, :3, 3] - targets["right_index"]).norm(dim=-1)
+    assert float(dist.max()) <= 1e-4
+    # The floating joint's rotation vector stays an angle of at most pi.
+    k = tree.joint_names.index("drone_free:rx")
+    assert float(res.q[:, k : k + 3].norm(dim=-1).max()) <= math.pi + 1e-12
+
+
+def test_batch_shapes_broadcast_and_empty():
+    arm = ARM
+    gen = torch.Generator().manual_seed(4)
+    T = _fk(arm, arm.random_configuration(2, 3, generator=gen), "tool_tcp")
+    q0 = arm.random_configuration(3, generator=gen)  # broadcast against (2, 3)
+    res = arm.inverse_kinematics(T, "tool_tcp", q0=q0, restarts=2, generator=gen)
+    assert res.q.shape == (2, 3, 7)
+    assert res.position_error.shape == res.converged.shape == res.iterations.shape == (2, 3)
+    assert bool(res.converged.all())
+    one = arm.inverse_kinematics(T[1, 2], "tool_tcp", restarts=4, generator=gen)
+    assert one.q.shape == (7,) and one.converged.shape == () and bool(one.converged)
+    empty = arm.inverse_kinematics(T[:0], "tool_tcp", restarts=3)
+    assert empty.q.shape == (0, 3, 7) and empty.converged.shape == (0, 3)
+
+
+def test_initial_guess_at_the_solution_takes_no_iteration():
+    arm = ARM
+    gen = torch.Generator().manual_seed(5)
+    q = arm.random_configuration(4, generator=gen)
+    res = arm.inverse_kinematics(_fk(arm, q, "tool_tcp"), "tool_tcp", q0=q)
+    assert torch.equal(res.iterations, torch.zeros(4, dtype=torch.int64))
+    torch.testing.assert_close(res.q, q, atol=1e-12, rtol=0)
+
+
+def test_max_iterations_zero_returns_the_clamped_start():
+    arm = ARM
+    q0 = arm.upper + 1.0
+    res = arm.inverse_kinematics(_fk(arm, torch.zeros(7, dtype=F64), "tool_tcp"), "tool_tcp",
+                                 q0=q0, max_iterations=0)  # fmt: skip
+    assert torch.equal(res.q, arm.upper) and not bool(res.converged)
+
+
+def test_early_exit_gives_the_same_quality():
+    arm = ARM
+    gen = torch.Generator().manual_seed(6)
+    T = _fk(arm, arm.random_configuration(30, generator=gen), "tool_tcp")
+    early = arm.inverse_kinematics(T, "tool_tcp", restarts=4, early_exit=True, generator=gen)
+    assert bool(early.converged.all())
+    angle, dist = se3.distance(_fk(arm, early.q, "tool_tcp"), T)
+    torch.testing.assert_close(dist, early.position_error, atol=1e-12, rtol=0)
+    torch.testing.assert_close(angle, early.rotation_error, atol=1e-12, rtol=0)
+    assert float(dist.max()) <= 1e-4 and float(angle.max()) <= 1e-3
+    # A target solved by its start is returned as is.
+    q = arm.random_configuration(3, generator=gen)
+    same = arm.inverse_kinematics(_fk(arm, q, "tool_tcp"), "tool_tcp", q0=q, early_exit=True)
+    assert torch.equal(same.q, q) and torch.equal(
+        same.iterations, torch.zeros(3, dtype=torch.int64)
+    )
+
+
+def test_user_bounds_are_respected():
+    arm = ARM
+    gen = torch.Generator().manual_seed(7)
+    lower = arm.lower.clone()
+    upper = arm.upper.clone()
+    lower[0], upper[0] = 0.2, 0.2  # base yaw fixed
+    q = arm.random_configuration(5, generator=gen)
+    q[:, 0] = 0.2
+    p = _fk(arm, q, "tool_tcp")[:, :3, 3]
+    res = arm.inverse_kinematics(p, "tool_tcp", restarts=4, lower=lower, upper=upper,
+                                 generator=gen)  # fmt: skip
+    assert bool(res.converged.all())
+    assert torch.equal(res.q[:, 0], torch.full((5,), 0.2, dtype=F64))
+
+
+# ----------------------------------------------------------------------------------------------
+# Unreachable targets
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, F64], ids=["f32", "f64"])
+def test_unreachable_targets_give_the_best_finite_point(dtype):
+    arm = Chain.from_urdf(sample_robot("arm7"), dtype=dtype)
+    far = torch.tensor([[5.0, 0.0, 1.0], [0.0, -7.0, 0.5]], dtype=dtype)
+    res = arm.inverse_kinematics(far, "tool_tcp", restarts=4,
+                                 generator=torch.Generator().manual_seed(0))  # fmt: skip
+    assert not bool(res.converged.any())
+    assert bool(torch.isfinite(res.q).all()) and _within_limits(arm, res.q)
+    p = _fk(arm, res.q, "tool_tcp")[:, :3, 3]
+    torch.testing.assert_close(res.position_error, (p - far).norm(dim=-1), atol=1e-5, rtol=0)
+    # Stretched towards the target: closer than the best of many random configurations.
+    samples = _fk(arm, arm.random_configuration(4000, generator=torch.Generator().manual_seed(1)),
+                  "tool_tcp")[:, :3, 3]  # fmt: skip
+    sampled = (samples.unsqueeze(1) - far).norm(dim=-1).amin(0)
+    assert bool((res.position_error < sampled).all())
+    # A pose target that is not a valid pose-in-reach at all: still finite.
+    T = torch.eye(4, dtype=dtype).repeat(3, 1, 1)
+    T[:, :3, 3] = torch.tensor([0.0, 0.0, 100.0], dtype=dtype)
+    res = arm.inverse_kinematics(T, "tool_tcp", restarts=2)
+    assert bool(torch.isfinite(res.q).all()) and not bool(res.converged.any())
+    assert bool(torch.isfinite(res.position_error).all())
+
+
+# ----------------------------------------------------------------------------------------------
+# The derivative used by the solver, and the implicit gradients
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "robot, links", [("arm7", ["tool_tcp"]), ("tree", ["left_tcp", "drone_camera", "puck_tool"])]
+)
+def test_residual_jacobian_is_the_exact_derivative(robot, links):
+    """``A = W^1/2 Jr(r)^-1 J_link`` against autodiff of the log residual ``Log(T*^-1 T(q))``."""
+    chain = Chain.from_urdf(sample_robot(robot), dtype=F64)
+    gen = torch.Generator().manual_seed(8)
+    N = 5
+    q = chain.random_configuration(N, generator=gen)
+    T_star = chain.forward_kinematics(chain.random_configuration(N, generator=gen), links)
+    tasks = [
+        ik_module._Task(name, chain._index[name], True,
+                        se3.inverse(T_star[name]).reshape(N, 16).mT.reshape(4, 4, N))
+        for name in links
+    ]  # fmt: skip
+    w = torch.tensor([1.0, 1.0, 1.0, 0.5, 0.5, 0.5] * len(links), dtype=F64)
+    b, A, _, _ = ik_module._residuals(chain, q.mT.contiguous(), tasks, w)
+
+    def residual(x: torch.Tensor) -> torch.Tensor:
+        T = chain.forward_kinematics(x, links)
+        return torch.cat([se3.log(se3.compose(se3.inverse(T_star[n][k]), T[n])) for n in links]) * w
+
+    for k in range(N):
+        expected = torch.func.jacrev(residual)(q[k])
+        torch.testing.assert_close(b[:, k], residual(q[k]), atol=1e-12, rtol=0)
+        torch.testing.assert_close(A[:, :, k], expected, atol=1e-10, rtol=0)
+
+
+def _solve6(xi: torch.Tensor, chain: Chain, T0: torch.Tensor, q0: torch.Tensor) -> torch.Tensor:
+    return chain.inverse_kinematics(se3.compose(T0, se3.exp(xi)), "l6", q0=q0,
+                                    max_iterations=30, restart_after=None).q  # fmt: skip
+
+
+def test_gradient_of_the_solution_matches_finite_differences():
+    """gradcheck (central differences of re-solved problems) on a non-redundant 6R arm."""
+    chain = Chain.from_urdf(ARM6, dtype=F64)
+    q_true = torch.tensor([0.3, -0.4, 0.9, 0.5, 0.7, -0.2], dtype=F64)
+    T0 = _fk(chain, q_true, "l6")
+    xi = torch.tensor([0.01, -0.02, 0.015, 0.02, -0.01, 0.03], dtype=F64, requires_grad=True)
+    q0 = q_true + 0.05
+    assert bool(chain.inverse_kinematics(se3.compose(T0, se3.exp(xi.detach())), "l6",
+                                         q0=q0).converged)  # fmt: skip
+    assert torch.autograd.gradcheck(lambda x: _solve6(x, chain, T0, q0), (xi,), atol=1e-6)
+
+
+def test_gradient_of_a_position_solution_matches_finite_differences():
+    chain = Chain.from_urdf(ARM6, dtype=F64)
+    q = torch.tensor([0.3, -0.4, 0.9, 0.0, 0.0, 0.0], dtype=F64)
+    p = _fk(chain, q, "l4")[:3, 3].clone().requires_grad_()  # three joints move l4's origin
+
+    def solve(x: torch.Tensor) -> torch.Tensor:
+        return chain.inverse_kinematics(x, "l4", q0=q + 0.05, restart_after=None).q
+
+    assert torch.autograd.gradcheck(solve, (p,), atol=1e-6)
+    (J,) = torch.autograd.functional.jacobian(solve, (p,))
+    assert torch.equal(J[3:], torch.zeros(3, 3, dtype=F64))  # joints that do not move l4
+
+
+def test_gradient_of_a_redundant_solution_moves_the_link_with_the_target():
+    arm = ARM
+    """7 joints, 3 constraints: the derivative is the minimum-norm one, and the link follows
+    the target exactly to first order (d FK(q*(p)) / dp = I)."""
+    q = arm.random_configuration(2, generator=torch.Generator().manual_seed(9))
+    p = _fk(arm, q, "tool_tcp")[:, :3, 3]
+
+    def reached(x: torch.Tensor) -> torch.Tensor:
+        sol = arm.inverse_kinematics(x, "tool_tcp", q0=q + 0.02)
+        return _fk(arm, sol.q, "tool_tcp")[:, :3, 3]
+
+    J = torch.autograd.functional.jacobian(reached, p)  # (2, 3, 2, 3)
+    for k in range(2):
+        torch.testing.assert_close(J[k, :, k], torch.eye(3, dtype=F64), atol=1e-9, rtol=0)
+        torch.testing.assert_close(J[k, :, 1 - k], torch.zeros(3, 3, dtype=F64), atol=0, rtol=0)
+    # Minimum norm: the derivative of q has no component in the Jacobian's null space.
+    sol = arm.inverse_kinematics(p, "tool_tcp", q0=q + 0.02)
+    Jq = torch.autograd.functional.jacobian(
+        lambda x: arm.inverse_kinematics(x, "tool_tcp", q0=q + 0.02).q, p
+    )[0, :, 0]  # (7, 3)
+    Jp = arm.jacobian(sol.q[0], "tool_tcp")[:3]  # (3, 7)
+    torch.testing.assert_close(Jq, torch.linalg.pinv(Jp), atol=1e-8, rtol=0)
+
+
+def test_gradient_is_zero_for_joints_on_a_limit():
+    arm = ARM
+    q = arm.random_configuration(1, generator=torch.Generator().manual_seed(10))[0]
+    q[3] = arm.lower[3]
+    T = _fk(arm, q, "tool_tcp").requires_grad_()
+    res = arm.inverse_kinematics(T, "tool_tcp", q0=q)
+    assert float(res.q[3].detach()) == float(arm.lower[3])
+    (g,) = torch.autograd.grad(res.q[3], T, retain_graph=True)
+    assert torch.equal(g, torch.zeros_like(g))
+    (g,) = torch.autograd.grad(res.q[1], T)
+    assert float(g.abs().max()) > 0
+
+
+def test_no_graph_without_targets_that_require_grad():
+    arm = ARM
+    T = _fk(arm, torch.zeros(7, dtype=F64), "tool_tcp")
+    assert not arm.inverse_kinematics(T, "tool_tcp").q.requires_grad
+
+
+# ----------------------------------------------------------------------------------------------
+# Compilation
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.compile
+@pytest.mark.slow
+def test_compiles_with_fullgraph():
+    chain = Chain.from_urdf(sample_robot("arm7"))
+    gen = torch.Generator().manual_seed(11)
+    q = chain.random_configuration(8, generator=gen)
+    T = _fk(chain, q, "tool_tcp")
+    q0 = (q + 0.01).clamp(chain.lower, chain.upper)
+
+    def solve(T: torch.Tensor, q0: torch.Tensor) -> torch.Tensor:
+        r = chain.inverse_kinematics(T, "tool_tcp", q0=q0, restart_after=None, max_iterations=2)
+        return r.q, r.converged
+
+    q_c, conv_c = torch.compile(solve, fullgraph=True, backend="aot_eager")(T, q0)
+    q_e, conv_e = solve(T, q0)
+    torch.testing.assert_close(q_c, q_e, atol=1e-4, rtol=0)
+    assert torch.equal(conv_c, conv_e) and bool(conv_e.all())
+
+
+# ----------------------------------------------------------------------------------------------
+# Bad input
+# ----------------------------------------------------------------------------------------------
+
+
+def test_bad_input_names_the_argument():
+    arm = ARM
+    fn = r"Chain\.inverse_kinematics"
+    T = torch.eye(4, dtype=F64)
+    shapes = r"\(\.\.\., 4, 4\) or positions of shape \(\.\.\., 3\), got shape \(2, 4\)"
+    with pytest.raises(ValueError, match=rf"{fn}: expected targets to be poses of shape {shapes}"):
+        arm.inverse_kinematics(torch.zeros(2, 4, dtype=F64), "tool_tcp")
+    with pytest.raises(ValueError, match=rf"{fn}: expected targets\['tool_tcp'\] to be poses"):
+        arm.inverse_kinematics({"tool_tcp": torch.zeros(3, 3, 4, dtype=F64)})
+    with pytest.raises(ValueError, match=rf"{fn}: unknown link 'hand'"):
+        arm.inverse_kinematics(T, "hand")
+    with pytest.raises(TypeError, match=rf"{fn}: expected link to be a link name"):
+        arm.inverse_kinematics(T)
+    with pytest.raises(TypeError, match=rf"{fn}: targets is a dict .* link must be None"):
+        arm.inverse_kinematics({"tool_tcp": T}, "tool_tcp")
+    with pytest.raises(ValueError, match=rf"{fn}: expected restarts >= 1, got restarts=0"):
+        arm.inverse_kinematics(T, "tool_tcp", restarts=0)
+    with pytest.raises(TypeError, match=rf"{fn}: expected restarts to be an integer"):
+        arm.inverse_kinematics(T, "tool_tcp", restarts=2.5)
+    lower = arm.lower.clone()
+    lower[2] = 4.0
+    with pytest.raises(ValueError, match=rf"{fn}: expected lower <= upper for every DoF, got "
+                       r"lower=4.0 > upper=3.05 for 'upper_arm_roll'"):  # fmt: skip
+        arm.inverse_kinematics(T, "tool_tcp", lower=lower)
+    with pytest.raises(ValueError, match=rf"{fn}: expected lower .* shape \(\) or \(7,\)"):
+        arm.inverse_kinematics(T, "tool_tcp", lower=torch.zeros(3, dtype=F64))
+    with pytest.raises(TypeError, match=rf"{fn}: targets has dtype torch.float32"):
+        arm.inverse_kinematics(T.float(), "tool_tcp")
+    with pytest.raises(ValueError, match=rf"{fn}: expected q0 of shape \(\.\.\., 7\)"):
+        arm.inverse_kinematics(T, "tool_tcp", q0=torch.zeros(6, dtype=F64))
+    with pytest.raises(ValueError, match=rf"{fn}: .*broadcast"):
+        arm.inverse_kinematics(T.expand(3, 4, 4), "tool_tcp", q0=torch.zeros(2, 7, dtype=F64))
+    with pytest.raises(ValueError, match=rf"{fn}: expected position_weight to be finite"):
+        arm.inverse_kinematics(T, "tool_tcp", position_weight=-1.0)
+    with pytest.raises(ValueError, match=rf"{fn}: position_weight and rotation_weight are both 0"):
+        arm.inverse_kinematics(T, "tool_tcp", position_weight=0.0, rotation_weight=0)
+    with pytest.raises(ValueError, match=rf"{fn}: expected max_iterations >= 0"):
+        arm.inverse_kinematics(T, "tool_tcp", max_iterations=-1)
+    with pytest.raises(ValueError, match=rf"{fn}: targets is an empty dict"):
+        arm.inverse_kinematics({})
+
+
+def test_so3_wrap_keeps_the_rotation():
+    q = torch.tensor([[0.1], [4.0], [0.0], [0.0]], dtype=F64).repeat(1, 3)  # (4, N) rows
+    q[1:4, 1] = torch.tensor([4.0, 0.0, 0.0], dtype=F64)
+    w = ik_module._wrap_rotvecs(q, [1])
+    torch.testing.assert_close(so3.exp(w[1:4].mT), so3.exp(q[1:4].mT), atol=1e-12, rtol=0)
+    assert float(w[1:4].norm(dim=0).max()) <= math.pi + 1e-12
+    assert torch.equal(w[0], q[0])
