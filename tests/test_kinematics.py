@@ -9,6 +9,7 @@ import torch
 from samplers import eps
 from scipy.spatial.transform import Rotation
 
+from torchlie import se3, so3
 from torchlie.kinematics import Chain, sample_robot
 from torchlie.kinematics.reference import (
     reference_dof_names,
@@ -246,6 +247,95 @@ def test_jacobian_columns_of_other_branches_are_zero(tree):
         else:
             assert torch.equal(J[..., i], torch.zeros_like(J[..., i]))
     assert torch.equal(tree.jacobian(q, "world"), torch.zeros(2, 6, tree.n_dof, dtype=F64))
+
+
+# ----------------------------------------------------------------------------------------------
+# Jacobian kinds: frames and points, against jacrev of FK in tangent coordinates
+# ----------------------------------------------------------------------------------------------
+
+KINDS_LINKS = ["left_tcp", "right_index", "puck_tool", "drone_camera", "camera_optical"]
+
+
+def _tangent_jacobian(chain: Chain, q: torch.Tensor, link: str, frame: str, point=None):
+    """Jacobian ``(6, n)`` of the tangent coordinates of FK at ``q``: ``Log(T0^-1 T(x))`` (link),
+    ``Log(T(x) T0^-1)`` (spatial), or the world point and ``vee(dR R0^T)`` (world)."""
+    T0 = chain.forward_kinematics(q, link)[link]
+
+    def tangent(x: torch.Tensor) -> torch.Tensor:
+        T = chain.forward_kinematics(x, link)[link]
+        if frame == "link":
+            xi = se3.log(se3.compose(se3.inverse(T0), T))
+            if point is None:
+                return xi
+            # The point's velocity in link coordinates: R0^T d(T point).
+            moved = se3.act(se3.inverse(T0), se3.act(T, point))
+            return torch.cat((moved, xi[3:]))
+        if frame == "spatial":
+            return se3.log(se3.compose(T, se3.inverse(T0)))
+        p = se3.act(T, torch.zeros(3, dtype=F64) if point is None else point)
+        return torch.cat((p, so3.log(T[:3, :3] @ T0[:3, :3].mT)))
+
+    return torch.func.jacrev(tangent)(q)
+
+
+@pytest.mark.parametrize(
+    "frame, with_point",
+    [("world", False), ("world", True), ("link", False), ("link", True), ("spatial", False)],
+)
+def test_jacobian_kinds_match_jacrev_in_tangent_coordinates(tree, gen, frame, with_point):
+    q = tree.random_configuration(2, generator=gen)
+    point = torch.tensor([0.05, -0.12, 0.3], dtype=F64) if with_point else None
+    Js = tree.jacobian(q, KINDS_LINKS, frame=frame, point=point)
+    assert list(Js) == KINDS_LINKS
+    for link in KINDS_LINKS:
+        assert Js[link].shape == (2, 6, tree.n_dof)
+        for b in range(2):
+            expected = _tangent_jacobian(tree, q[b], link, frame, point)
+            torch.testing.assert_close(Js[link][b], expected, atol=1e-12, rtol=0)
+            one = tree.jacobian(q[b], link, frame=frame, point=point)
+            torch.testing.assert_close(one, Js[link][b], atol=1e-15, rtol=0)
+
+
+def test_jacobian_default_is_the_world_frame_at_the_origin(tree, gen):
+    q = tree.random_configuration(3, generator=gen)
+    for link in KINDS_LINKS:
+        J = tree.jacobian(q, link)
+        assert torch.equal(tree.jacobian(q, link, frame="world"), J)
+        zero = torch.zeros(3, dtype=F64)
+        torch.testing.assert_close(tree.jacobian(q, link, point=zero), J, atol=1e-15, rtol=0)
+
+
+def test_jacobian_points_broadcast_and_per_link(tree, gen):
+    q = tree.random_configuration(3, generator=gen)
+    pts = torch.tensor([[0.1, 0.0, 0.0], [0.0, 0.2, 0.0]], dtype=F64).view(2, 1, 3)
+    J = tree.jacobian(q, "left_tcp", frame="link", point=pts)
+    assert J.shape == (2, 3, 6, tree.n_dof)
+    for i in range(2):
+        for b in range(3):
+            expected = tree.jacobian(q[b], "left_tcp", frame="link", point=pts[i, 0])
+            torch.testing.assert_close(J[i, b], expected, atol=1e-15, rtol=0)
+    Js = tree.jacobian(q, ["left_tcp", "drone_camera"], point={"left_tcp": pts[0, 0]})
+    torch.testing.assert_close(
+        Js["left_tcp"], tree.jacobian(q, "left_tcp", point=pts[0, 0]), atol=0, rtol=0
+    )
+    torch.testing.assert_close(Js["drone_camera"], tree.jacobian(q, "drone_camera"), atol=0, rtol=0)
+    assert tree.jacobian(q, []) == {}
+
+
+def test_jacobian_kind_errors(tree):
+    q = tree.random_configuration(2)
+    jac = r"torchlie\.kinematics\.Chain\.jacobian"
+    with pytest.raises(ValueError, match=rf"{jac}: expected frame to be 'world', 'link' or "
+                       r"'spatial', got 'body'"):  # fmt: skip
+        tree.jacobian(q, "left_tcp", frame="body")
+    with pytest.raises(ValueError, match=rf"{jac}: point is not used with frame='spatial'"):
+        tree.jacobian(q, "left_tcp", frame="spatial", point=torch.zeros(3, dtype=F64))
+    with pytest.raises(ValueError, match=rf"{jac}: expected point of shape \(\.\.\., 3\)"):
+        tree.jacobian(q, "left_tcp", point=torch.zeros(4, dtype=F64))
+    with pytest.raises(ValueError, match=rf"{jac}: point has an entry for 'drone'"):
+        tree.jacobian(q, ["left_tcp"], point={"drone": torch.zeros(3, dtype=F64)})
+    with pytest.raises(TypeError, match=rf"{jac}: point has dtype torch.float32"):
+        tree.jacobian(q, "left_tcp", point=torch.zeros(3))
 
 
 # ----------------------------------------------------------------------------------------------

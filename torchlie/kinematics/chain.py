@@ -29,8 +29,12 @@ Conventions
   freedom, joints in document order, fixed and mimic joints excluded; a planar or floating
   joint ``J`` contributes ``J:x, J:y, J:theta`` or ``J:x, J:y, J:z, J:rx, J:ry, J:rz``.
 * :meth:`Chain.jacobian` is the geometric Jacobian ``(..., 6, n_dof)``, rows (linear; angular),
-  in world coordinates at the link's origin: column ``i`` holds ``(dp/dq_i, w_i)`` where
-  ``dR/dq_i = hat(w_i) R``.  Same meaning as pytorch-kinematics' ``jacobian``.
+  columns in ``q``'s order; by default in world coordinates at the link's origin: column ``i``
+  holds ``(dp/dq_i, w_i)`` where ``dR/dq_i = hat(w_i) R``, the same meaning as
+  pytorch-kinematics' ``jacobian``.  ``frame="link"`` gives it in the link's coordinates (the
+  body twist, ``T(q + dq) ~= T(q) Exp(J dq)``), ``frame="spatial"`` the spatial twist
+  (``T(q + dq) ~= Exp(J dq) T(q)``), and ``point=`` the linear velocity of a point fixed in
+  the link instead of its origin.
 
 Deliberate conventions at the edges:
 
@@ -355,6 +359,32 @@ class _JacPlan:
     dof_index: Tensor  # (n_cols,) long
     col_weight: Tensor | None  # (n_cols,)
     in_dof_order: bool  # column k is DoF k's, for every DoF (a serial arm): no scatter needed
+
+
+def _frame_jacobian(
+    J: Tensor, P: Tensor, frame: str, point: Tensor | None, batch: tuple[int, ...]
+) -> Tensor:
+    """The world Jacobian at the origin ``J (B, 6, n)`` of a link with internal pose
+    ``P (4, 4, B)``, in ``frame`` and at ``point`` (see :meth:`Chain.jacobian`), ``(..., 6, n)``
+    with ``...`` the broadcast of ``batch`` and ``point``'s batch shape."""
+    n = J.shape[-1]
+    J = J.reshape(*batch, 6, n)
+    T = P.permute(2, 1, 0).reshape(*batch, 4, 4)
+    R, p = T[..., :3, :3], T[..., :3, 3]
+    lin, ang = J[..., :3, :], J[..., 3:, :]
+    if frame == "spatial":  # v - w x p = v + p x w
+        lin = lin + torch.linalg.cross(p.unsqueeze(-1).expand_as(ang), ang, dim=-2)
+    elif frame == "world":
+        if point is not None:  # v + w x (R point)
+            offset = (R @ point.unsqueeze(-1)).squeeze(-1)
+            lin, ang = torch.broadcast_tensors(lin, ang, offset.unsqueeze(-1))[:2]
+            lin = lin + torch.linalg.cross(ang, offset.unsqueeze(-1).expand_as(ang), dim=-2)
+    else:  # link: R^T v (+ w_b x point), R^T w
+        lin, ang = R.mT @ lin, R.mT @ ang
+        if point is not None:
+            lin, ang, pt = torch.broadcast_tensors(lin, ang, point.unsqueeze(-1))
+            lin = lin + torch.linalg.cross(ang, pt, dim=-2)
+    return torch.cat((lin, ang), dim=-2)
 
 
 def _rows_index(rows: Sequence[int], device: torch.device) -> object:
@@ -994,24 +1024,52 @@ class Chain:
         Js = [self._jacobian_columns(self._jac_plan(t), pose, q2, t) for t in targets]
         return [pose(t) for t in targets], Js
 
-    def jacobian(self, q: Float[Tensor, "*b n_dof"], link: str) -> Float[Tensor, "*b 6 n_dof"]:
-        """Geometric Jacobian of ``link``'s frame, ``(..., 6, n_dof)``, in closed form.
+    def jacobian(
+        self,
+        q: Float[Tensor, "*b n_dof"],
+        link: str | Sequence[str],
+        *,
+        frame: str = "world",
+        point: Tensor | Mapping[str, Tensor] | None = None,
+    ) -> Float[Tensor, "*b 6 n_dof"] | dict[str, Float[Tensor, "*b 6 n_dof"]]:
+        """Geometric Jacobian of a link, ``(..., 6, n_dof)``, in closed form.
 
-        ``link`` is one link name (a ``str``): unlike :meth:`forward_kinematics`, which takes
-        several links and returns a dict, the Jacobian is of one frame, so a list or ``None``
-        raises ``TypeError`` (call it once per link; only the links on the path from the root
-        are computed, so a call costs what that one link needs).  A robot without degrees of
-        freedom, or the root link, gives an all-zero or empty ``(..., 6, n_dof)``; an empty
-        batch gives an empty result.
+        Column ``i`` is the velocity of the link for a unit rate of DoF ``i`` (columns in
+        :attr:`joint_names` order), rows (linear; angular), in one of three conventions:
 
-        Rows are (linear; angular) velocity in world coordinates, the linear part at the link's
-        origin: column ``i`` is ``(z x (p - p_i); z)`` for a revolute joint with world axis
-        ``z`` through ``p_i``, ``(z; 0)`` for a prismatic one, and a mimic joint adds its
-        multiplier times its own column to the column of the joint it follows.  A planar
-        joint's columns are two translations and a rotation; a floating joint's are three
-        translations along the joint frame's axes and the angular velocities
+        * ``frame="world"`` (the default): the linear velocity of the link's origin (or of
+          ``point``) and the angular velocity, both in world coordinates.  For a revolute joint
+          with world axis ``z`` through ``p_i`` the column is ``(z x (p - p_i); z)``, for a
+          prismatic one ``(z; 0)``.  Same meaning as pytorch-kinematics' ``jacobian`` and
+          Pinocchio's ``LOCAL_WORLD_ALIGNED``.
+        * ``frame="link"``: the same velocities in the link's own coordinates, ``R^T`` times
+          both rows.  At the origin this is the body twist of
+          :mod:`torchlie.se3`'s right perturbation, ``T(q + dq) ~= T(q) Exp(J dq)``
+          (Pinocchio's ``LOCAL``).
+        * ``frame="spatial"``: the spatial twist, ``T(q + dq) ~= Exp(J dq) T(q)``: the angular
+          velocity and the velocity of the body point passing through the world origin,
+          ``v - w x p``, in world coordinates (Pinocchio's ``WORLD``).  It is the same for every
+          point of the link, so ``point`` must be None.
+
+        A mimic joint adds its multiplier times its own column to the column of the joint it
+        follows.  A planar joint's columns are two translations and a rotation; a floating
+        joint's are three translations along the joint frame's axes and the angular velocities
         ``R_joint Jl(r) e_k`` of its rotation vector (:func:`torchlie.so3.jac_left`).  Columns
-        of joints that do not move ``link`` are zero.
+        of joints that do not move the link are zero.  A robot without degrees of freedom, or
+        the root link, gives an all-zero or empty ``(..., 6, n_dof)``; an empty batch gives an
+        empty result.
+
+        Args:
+            q: ``(..., n_dof)`` joint values, as for :meth:`forward_kinematics`.
+            link: a link name, or a sequence of names (then a dict is returned; one
+                forward-kinematics pass serves them all).
+            frame: ``"world"``, ``"link"`` or ``"spatial"`` (see above).
+            point: ``None`` (the link's origin), a point ``(3,)`` or ``(..., 3)`` in the link's
+                frame (its batch shape broadcasts with ``q``'s), or for several links a dict
+                link -> point (links not in it use their origin).
+
+        Returns:
+            ``(..., 6, n_dof)``, or a dict link -> ``(..., 6, n_dof)`` in the order given.
 
         Example:
             >>> from torchlie.kinematics import sample_robot
@@ -1019,18 +1077,77 @@ class Chain:
             >>> J = arm.jacobian(torch.zeros(2, 7), "tool_tcp")
             >>> J.shape, J[0, 3:, 0]
             (torch.Size([2, 6, 7]), tensor([0., 0., 1.]))
+            >>> Js = arm.jacobian(torch.zeros(7), ["tool_tcp", "link3"], frame="link")
+            >>> list(Js), Js["link3"].shape
+            (['tool_tcp', 'link3'], torch.Size([6, 7]))
         """
-        q2, out_dtype, batch = self._prepare(q, "jacobian")
-        if not isinstance(link, str):
+        fn = "jacobian"
+        q2, out_dtype, batch = self._prepare(q, fn)
+        if isinstance(link, str):
+            names: tuple[str, ...] = (link,)
+        elif isinstance(link, Sequence) and not isinstance(link, (bytes, bytearray)):
+            names = tuple(link)
+        else:
             raise TypeError(
-                f"{_NAME}jacobian: expected link to be one link name (str), got "
-                f"{type(link).__name__} {reprlib.repr(link)}; for several links call jacobian "
-                "once per link"
+                f"{_NAME}{fn}: expected link to be a link name (str) or a sequence of link "
+                f"names, got {type(link).__name__} {reprlib.repr(link)}"
             )
-        (target,) = self._targets(link, "jacobian")
-        _, (J,) = self._poses_and_jacobians(q2, (target,))
-        J = J.permute(2, 1, 0)
-        return _checks.out(J.reshape(*batch, 6, self.n_dof).contiguous(), out_dtype)
+        targets = self._targets(names, fn)
+        if frame not in ("world", "link", "spatial"):
+            raise ValueError(
+                f"{_NAME}{fn}: expected frame to be 'world', 'link' or 'spatial', got "
+                f"{reprlib.repr(frame)}"
+            )
+        points = self._jacobian_points(point, names, frame, q2.dtype)
+        poses, jacs = self._poses_and_jacobians(q2, targets) if targets else ([], [])
+        out: dict[str, Tensor] = {}
+        for name, P, Jd in zip(names, poses, jacs, strict=True):
+            J = Jd.permute(2, 1, 0)  # (B, 6, n)
+            if frame != "world" or points.get(name) is not None:
+                J = _frame_jacobian(J, P, frame, points.get(name), batch)
+            else:
+                J = J.reshape(*batch, 6, self.n_dof)
+            out[name] = _checks.out(J.contiguous(), out_dtype)
+        if isinstance(link, str):
+            return out[link]
+        return out
+
+    def _jacobian_points(
+        self,
+        point: Tensor | Mapping[str, Tensor] | None,
+        names: tuple[str, ...],
+        frame: str,
+        dtype: torch.dtype,
+    ) -> dict[str, Tensor]:
+        """``point`` of :meth:`jacobian` checked, as a dict link -> ``(..., 3)`` point."""
+        fn = _NAME + "jacobian"
+        if point is None:
+            return {}
+        if frame == "spatial":
+            raise ValueError(
+                f"{fn}: point is not used with frame='spatial' (the spatial twist is the same "
+                "for every point of the link); pass point=None"
+            )
+        if isinstance(point, Mapping):
+            for k in point:
+                if k not in names:
+                    raise ValueError(
+                        f"{fn}: point has an entry for {reprlib.repr(k)}, which is not among "
+                        f"the links asked for ({', '.join(map(repr, names))})"
+                    )
+            items = {k: (v, f"point[{k!r}]") for k, v in point.items()}
+        else:
+            items = {n: (point, "point") for n in names}
+        out = {}
+        for k, (v, what) in items.items():
+            x, _ = _checks.tensor(v, fn, what, (3,))
+            if x.dtype != dtype or x.device != self.device:
+                raise TypeError(
+                    f"{fn}: {what} has dtype {x.dtype} on {x.device}, expected {dtype} on "
+                    f"{self.device} (like q)"
+                )
+            out[k] = x
+        return out
 
     def inverse_kinematics(
         self,
