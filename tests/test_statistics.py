@@ -685,7 +685,7 @@ def test_integrate_broadcast_and_errors():
         se3_integrate(torch.eye(4), torch.zeros(6), 1.0, frame="space")
     with pytest.raises(
         ValueError,
-        match=r"torchlie.statistics.se3_integrate: expected velocity of shape \(\.\.\., 6\)",
+        match=r"torchlie.statistics.se3_integrate: expected xi of shape \(\.\.\., 6\)",
     ):
         se3_integrate(torch.eye(4), torch.zeros(3), 1.0)
     with pytest.raises(TypeError, match="dt"):

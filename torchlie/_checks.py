@@ -3,14 +3,34 @@
 Shape and dtype checks read only metadata, so they never synchronise a device and they trace
 away under ``torch.compile``.  Value checks (orthonormality, unit norm) cost a sync and are the
 explicit ``is_valid`` / ``is_unit`` functions of each module instead.
+
+One rule for every entry point:
+
+* tensors: float16, bfloat16 (both computed in float32), float32 or float64, else ``TypeError``;
+  the tensors of one call share one dtype, else ``TypeError``; wrong trailing shape or batch
+  shapes that do not broadcast: ``ValueError``;
+* factories (``identity``, ``random``, ...): ``dtype=`` one of those four (``TypeError``);
+* real parameters (``t``, ``dt``, ``angle``, ``std``, query times, weights): a tensor (of the
+  operands' dtype, as above) or numbers: a Python or numpy real number, a numpy array of
+  reals, or a (nested) list / tuple of them, converted to the operands' dtype and device;
+  ``bool`` is never a number here (``TypeError``);
+* tolerances and loss weights: a non-negative finite real number (``TypeError`` for another
+  type, ``ValueError`` for a negative, infinite or NaN value).
 """
 
 from __future__ import annotations
 
+import math
+import numbers
+
+import numpy as np
 import torch
 from torch import Tensor
 
 _LOW_PRECISION = (torch.float16, torch.bfloat16)
+#: The dtypes every op accepts (float8 and the rest are refused: no op is written for them).
+_FLOATS = frozenset((torch.float16, torch.bfloat16, torch.float32, torch.float64))
+_FLOAT_NAMES = "float16, bfloat16, float32 or float64"
 
 
 def _shape_str(trailing: tuple[int, ...]) -> str:
@@ -26,10 +46,10 @@ def tensor(x: object, fn: str, arg: str, trailing: tuple[int, ...]) -> tuple[Ten
     if not isinstance(x, Tensor):
         raise TypeError(f"{fn}: expected {arg} to be a torch.Tensor, got {type(x).__name__}")
     dtype = x.dtype
-    if not dtype.is_floating_point:
+    if dtype not in _FLOATS:
         raise TypeError(
-            f"{fn}: expected {arg} to be a floating-point tensor (float16, bfloat16, float32 or "
-            f"float64), got dtype {dtype}"
+            f"{fn}: expected {arg} to be a floating-point tensor ({_FLOAT_NAMES}), got dtype "
+            f"{dtype}"
         )
     shape = tuple(x.shape)  # a tuple slices several times faster than a torch.Size
     k = len(shape) - len(trailing)
@@ -49,6 +69,90 @@ def same_dtype(fn: str, **tensors: Tensor) -> None:
         elif t.dtype != dtype:
             desc = ", ".join(f"{k} is {v.dtype}" for k, v in tensors.items())
             raise TypeError(f"{fn}: expected inputs of one dtype, got {desc}")
+
+
+def factory(fn: str, batch: tuple[object, ...], dtype: object) -> tuple[torch.dtype, torch.dtype]:
+    """Check a factory's batch sizes and ``dtype=``; return ``(compute dtype, output dtype)``.
+
+    ``dtype=None`` means torch's default dtype.  Half precision is drawn and computed in float32
+    and cast back by the caller (``out``).
+    """
+    for b in batch:
+        if isinstance(b, bool) or not isinstance(b, (numbers.Integral, torch.SymInt)):
+            raise TypeError(
+                f"{fn}: expected the batch sizes to be ints, got {type(b).__name__} ({b!r})"
+            )
+        if isinstance(b, numbers.Integral) and b < 0:
+            raise ValueError(f"{fn}: expected batch sizes >= 0, got {tuple(batch)}")
+    if dtype is None:
+        dtype = torch.get_default_dtype()
+    if not isinstance(dtype, torch.dtype) or dtype not in _FLOATS:
+        raise TypeError(
+            f"{fn}: expected dtype to be one of torch.float16, torch.bfloat16, torch.float32 or "
+            f"torch.float64, got {dtype!r}"
+        )
+    return (torch.float32 if dtype in _LOW_PRECISION else dtype), dtype
+
+
+def _real_leaves(x: object) -> bool:
+    """Whether a (nested) list / tuple holds real numbers only (``bool`` is not one here)."""
+    if isinstance(x, (list, tuple)):
+        return all(_real_leaves(v) for v in x)
+    return isinstance(x, numbers.Real) and not isinstance(x, bool)
+
+
+def real(x: object, fn: str, arg: str, like: Tensor, ref: tuple[str, Tensor]) -> Tensor:
+    """A real parameter (``t``, ``dt``, ``angle``, ...) in the compute dtype and device of ``like``.
+
+    ``ref`` is ``(name, tensor)`` of the operand whose dtype a tensor ``x`` must share.  Numbers
+    (Python, numpy, 0-d or n-d numpy arrays, nested lists) are converted; ``bool`` is refused.
+    """
+    if isinstance(x, Tensor):
+        if x.dtype not in _FLOATS:
+            raise TypeError(
+                f"{fn}: expected {arg} to be a real number or a floating-point tensor, got "
+                f"dtype {x.dtype}"
+            )
+        same_dtype(fn, **{ref[0]: ref[1], arg: x})
+        return x if x.dtype == like.dtype else x.to(like.dtype)
+    if isinstance(x, numbers.Real) and not isinstance(x, bool):  # numpy's bool_ is not Real
+        return torch.tensor(float(x), dtype=like.dtype, device=like.device)
+    if isinstance(x, np.ndarray) and x.dtype.kind in "fiu":
+        return torch.as_tensor(x).to(dtype=like.dtype, device=like.device)
+    if isinstance(x, (list, tuple)) and _real_leaves(x):
+        try:
+            return torch.tensor(x, dtype=like.dtype, device=like.device)
+        except (ValueError, TypeError, RuntimeError):
+            raise ValueError(
+                f"{fn}: expected {arg} to be a rectangular (nested) list of numbers, got a "
+                "ragged one"
+            ) from None
+    what = f"numpy array of dtype {x.dtype}" if isinstance(x, np.ndarray) else type(x).__name__
+    raise TypeError(
+        f"{fn}: expected {arg} to be a real number, a list or numpy array of them, or a "
+        f"floating-point tensor, got {what}"
+    )
+
+
+def nonnegative(x: object, fn: str, arg: str) -> float:
+    """A non-negative finite real number (a tolerance or a loss weight), as a ``float``.
+
+    Python and numpy numbers; ``bool`` and tensors are refused (a tensor's value cannot be
+    checked without a device sync).
+    """
+    if isinstance(x, bool) or not isinstance(x, numbers.Real):
+        raise TypeError(
+            f"{fn}: expected {arg} to be a non-negative finite real number, got {type(x).__name__}"
+        )
+    v = float(x)
+    if not (math.isfinite(v) and v >= 0.0):
+        raise ValueError(f"{fn}: expected {arg} to be a non-negative finite real number, got {v}")
+    return v
+
+
+def tolerance(x: object, fn: str, arg: str, dtype: torch.dtype) -> float:
+    """``atol``-like argument: ``None`` gives :func:`default_atol` of ``dtype``."""
+    return default_atol(dtype) if x is None else nonnegative(x, fn, arg)
 
 
 def batch_broadcast(fn: str, *shapes: tuple[torch.Size, str]) -> torch.Size:

@@ -280,8 +280,9 @@ def axis_angle_to_matrix(
 
     ``axis`` need not be unit: it is normalised first, so only its direction matters.  A zero
     axis has no direction and gives NaN for that element.  Any real ``angle`` is accepted
-    (negative angles and angles beyond ``pi`` wrap around as rotations do).  Equal to
-    ``torchlie.so3.exp(angle * axis / |axis|)``.
+    (negative angles and angles beyond ``pi`` wrap around as rotations do): a tensor of the
+    dtype of ``axis`` or numbers (a float, numpy scalar or array, or a list), converted to it;
+    not a bool.  Equal to ``torchlie.so3.exp(angle * axis / |axis|)``.
 
     Example:
         >>> R = axis_angle_to_matrix(torch.tensor([0.0, 0.0, 2.0]), torch.tensor(torch.pi / 3))
@@ -290,20 +291,7 @@ def axis_angle_to_matrix(
     """
     fn = _NAME + "axis_angle_to_matrix"
     n, dtype = _checks.tensor(axis, fn, "axis", (3,))
-    if isinstance(angle, Tensor):
-        if not angle.is_floating_point():
-            raise TypeError(
-                f"{fn}: expected angle to be a float or a floating-point tensor, got dtype "
-                f"{angle.dtype}"
-            )
-        _checks.same_dtype(fn, axis=axis, angle=angle)
-        t = angle.to(n.dtype)
-    elif isinstance(angle, (int, float)):
-        t = torch.tensor(float(angle), dtype=n.dtype, device=n.device)
-    else:
-        raise TypeError(
-            f"{fn}: expected angle to be a float or a tensor, got {type(angle).__name__}"
-        )
+    t = _checks.real(angle, fn, "angle", n, ("axis", axis))
     _checks.batch_broadcast(fn, (n.shape[:-1], "axis"), (t.shape, "angle"))
     unit = n * torch.rsqrt((n * n).sum(-1, keepdim=True))  # zero axis -> NaN (documented)
     return _checks.out(_so3._ExpFn(t.unsqueeze(-1) * unit), dtype)

@@ -369,7 +369,10 @@ def from_matrix(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 4"]:
     writes, no host sync).  The input first takes one orthogonalisation step
     ``R (3I - R^T R) / 2``, exact on SO(3), so that the result and its gradient are those of the
     nearest rotation to first order: ``from_matrix(R + eps E)`` equals
-    ``from_matrix(polar(R + eps E))`` up to ``O(eps^2)``, whichever formula is selected.
+    ``from_matrix(polar(R + eps E))`` up to ``O(eps^2)``, whichever formula is selected.  A
+    matrix farther from SO(3) (``3 * R``, a reflection, an arbitrary matrix) gives an
+    unspecified quaternion, not an error: project it first with :func:`torchlie.so3.project`
+    (see "Matrices off SO(3)" in :mod:`torchlie.so3`).
 
     Example:
         >>> from_matrix(torch.diag(torch.tensor([1.0, -1.0, -1.0])))  # pi about x
@@ -622,21 +625,6 @@ def _pure(v: Tensor) -> Tensor:
     return torch.cat((torch.zeros_like(v[..., :1]), v), dim=-1)
 
 
-def _param(x: Tensor | float, fn: str, arg: str, like: Tensor) -> Tensor:
-    """A float or floating tensor parameter (``t``, ``dt``) in the compute dtype of ``like``."""
-    if not isinstance(x, Tensor):
-        if isinstance(x, bool) or not isinstance(x, (int, float)):
-            raise TypeError(
-                f"{fn}: expected {arg} to be a float or a tensor, got {type(x).__name__}"
-            )
-        return torch.tensor(float(x), dtype=like.dtype, device=like.device)
-    if not x.is_floating_point():
-        raise TypeError(
-            f"{fn}: expected {arg} to be a float or floating-point tensor, got {x.dtype}"
-        )
-    return x.to(like.dtype)
-
-
 _FRAMES = ("body", "world")
 
 
@@ -846,7 +834,9 @@ def slerp(
     ``t = 0`` gives ``q0``, ``t = 1`` gives ``q1'``; other ``t`` extrapolate.  Written with the
     half-angle vector ``atan2(|r_v|, r_w) r_v/|r_v|`` of ``r = q0^-1 q1'`` and the series of
     :mod:`torchlie._coeffs`, so it is exact and has finite gradients for nearly equal or equal
-    inputs (no ``0/0`` as in ``sin((1-t) a)/sin(a)``).  Zero quaternion: NaN.
+    inputs (no ``0/0`` as in ``sin((1-t) a)/sin(a)``).  Zero quaternion: NaN.  ``t`` is a
+    tensor of the dtype of ``q0`` or numbers (a float, numpy scalar or array, or a list),
+    converted to it; not a bool.
 
     Example:
         >>> q0 = torch.tensor([1.0, 0.0, 0.0, 0.0])
@@ -858,7 +848,7 @@ def slerp(
     a, dtype = _checks.tensor(q0, fn, "q0", (4,))
     b, _ = _checks.tensor(q1, fn, "q1", (4,))
     _checks.same_dtype(fn, q0=q0, q1=q1)
-    tt = _param(t, fn, "t", a)
+    tt = _checks.real(t, fn, "t", a, ("q0", q0))
     _checks.batch_broadcast(fn, (a.shape[:-1], "q0"), (b.shape[:-1], "q1"), (tt.shape, "t"))
     return _checks.out(_slerp(a, b, tt), dtype)
 
@@ -889,6 +879,7 @@ def identity(
         tensor([[1., 0., 0., 0.],
                 [1., 0., 0., 0.]])
     """
+    _, dtype = _checks.factory("torchlie.quaternion.identity", batch, dtype)
     e = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=dtype, device=device)
     return e.expand(*batch, 4).clone()
 
@@ -911,27 +902,25 @@ def random(
         >>> is_unit(q)
         tensor([True, True, True])
     """
-    low = dtype in (torch.float16, torch.bfloat16)
-    x = torch.randn(
-        *batch, 4, generator=generator, dtype=torch.float32 if low else dtype, device=device
-    )
-    return _checks.out(_normalize(x), dtype if low else x.dtype)
+    compute, dtype = _checks.factory("torchlie.quaternion.random", batch, dtype)
+    x = torch.randn(*batch, 4, generator=generator, dtype=compute, device=device)
+    return _checks.out(_normalize(x), dtype)
 
 
 def is_unit(q: Float[Tensor, "*b 4"], atol: float | None = None) -> Bool[Tensor, "*b"]:
     """Per element: finite and ``| |q| - 1 | <= atol``.
 
-    ``atol`` defaults to ``100 * eps`` of float32/float64 (about 1.2e-5 for float32), and to
-    ``4 * eps`` of float16/bfloat16 for those inputs (rounding a unit quaternion to them stays
-    within that).  Reads the values, so keep it out of hot loops on a GPU.
+    ``atol`` (a non-negative finite real number) defaults to ``100 * eps`` of float32/float64
+    (about 1.2e-5 for float32), and to ``4 * eps`` of float16/bfloat16 for those inputs
+    (rounding a unit quaternion to them stays within that).  Reads the values, so keep it out
+    of hot loops on a GPU.
 
     Example:
         >>> is_unit(torch.tensor([[1.0, 0.0, 0.0, 0.0], [1.0, 1.0, 0.0, 0.0]]))
         tensor([ True, False])
     """
     x, dtype = _checks.tensor(q, "torchlie.quaternion.is_unit", "q", (4,))
-    if atol is None:
-        atol = _checks.default_atol(dtype)
+    atol = _checks.tolerance(atol, "torchlie.quaternion.is_unit", "atol", dtype)
     n = torch.linalg.vector_norm(x, dim=-1)
     return ((n - 1.0).abs() <= atol) & torch.isfinite(x).all(dim=-1)
 
@@ -1154,6 +1143,8 @@ def integrate(
     ``q(dt) = q * exp([0, omega dt/2])`` in the body frame and ``exp([0, omega dt/2]) * q`` in
     the world frame (``exp([0, omega dt/2])`` is ``from_rotvec(omega * dt)``).  Exact for any
     ``q`` (the norm is preserved, not imposed) and for any ``|omega dt|``, small ones included.
+    ``dt`` is a tensor of the dtype of ``q`` or numbers, converted to it (as ``t`` in
+    :func:`slerp`).
 
     Raises:
         ValueError: ``frame`` is neither ``"body"`` nor ``"world"``.
@@ -1168,7 +1159,7 @@ def integrate(
     a, dtype = _checks.tensor(q, fn, "q", (4,))
     w, _ = _checks.tensor(omega, fn, "omega", (3,))
     _checks.same_dtype(fn, q=q, omega=omega)
-    h = _param(dt, fn, "dt", a)
+    h = _checks.real(dt, fn, "dt", a, ("q", q))
     _checks.batch_broadcast(fn, (a.shape[:-1], "q"), (w.shape[:-1], "omega"), (h.shape, "dt"))
     e = _exp_pure((0.5 * h).unsqueeze(-1) * w)
     out = _multiply(a, e) if frame == "body" else _multiply(e, a)

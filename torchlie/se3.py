@@ -682,6 +682,9 @@ def log(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 6"]:
     step), so plain ``gradcheck`` on a raw pose matrix passes.  Double backward and forward
     mode are supported.
 
+    The rotation block must be a rotation up to first-order deviations; other matrices give an
+    unspecified result (see "Matrices off SO(3)" in :mod:`torchlie.so3`).
+
     Example:
         >>> T = exp(torch.tensor([1.0, 2.0, 3.0, 0.1, 0.2, 0.3]))
         >>> log(T)
@@ -845,6 +848,7 @@ def identity(
         >>> identity(2).shape
         torch.Size([2, 4, 4])
     """
+    _, dtype = _checks.factory(_NAME + "identity", batch, dtype)
     return torch.eye(4, dtype=dtype, device=device).expand(*batch, 4, 4).clone()
 
 
@@ -856,20 +860,23 @@ def random(
 ) -> Float[Tensor, "*batch 4 4"]:
     """Random poses: Haar-uniform rotations (:func:`torchlie.so3.random`), translations ``N(0, I)``.
 
+    float16/bfloat16 are drawn and computed in float32, then cast.
+
     Example:
         >>> T = random(4, generator=torch.Generator().manual_seed(0))
         >>> bool(is_valid(T).all())
         True
     """
-    R = so3.random(*batch, generator=generator, dtype=dtype, device=device)
-    t = torch.randn(*batch, 3, generator=generator, dtype=dtype, device=device)
-    return _assemble(R, t)
+    compute, dtype = _checks.factory(_NAME + "random", batch, dtype)
+    R = so3.random(*batch, generator=generator, dtype=compute, device=device)
+    t = torch.randn(*batch, 3, generator=generator, dtype=compute, device=device)
+    return _checks.out(_assemble(R, t), dtype)
 
 
 def is_valid(T: Float[Tensor, "*b 4 4"], atol: float | None = None) -> Bool[Tensor, "*b"]:
     """Per element: finite, rotation block valid (:func:`torchlie.so3.is_valid`) and bottom row
-    ``(0, 0, 0, 1)``, each within ``atol`` (default ``100 * eps`` of the input dtype, ``4 * eps``
-    for half).
+    ``(0, 0, 0, 1)``, each within ``atol`` (a non-negative finite real number; default
+    ``100 * eps`` of the input dtype, ``4 * eps`` for half).
 
     Example:
         >>> bad = identity()
@@ -878,7 +885,7 @@ def is_valid(T: Float[Tensor, "*b 4 4"], atol: float | None = None) -> Bool[Tens
         tensor([ True, False])
     """
     x, _ = _checks.tensor(T, _NAME + "is_valid", "T", (4, 4))
-    tol = _checks.default_atol(T.dtype) if atol is None else atol
+    tol = _checks.tolerance(atol, _NAME + "is_valid", "atol", T.dtype)
     last = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=x.dtype, device=x.device)
     bottom = (x[..., 3, :] - last).abs().amax(dim=-1) <= tol
     return so3.is_valid(_rot(x), atol=tol) & bottom & torch.isfinite(_trans(x)).all(dim=-1)
@@ -951,7 +958,9 @@ def interpolate(
     """Geodesic interpolation ``T0 Exp(t Log(T0^-1 T1))`` (``t`` broadcasts with the batch).
 
     ``t = 0`` gives ``T0`` and ``t = 1`` gives ``T1``; the path is a screw motion (rotation and
-    translation coupled), not separate slerp + lerp.  Other ``t`` extrapolate.
+    translation coupled), not separate slerp + lerp.  Other ``t`` extrapolate.  ``t`` is a
+    tensor of the dtype of ``T0`` or numbers (a float, numpy scalar or array, or a list),
+    converted to it; not a bool.
 
     Example:
         >>> T1 = exp(torch.tensor([2.0, 0.0, 0.0, 0.0, 0.0, 1.0]))
@@ -961,11 +970,7 @@ def interpolate(
     """
     fn = _NAME + "interpolate"
     a, b, dtype, _ = _pair("interpolate", T0, T1, "T0", "T1")
-    if not isinstance(t, Tensor):
-        t = torch.tensor(t, dtype=a.dtype, device=a.device)
-    elif not t.is_floating_point():
-        raise TypeError(f"{fn}: expected t to be a float or floating-point tensor, got {t.dtype}")
-    t = t.to(a.dtype)
+    t = _checks.real(t, fn, "t", a, ("T0", T0))
     _checks.batch_broadcast(fn, (a.shape[:-2], "T0"), (b.shape[:-2], "T1"), (t.shape, "t"))
     xi = _LogFn(_between(a, b))
     return _checks.out(_compose(a, _exp(t.unsqueeze(-1) * xi)), dtype)

@@ -12,6 +12,16 @@ Jacobians (``Jr(w)`` = ``jac_right``, ``Jl(w)`` = ``jac_left``)::
     Jl(w) = I + B hat(w) + C hat(w)^2,   Jr(w) = Jl(-w) = Jl(w)^T
     B = (1 - cos t)/t^2,  C = (t - sin t)/t^3
     Jl^-1(w) = I - hat(w)/2 + D hat(w)^2,  D = (1 - (t/2) cot(t/2))/t^2
+
+Matrices off SO(3): an argument documented as a rotation is taken to be one up to rounding; its
+values are not checked (that would synchronise a device: :func:`is_valid` checks explicitly).
+The log maps (:func:`log` and what is built on it: :func:`rminus`, :func:`lminus`,
+:func:`interpolate`, :func:`torchlie.se3.log`, :func:`torchlie.quaternion.from_matrix`, the
+matrix-to-X conversions) correct deviations of first order: they read ``R`` as its nearest
+rotation ``project(R)`` up to ``O(|R^T R - I|^2)``, so rounding drift costs nothing.  A matrix
+farther from SO(3) (a scaled rotation ``s R`` with ``s`` not near 1, a reflection, an arbitrary
+matrix) gives an unspecified result, not an error: ``log(2 * I)`` is not ``0``.  Pass such
+matrices through :func:`project` first.
 """
 
 from __future__ import annotations
@@ -331,6 +341,10 @@ def log(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3"]:
     (exact on SO(3)), so it agrees with that gradient to first order and plain ``gradcheck`` on
     a raw rotation matrix passes.
 
+    ``R`` must be a rotation up to first-order deviations; other matrices (``2 * I``, a scaled
+    or reflected rotation) give an unspecified result: see "Matrices off SO(3)" in
+    :mod:`torchlie.so3`.
+
     Example:
         >>> log(torch.diag(torch.tensor([1.0, -1.0, -1.0])))
         tensor([3.1416, 0.0000, 0.0000])
@@ -509,6 +523,7 @@ def identity(
         >>> identity(2).shape
         torch.Size([2, 3, 3])
     """
+    _, dtype = _checks.factory(_NAME + "identity", batch, dtype)
     return torch.eye(3, dtype=dtype, device=device).expand(*batch, 3, 3).clone()
 
 
@@ -520,20 +535,24 @@ def random(
 ) -> Float[Tensor, "*batch 3 3"]:
     """Haar-uniform random rotations (normalised Gaussian quaternions).
 
+    float16/bfloat16 are drawn and computed in float32, then cast (as
+    :func:`torchlie.quaternion.random`).
+
     Example:
         >>> R = random(4, generator=torch.Generator().manual_seed(0))
         >>> bool(is_valid(R).all())
         True
     """
-    q = torch.randn(*batch, 4, generator=generator, dtype=dtype, device=device)
-    return _quat._to_matrix(q)
+    compute, dtype = _checks.factory(_NAME + "random", batch, dtype)
+    q = torch.randn(*batch, 4, generator=generator, dtype=compute, device=device)
+    return _checks.out(_quat._to_matrix(q), dtype)
 
 
 def is_valid(R: Float[Tensor, "*b 3 3"], atol: float | None = None) -> Bool[Tensor, "*b"]:
     """Per element: finite, ``R^T R = I`` and ``det R = 1`` within ``atol``.
 
-    ``atol`` defaults to ``100 * eps`` of the input dtype (about 1.2e-5 for float32; ``4 * eps``
-    for float16/bfloat16).  This reads the
+    ``atol`` (a non-negative finite real number) defaults to ``100 * eps`` of the input dtype
+    (about 1.2e-5 for float32; ``4 * eps`` for float16/bfloat16).  This reads the
     values, so use it outside hot loops on a GPU (the result is a tensor; nothing syncs until
     you branch on it).
 
@@ -542,7 +561,7 @@ def is_valid(R: Float[Tensor, "*b 3 3"], atol: float | None = None) -> Bool[Tens
         tensor([ True, False])
     """
     x, _ = _checks.tensor(R, _NAME + "is_valid", "R", (3, 3))
-    tol = _checks.default_atol(R.dtype) if atol is None else atol
+    tol = _checks.tolerance(atol, _NAME + "is_valid", "atol", R.dtype)
     eye = torch.eye(3, dtype=x.dtype, device=x.device)
     orth = (x.transpose(-1, -2) @ x - eye).abs().amax(dim=(-1, -2)) <= tol
     det = (torch.linalg.det(x) - 1.0).abs() <= tol
@@ -663,7 +682,9 @@ def interpolate(
     """Geodesic interpolation ``R0 Exp(t Log(R0^T R1))`` (``t`` broadcasts with the batch).
 
     ``t = 0`` gives ``R0``, ``t = 1`` gives ``R1``; other ``t`` extrapolate along the geodesic.
-    When ``R0^T R1`` is a rotation by exactly pi the path follows the canonical axis.
+    When ``R0^T R1`` is a rotation by exactly pi the path follows the canonical axis.  ``t`` is a
+    tensor of the dtype of ``R0`` or numbers (a float, numpy scalar or array, or a list),
+    converted to it; not a bool.
 
     Example:
         >>> Rz = exp(torch.tensor([0.0, 0.0, 1.0]))
@@ -674,11 +695,7 @@ def interpolate(
     a, dtype = _checks.tensor(R0, fn, "R0", (3, 3))
     b, _ = _checks.tensor(R1, fn, "R1", (3, 3))
     _checks.same_dtype(fn, R0=R0, R1=R1)
-    if not isinstance(t, Tensor):
-        t = torch.tensor(t, dtype=a.dtype, device=a.device)
-    elif not t.is_floating_point():
-        raise TypeError(f"{fn}: expected t to be a float or floating-point tensor, got {t.dtype}")
-    t = t.to(a.dtype)
+    t = _checks.real(t, fn, "t", a, ("R0", R0))
     _checks.batch_broadcast(fn, (a.shape[:-2], "R0"), (b.shape[:-2], "R1"), (t.shape, "t"))
     w = _LogFn(a.transpose(-1, -2) @ b)
     return _checks.out(a @ _ExpFn(t.unsqueeze(-1) * w), dtype)

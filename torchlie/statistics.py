@@ -69,19 +69,6 @@ _SO3 = _Group("so3", so3, 3, 3)
 _SE3 = _Group("se3", se3, 4, 6)
 
 
-def _param(x: Tensor | float, fn: str, arg: str, like: Tensor) -> Tensor:
-    """A float or floating tensor parameter, in the compute dtype and device of ``like``."""
-    if isinstance(x, Tensor):
-        if not x.is_floating_point():
-            raise TypeError(
-                f"{fn}: expected {arg} to be a float or floating-point tensor, got {x.dtype}"
-            )
-        return x.to(like.dtype)
-    if isinstance(x, bool) or not isinstance(x, (int, float)):
-        raise TypeError(f"{fn}: expected {arg} to be a float or a tensor, got {type(x).__name__}")
-    return torch.tensor(float(x), dtype=like.dtype, device=like.device)
-
-
 # ----------------------------------------------------------------------------------------------
 # Sampling
 # ----------------------------------------------------------------------------------------------
@@ -108,7 +95,7 @@ def _randn(
         )
     shapes = [(m.shape[:-2], "mean")]
     if std is not None:
-        s = _param(std, fn, "std", m)
+        s = _checks.real(std, fn, "std", m, ("mean", mean))
         shapes.append((s.shape, "std"))
     else:
         name = "cov" if cov is not None else "scale_tril"
@@ -195,33 +182,29 @@ def se3_randn(
 # ----------------------------------------------------------------------------------------------
 
 
-def _weights(fn: str, x: Tensor, weights: Tensor | None, set_shape: tuple[int, ...]) -> Tensor:
-    """Normalised weights ``(..., N)`` broadcast against the set's batch shape."""
-    if weights is None:
-        n = set_shape[-1]
-        return torch.full(set_shape, 1.0 / n, dtype=x.dtype, device=x.device)
-    if not isinstance(weights, Tensor) or not weights.is_floating_point():
-        raise TypeError(f"{fn}: expected weights to be a floating-point tensor")
-    if weights.dim() == 0 or weights.shape[-1] != set_shape[-1]:
+def _weights(fn: str, x: Tensor, weights: object, n: int, ref: tuple[str, Tensor]) -> Tensor:
+    """Normalised weights ``(..., n)`` (a tensor of ``ref``'s dtype, or numbers)."""
+    w = _checks.real(weights, fn, "weights", x, ref)
+    if w.dim() == 0 or w.shape[-1] != n:
         raise ValueError(
-            f"{fn}: expected weights of shape (..., {set_shape[-1]}) (one per element of the "
-            f"set), got {tuple(weights.shape)}"
+            f"{fn}: expected weights of shape (..., {n}) (one per element of the set), got "
+            f"{tuple(w.shape)}"
         )
-    w = weights.to(x.dtype)
     return w / w.sum(-1, keepdim=True)
 
 
-def _set(fn: str, g: _Group, X: Tensor, weights: Tensor | None, arg: str):
+def _set(fn: str, g: _Group, X: Tensor, weights: object, arg: str):
     x, dtype = _checks.tensor(X, fn, arg, (g.n, g.n))
     if x.dim() < 3 or x.shape[-3] == 0:
         raise ValueError(
             f"{fn}: expected {arg} of shape (..., N, {g.n}, {g.n}) with N >= 1 (the set is the "
             f"last batch dimension), got {tuple(X.shape)}"
         )
-    w = _weights(fn, x, weights, x.shape[:-2])
-    if weights is not None:
-        _checks.same_dtype(fn, **{arg: X, "weights": weights})
-        _checks.batch_broadcast(fn, (x.shape[:-3], arg), (weights.shape[:-1], "weights"))
+    if weights is None:
+        w = torch.full(x.shape[:-2], 1.0 / x.shape[-3], dtype=x.dtype, device=x.device)
+    else:
+        w = _weights(fn, x, weights, x.shape[-3], (arg, X))
+        _checks.batch_broadcast(fn, (x.shape[:-3], arg), (w.shape[:-1], "weights"))
     return x, w, dtype
 
 
@@ -337,20 +320,16 @@ def _keyframes(
 ) -> Tensor:
     fn = _NAME + g.name + "_interpolate_keyframes"
     kf, dtype = _checks.tensor(keyframes, fn, "keyframes", (g.n, g.n))
-    if not isinstance(times, Tensor) or not times.is_floating_point():
-        raise TypeError(f"{fn}: expected times to be a floating-point tensor")
-    if times.dim() != 1 or times.shape[0] == 0:
-        raise ValueError(
-            f"{fn}: expected times of shape (K,) with K >= 1, got {tuple(times.shape)}"
-        )
-    K = times.shape[0]
+    ts = _checks.real(times, fn, "times", kf, ("keyframes", keyframes))
+    if ts.dim() != 1 or ts.shape[0] == 0:
+        raise ValueError(f"{fn}: expected times of shape (K,) with K >= 1, got {tuple(ts.shape)}")
+    K = ts.shape[0]
     if kf.dim() < 3 or kf.shape[0] != K:
         raise ValueError(
             f"{fn}: expected keyframes of shape (K, ..., {g.n}, {g.n}) with K = {K} (one per "
             f"time), got {tuple(keyframes.shape)}"
         )
-    ts = times.to(kf.dtype)
-    q = _param(query, fn, "query_times", kf)
+    q = _checks.real(query, fn, "query_times", kf, ("keyframes", keyframes))
     batch = kf.shape[1:-2]
     lead = (None,) * len(batch)
     if K == 1:
@@ -455,7 +434,13 @@ def align(
     are non-negative with a positive sum.  Differentiable (through :func:`torchlie.so3.project`)
     wherever the rotation is unique, i.e. the centred points are not all collinear; with fewer
     than three points or collinear points the rotation is one of many minimisers and its
-    gradient is not finite.
+    gradient is not finite.  When ``H = 0``, because the points of ``P`` all coincide or those
+    of ``Q`` do (all lie at the origin, with ``translation=False``), every rotation fits
+    equally: the identity is returned, with zero gradient.  With ``scale=True``, when those of
+    ``P`` coincide every scale fits equally too: ``s = 1``, with zero gradient (never NaN); when
+    only those of ``Q`` do, ``s = 0``.
+    ``weights`` is a tensor of the dtype of ``P`` or numbers (a list, a numpy array), converted
+    to it.
 
     Returns:
         :class:`Alignment` ``(rotation (..., 3, 3), translation (..., 3), scale (...))``.
@@ -479,24 +464,35 @@ def align(
             f"{fn}: expected P and Q of shape (..., N, 3) with the same N >= 1, got "
             f"{tuple(P.shape)} and {tuple(Q.shape)}"
         )
+    n = p.shape[-2]
+    w = None if weights is None else _weights(fn, p, weights, n, ("P", P))
     shapes = [(p.shape[:-2], "P"), (q.shape[:-2], "Q")]
-    if weights is not None:
-        _weights(fn, p, weights, p.shape[:-1])  # type and shape checks
-        _checks.same_dtype(fn, P=P, weights=weights)
-        shapes.append((weights.shape[:-1], "weights"))
+    if w is not None:
+        shapes.append((w.shape[:-1], "weights"))
     batch = _checks.batch_broadcast(fn, *shapes)
-    w = _weights(fn, p, weights, (*batch, p.shape[-2]))
+    if w is None:
+        w = torch.full((*batch, n), 1.0 / n, dtype=p.dtype, device=p.device)
     if translation:
-        p_bar = _wsum(w, p, 1)
-        q_bar = _wsum(w, q, 1)
-        p = p - p_bar.unsqueeze(-2)
-        q = q - q_bar.unsqueeze(-2)
+        # Centred through the first point: points that all coincide centre to exactly 0.
+        p0, q0 = p[..., :1, :], q[..., :1, :]
+        dp, dq = _wsum(w, p - p0, 1), _wsum(w, q - q0, 1)
+        p_bar, q_bar = p0.squeeze(-2) + dp, q0.squeeze(-2) + dq
+        p = (p - p0) - dp.unsqueeze(-2)
+        q = (q - q0) - dq.unsqueeze(-2)
     # H = (w q)^T p and R p_bar as products and sums (not matmul): an element's result has the
     # same bits whatever the batch around it.
     H = ((q * w.unsqueeze(-1)).unsqueeze(-1) * p.unsqueeze(-2)).sum(-3)
-    R = so3.project(H)
+    # H = 0 (the weighted points of P, or those of Q, all at one place): every rotation fits
+    # equally; the identity is returned with zero gradient (project's backward would be 0/0).
+    flat = (H == 0).all(dim=-1).all(dim=-1)[..., None, None]
+    R = so3.project(torch.where(flat, torch.eye(3, dtype=H.dtype, device=H.device), H))
     if scale:
-        s = (R * H).sum((-1, -2)) / (w * (p * p).sum(-1)).sum(-1)
+        # All points of P at one place (zero spread): every scale fits equally, and s = 1 is
+        # returned, with zero gradient (the double where keeps 0/0 out of the backward too).
+        spread = (w * (p * p).sum(-1)).sum(-1)
+        some = spread > 0
+        s = (R * H).sum((-1, -2)) / torch.where(some, spread, torch.ones_like(spread))
+        s = torch.where(some, s, torch.ones_like(s))
     else:
         s = torch.ones(batch, dtype=p.dtype, device=p.device)
     if translation:
@@ -515,10 +511,12 @@ def _integrate(g: _Group, X: Tensor, v: Tensor, dt: Tensor | float, frame: str) 
     fn = _NAME + g.name + "_integrate"
     if frame not in ("body", "world"):
         raise ValueError(f"{fn}: expected frame 'body' or 'world', got {frame!r}")
-    x, dtype = _checks.tensor(X, fn, "X", (g.n, g.n))
-    vel, _ = _checks.tensor(v, fn, "velocity", (g.dof,))
-    h = _param(dt, fn, "dt", x)
-    _checks.batch_broadcast(fn, (x.shape[:-2], "X"), (vel.shape[:-1], "velocity"), (h.shape, "dt"))
+    nx, nv = ("R", "omega") if g is _SO3 else ("T", "xi")  # the public argument names
+    x, dtype = _checks.tensor(X, fn, nx, (g.n, g.n))
+    vel, _ = _checks.tensor(v, fn, nv, (g.dof,))
+    _checks.same_dtype(fn, **{nx: X, nv: v})
+    h = _checks.real(dt, fn, "dt", x, (nx, X))
+    _checks.batch_broadcast(fn, (x.shape[:-2], nx), (vel.shape[:-1], nv), (h.shape, "dt"))
     step = h.unsqueeze(-1) * vel
     out = g.core.rplus(x, step) if frame == "body" else g.core.lplus(x, step)
     return _checks.out(out, dtype)
