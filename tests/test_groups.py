@@ -328,7 +328,10 @@ def test_operator_type_errors():
         R.compose(T)
     with pytest.raises(TypeError, match="torchlie.SE3.rminus"):
         T.rminus(R)
-    with pytest.raises(ValueError, match="torchlie.so3.act: expected points of shape"):
+    with pytest.raises(
+        ValueError,
+        match=r"torchlie\.SO3\.__matmul__ \(through torchlie\.so3\.act\): expected points",
+    ):
         R @ torch.zeros(4)
 
 

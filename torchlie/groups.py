@@ -26,12 +26,16 @@ tensor, cannot be mutated, and cost one Python object per call.
   ``SO3`` wrapping the *ambient* gradient ``dL/dR``, which is not a rotation.
 
 Shape and dtype checks in the constructors are free (metadata only).  ``check=True`` also checks
-the values (``is_valid``), which synchronises a GPU; it raises ``ValueError``.
+the values (``is_valid``), which synchronises a GPU; it raises ``ValueError``.  Errors name what
+was called: a bad argument of ``X @ p`` raises ``torchlie.SO3.__matmul__ (through
+torchlie.so3.act): ...``, naming the method first and then the function that checked it (whose
+argument names the message uses).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import functools
+from collections.abc import Callable, Iterator
 from types import ModuleType
 from typing import Any, ClassVar, TypeVar
 
@@ -54,6 +58,36 @@ def __dir__() -> list[str]:
 
 
 _G = TypeVar("_G", bound="_Group")
+_F = TypeVar("_F", bound=Callable[..., Any])
+_CORES = ("torchlie.so3.", "torchlie.se3.", "torchlie.quaternion.")
+
+
+def _as_method(op: str) -> Callable[[_F], _F]:
+    """Report the functional core's ``TypeError`` / ``ValueError`` under the method ``op``.
+
+    The core names itself (``torchlie.so3.act: ...``); the error is raised again as
+    ``torchlie.SO3.apply (through torchlie.so3.act): ...``.  Free when nothing is raised.
+    """
+
+    def decorate(method: _F) -> _F:
+        @functools.wraps(method)
+        def named(obj: Any, *args: Any, **kwargs: Any) -> Any:
+            try:
+                return method(obj, *args, **kwargs)
+            except (TypeError, ValueError) as err:
+                raise _renamed(err, obj, op) from None
+
+        return named  # type: ignore[return-value]
+
+    return decorate
+
+
+def _renamed(err: Exception, obj: Any, op: str) -> Exception:
+    head, sep, rest = str(err).partition(": ")
+    if not (sep and head.startswith(_CORES)):
+        return err
+    cls = obj if isinstance(obj, type) else type(obj)
+    return type(err)(f"torchlie.{cls.__name__}.{op} (through {head}): {rest}")
 
 
 class _Group:
@@ -71,8 +105,9 @@ class _Group:
     def __init__(self, tensor: Tensor, *, check: bool = False, atol: float | None = None) -> None:
         name = "torchlie." + type(self).__name__
         _checks.tensor(tensor, name, "tensor", (self._n, self._n))
+        tol = _checks.tolerance(atol, name, "atol", tensor.dtype)
         if check:
-            _check_valid(name, self._core.is_valid(tensor, atol=atol), "a valid group element")
+            _check_valid(name, self._core.is_valid(tensor, atol=tol), "a valid group element")
         object.__setattr__(self, "tensor", tensor)
 
     @classmethod
@@ -92,6 +127,7 @@ class _Group:
         return (type(self)._wrap, (self.tensor,))
 
     @classmethod
+    @_as_method("exp")
     def exp(cls: type[_G], tangent: Tensor) -> _G:
         """``Exp`` of a tangent vector (rotation vector ``(..., 3)`` or twist ``(..., 6)``).
 
@@ -102,6 +138,7 @@ class _Group:
         return cls._wrap(cls._core.exp(tangent))
 
     @classmethod
+    @_as_method("identity")
     def identity(
         cls: type[_G],
         *batch: int,
@@ -118,6 +155,7 @@ class _Group:
         return cls._wrap(cls._core.identity(*batch, dtype=dtype, device=device))
 
     @classmethod
+    @_as_method("random")
     def random(
         cls: type[_G],
         *batch: int,
@@ -135,6 +173,7 @@ class _Group:
 
     # -- group operations ------------------------------------------------------------------
 
+    @_as_method("__matmul__")
     def __matmul__(self, other: object) -> Any:
         if type(other) is type(self):
             return type(self)._wrap(self._core.compose(self.tensor, other.tensor))
@@ -142,6 +181,7 @@ class _Group:
             return self._core.act(self.tensor, other)
         return NotImplemented
 
+    @_as_method("compose")
     def compose(self: _G, other: _G) -> _G:
         """``self @ other`` (batch shapes broadcast); use it in ``torch.compile`` d code.
 
@@ -156,6 +196,7 @@ class _Group:
         _same_group("compose", self, other)
         return type(self)._wrap(self._core.compose(self.tensor, other.tensor))
 
+    @_as_method("apply")
     def apply(self, points: Float[Tensor, "*b1 3"]) -> Float[Tensor, "*b 3"]:
         """Act on points ``(..., 3)`` (``self @ points``; batch shapes broadcast).
 
@@ -166,6 +207,7 @@ class _Group:
         """
         return self._core.act(self.tensor, points)
 
+    @_as_method("inverse")
     def inverse(self: _G) -> _G:
         """The inverse element.
 
@@ -175,6 +217,7 @@ class _Group:
         """
         return type(self)._wrap(self._core.inverse(self.tensor))
 
+    @_as_method("log")
     def log(self) -> Tensor:
         """``Log``: rotation vector ``(..., 3)`` (SO3) or twist ``(..., 6)`` (SE3).
 
@@ -184,6 +227,7 @@ class _Group:
         """
         return self._core.log(self.tensor)
 
+    @_as_method("adjoint")
     def adjoint(self) -> Tensor:
         """Adjoint matrix ``(..., dof, dof)``: ``X Exp(tau) X^-1 = Exp(Ad_X tau)``.
 
@@ -193,6 +237,7 @@ class _Group:
         """
         return self._core.adjoint(self.tensor)
 
+    @_as_method("rplus")
     def rplus(self: _G, tau: Tensor) -> _G:
         """``self (+) tau = self Exp(tau)`` (``tau`` in the body frame).
 
@@ -202,6 +247,7 @@ class _Group:
         """
         return type(self)._wrap(self._core.rplus(self.tensor, tau))
 
+    @_as_method("lplus")
     def lplus(self: _G, tau: Tensor) -> _G:
         """``Exp(tau) self`` (``tau`` in the world frame).
 
@@ -212,6 +258,7 @@ class _Group:
         """
         return type(self)._wrap(self._core.lplus(self.tensor, tau))
 
+    @_as_method("rminus")
     def rminus(self: _G, other: _G) -> Tensor:
         """``self (-) other = Log(other^-1 self)``, so ``other.rplus(self.rminus(other)) == self``.
 
@@ -223,6 +270,7 @@ class _Group:
         _same_group("rminus", self, other)
         return self._core.rminus(self.tensor, other.tensor)
 
+    @_as_method("lminus")
     def lminus(self: _G, other: _G) -> Tensor:
         """``Log(self other^-1)``, the left-perturbation difference.
 
@@ -234,6 +282,7 @@ class _Group:
         _same_group("lminus", self, other)
         return self._core.lminus(self.tensor, other.tensor)
 
+    @_as_method("between")
     def between(self: _G, other: _G) -> _G:
         """``self^-1 other``: ``other`` expressed in the frame of ``self``.
 
@@ -246,6 +295,7 @@ class _Group:
         _same_group("between", self, other)
         return type(self)._wrap(self._core.between(self.tensor, other.tensor))
 
+    @_as_method("interpolate")
     def interpolate(self: _G, other: _G, t: Tensor | float) -> _G:
         """Geodesic interpolation ``self Exp(t Log(self^-1 other))`` (``t`` broadcasts).
 
@@ -258,6 +308,7 @@ class _Group:
         _same_group("interpolate", self, other)
         return type(self)._wrap(self._core.interpolate(self.tensor, other.tensor, t))
 
+    @_as_method("distance")
     def distance(self: _G, other: _G) -> Any:
         """The core's ``distance`` (SO3: angle; SE3: ``(angle, translation norm)``).
 
@@ -268,6 +319,7 @@ class _Group:
         _same_group("distance", self, other)
         return self._core.distance(self.tensor, other.tensor)
 
+    @_as_method("is_valid")
     def is_valid(self, atol: float | None = None) -> Bool[Tensor, "*b"]:
         """Per-element value check (reads the values; see the core's ``is_valid``).
 
@@ -336,7 +388,9 @@ class _Group:
             >>> SO3.identity().to(torch.float64).dtype
             torch.float64
         """
-        return type(self)._wrap(self.tensor.to(*args, **kwargs))
+        tensor = self.tensor.to(*args, **kwargs)
+        _checks.factory(f"torchlie.{type(self).__name__}.to", (), tensor.dtype)
+        return type(self)._wrap(tensor)
 
     def detach(self: _G) -> _G:
         """The same element, cut from the autograd graph (``Tensor.detach``).
@@ -383,6 +437,11 @@ def _same_group(op: str, a: _Group, b: object) -> None:
         )
 
 
+def _check_atol(name: str, atol: object) -> None:
+    if atol is not None:  # checked even without check=True: a bad value is a bug either way
+        _checks.nonnegative(atol, name, "atol")
+
+
 def _check_valid(name: str, ok: Tensor, what: str) -> None:
     # Reads the values (a device sync): only with check=True.
     bad = int((~ok).sum())
@@ -421,6 +480,7 @@ class SO3(_Group):
     _dof = 3
 
     @classmethod
+    @_as_method("from_quaternion")
     def from_quaternion(
         cls, q: Float[Tensor, "*b 4"], *, check: bool = False, atol: float | None = None
     ) -> SO3:
@@ -433,12 +493,14 @@ class SO3(_Group):
             >>> SO3.from_quaternion(torch.tensor([0.0, 0.0, 0.0, 1.0])).log()
             tensor([0.0000, 0.0000, 3.1416])
         """
+        _check_atol("torchlie.SO3.from_quaternion", atol)
         if check:
             _check_valid(
                 "torchlie.SO3.from_quaternion", _quat.is_unit(q, atol=atol), "unit quaternions"
             )
         return cls._wrap(_quat.to_matrix(q))
 
+    @_as_method("quaternion")
     def quaternion(self) -> Float[Tensor, "*b 4"]:
         """Canonical wxyz unit quaternions ``(..., 4)`` (``w >= 0``); a conversion, so a method.
 
@@ -493,6 +555,7 @@ class SE3(_Group):
     _dof = 6
 
     @classmethod
+    @_as_method("from_rt")
     def from_rt(
         cls,
         R: Float[Tensor, "*b1 3 3"] | SO3,
@@ -507,11 +570,13 @@ class SE3(_Group):
         """
         if isinstance(R, SO3):
             R = R.tensor
+        _check_atol("torchlie.SE3.from_rt", atol)
         if check:
             _check_valid("torchlie.SE3.from_rt", _so3.is_valid(R, atol=atol), "rotations")
         return cls._wrap(_se3.from_rt(R, t))
 
     @classmethod
+    @_as_method("from_pos_quat")
     def from_pos_quat(
         cls, pq: Float[Tensor, "*b 7"], *, check: bool = False, atol: float | None = None
     ) -> SE3:
@@ -520,6 +585,7 @@ class SE3(_Group):
         With ``check=True``, raises ``ValueError`` unless every quaternion has unit norm
         within ``atol`` (:func:`torchlie.quaternion.is_unit`).
         """
+        _check_atol("torchlie.SE3.from_pos_quat", atol)
         if check:
             _checks.tensor(pq, "torchlie.SE3.from_pos_quat", "pq", (7,))
             _check_valid(
@@ -529,10 +595,12 @@ class SE3(_Group):
             )
         return cls._wrap(_se3.from_pos_quat(pq))
 
+    @_as_method("to_rt")
     def to_rt(self) -> tuple[Float[Tensor, "*b 3 3"], Float[Tensor, "*b 3"]]:
         """``(R, t)``: rotation matrices ``(..., 3, 3)`` and translations ``(..., 3)``."""
         return _se3.to_rt(self.tensor)
 
+    @_as_method("pos_quat")
     def pos_quat(self) -> Float[Tensor, "*b 7"]:
         """7-vectors ``(t, q)``: translation, then the canonical wxyz quaternion."""
         return _se3.to_pos_quat(self.tensor)
@@ -559,6 +627,7 @@ class SE3(_Group):
         """
         return _se3.to_rt(self.tensor)[1]
 
+    @_as_method("quaternion")
     def quaternion(self) -> Float[Tensor, "*b 4"]:
         """Canonical wxyz quaternion of the rotation part ``(..., 4)``."""
         return _se3.to_pos_quat(self.tensor)[..., 3:]
