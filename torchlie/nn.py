@@ -107,12 +107,16 @@ def _safe_rot6d(x: Tensor) -> Tensor:
     return torch.cat((a1, a2), dim=-1)
 
 
-def _unit_quaternion(x: Tensor) -> Tensor:
-    """Canonical unit quaternion of a raw 4-vector (zero -> identity)."""
+def _identity_if_zero(x: Tensor) -> Tensor:
+    """A raw 4-vector with ``0`` replaced by the identity quaternion (zero gradient there)."""
     zero = (x == 0).all(dim=-1, keepdim=True)
     one = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=x.dtype, device=x.device)
-    q = torch.where(zero, one, x)
-    return _quat.canonicalize(_conv._unit(q))
+    return torch.where(zero, one, x)
+
+
+def _unit_quaternion(x: Tensor) -> Tensor:
+    """Canonical unit quaternion of a raw 4-vector (zero -> identity)."""
+    return _quat.canonicalize(_conv._unit(_identity_if_zero(x)))
 
 
 def _to_matrix(x: Tensor, representation: str) -> Tensor:
@@ -213,6 +217,7 @@ class RotationHead(nn.Module):
     ) -> None:
         super().__init__()
         fn = _NAME + "RotationHead"
+        _checks.factory(fn, (), dtype)
         _check_choice(fn, "representation", representation, REPRESENTATIONS)
         _check_choice(fn, "output", output, ("matrix", "SO3"))
         self.representation = representation
@@ -292,6 +297,7 @@ class PoseHead(nn.Module):
     ) -> None:
         super().__init__()
         fn = _NAME + "PoseHead"
+        _checks.factory(fn, (), dtype)
         _check_choice(fn, "representation", representation, REPRESENTATIONS)
         _check_choice(fn, "output", output, ("matrix", "SE3"))
         self.representation = representation
@@ -387,7 +393,8 @@ def se3_geodesic_loss(
 
     Args:
         T_pred, T_target: poses ``(..., 4, 4)`` (batch shapes broadcast).
-        rotation_weight, translation_weight: non-negative weights.
+        rotation_weight, translation_weight: non-negative finite real numbers (per-element
+            weights: combine the ``reduction="none"`` losses yourself).
         kind: ``"angle"`` (default) or ``"chordal"``.
         reduction: ``"mean"`` (default), ``"sum"`` or ``"none"``.
 
@@ -399,6 +406,8 @@ def se3_geodesic_loss(
     fn = _NAME + "se3_geodesic_loss"
     _check_choice(fn, "kind", kind, ("angle", "chordal"))
     _check_choice(fn, "reduction", reduction, _REDUCTIONS)
+    rotation_weight = _checks.nonnegative(rotation_weight, fn, "rotation_weight")
+    translation_weight = _checks.nonnegative(translation_weight, fn, "translation_weight")
     a, dtype = _checks.tensor(T_pred, fn, "T_pred", (4, 4))
     b, _ = _checks.tensor(T_target, fn, "T_target", (4, 4))
     _checks.same_dtype(fn, T_pred=T_pred, T_target=T_target)
@@ -438,7 +447,10 @@ class SO3Parametrization(nn.Module):
       singularity, no SVD; the cheapest and most robust choice.  The gradient is orthogonal
       to ``q``, so plain gradient steps only make ``|q|`` grow (slowly, second order in the
       step); adaptive optimisers, whose steps are not along the gradient, move ``|q|`` a
-      little either way.  ``right_inverse`` is :func:`torchlie.quaternion.from_matrix`.
+      little either way.  ``right_inverse`` is :func:`torchlie.quaternion.from_matrix`.  A
+      stored ``q = 0`` (where no rotation is defined) reads as the identity with a zero
+      gradient, never NaN; it therefore stays there, so initialise the parameter by assigning
+      rotations (``right_inverse``), not zeros.
     * ``"matrix"``: an unconstrained ``(..., 3, 3)`` matrix read as its nearest rotation,
       :func:`torchlie.so3.project`; ``right_inverse`` stores the assigned matrix as it is (the
       stored value *is* the rotation until the first step).  Costs an SVD per read and an
@@ -482,7 +494,7 @@ class SO3Parametrization(nn.Module):
         fn = _NAME + "SO3Parametrization"
         _checks.tensor(X, fn, "X", _SO3_PARAMS[self.representation])
         if self.representation == "quaternion":
-            return _quat.to_matrix(X)
+            return _quat.to_matrix(_identity_if_zero(X))
         if self.representation == "matrix":
             return so3.project(X)
         return so3.exp(X)
@@ -504,7 +516,8 @@ class SE3Parametrization(nn.Module):
     :class:`SO3Parametrization`).  ``representation`` chooses the stored parameter:
 
     * ``"pos_quat"`` (default): ``(..., 7)`` ``(t, q)``, read as
-      :func:`torchlie.se3.from_pos_quat` (translation as it is, rotation of ``q / |q|``);
+      :func:`torchlie.se3.from_pos_quat` (translation as it is, rotation of ``q / |q|``;
+      ``q = 0`` reads as the identity rotation, as for :class:`SO3Parametrization`);
       ``right_inverse`` is :func:`torchlie.se3.to_pos_quat`.  Rotation and translation are
       decoupled, which usually conditions pose optimisation well.
     * ``"matrix"``: an unconstrained ``(..., 4, 4)`` matrix; the rotation block is read through
@@ -540,7 +553,7 @@ class SE3Parametrization(nn.Module):
         """The poses ``(..., 4, 4)`` of the stored parameter ``X``."""
         _checks.tensor(X, _NAME + "SE3Parametrization", "X", _SE3_PARAMS[self.representation])
         if self.representation == "pos_quat":
-            return se3.from_pos_quat(X)
+            return se3.from_pos_quat(torch.cat((X[..., :3], _identity_if_zero(X[..., 3:])), -1))
         if self.representation == "matrix":
             return se3.from_rt(so3.project(X[..., :3, :3]), X[..., :3, 3])
         return se3.exp(X)
