@@ -278,6 +278,20 @@ def test_list_is_converted_from_python_floats_not_through_float32():
     assert float(w[0, 2]) == float(so3.log(so3.interpolate(torch.eye(3, dtype=F64), _RZ1, 0.1))[2])
 
 
+@pytest.mark.parametrize("mean", [st.so3_mean, st.se3_mean])
+def test_mean_iterations_are_ints_not_bools(mean):
+    X = (so3 if mean is st.so3_mean else se3).identity(2)
+    name = re.escape(f"torchlie.statistics.{mean.__name__}")
+    for bad in (True, 2.0, "3"):
+        with pytest.raises(TypeError, match=rf"^{name}: expected iterations to be an int >= 0"):
+            mean(X, iterations=bad)
+    with pytest.raises(
+        ValueError, match=rf"^{name}: expected iterations to be an int >= 0, got -1"
+    ):
+        mean(X, iterations=-1)
+    assert torch.equal(mean(X, iterations=np.int64(2)), mean(X, iterations=2))
+
+
 def test_weights_accept_lists():
     R = so3.exp(torch.tensor([[0.0, 0.0, 0.2], [0.0, 0.0, 0.6]], dtype=F64))
     torch.testing.assert_close(
