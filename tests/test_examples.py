@@ -111,6 +111,17 @@ def test_missing_matplotlib_is_said_once_on_stderr(
     assert json.loads((tmp_path / figures).read_text())["seconds"] == fig["seconds"]
 
 
+def test_missing_pytorch_kinematics_is_said_once_on_stderr(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "pytorch_kinematics", None)  # import -> ImportError
+    argv = ["--robots", "arm7", "--samples", "5", "--dtypes", "float64", "--brief"]
+    fig = load("kinematics_validation").main([*argv, "--out", str(tmp_path)])
+    out, err = capsys.readouterr()
+    assert err.count("pytorch-kinematics is not installed") == 1, err
+    assert fig["ok"] and fig["results"]["arm7 float64"]["pk_version"] is None
+    assert out.rstrip().endswith("PASS")
+    assert "not installed" in (tmp_path / "kinematics_validation.txt").read_text()
+
+
 @pytest.mark.slow
 def test_rotation_regression(tmp_path, capsys):
     plot = tmp_path / "rotation_regression.png"
