@@ -65,7 +65,7 @@ def test_tree_reports_pk_deviations_and_not_comparable_links():
     assert "cannot load floating or planar joints" in dev and "puck_slide, drone_free" in dev
     assert "n/c: not comparable with pytorch_kinematics" in text
     row = next(line for line in text.splitlines() if line.startswith("drone "))
-    assert row.split()[-3:] == ["n/c", "n/c", "ok"]
+    assert row.split()[5:7] == ["n/c", "n/c"] and row.split()[-1] == "ok"
 
 
 @needs_pk
@@ -227,3 +227,57 @@ def test_pk_second_derivative_vanishes_ours_does_not():
     (h,) = torch.autograd.grad(g.sum(), x)
     fd = (first(0.3 + 1e-6)[0] - first(0.3 - 1e-6)[0]) / 2e-6
     assert abs(h.item()) > 0.1 and abs(h.item() - fd.item()) < 1e-8
+
+
+# ----------------------------------------------------------------------------------------------
+# Pinocchio
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("robot", ["arm7", "tree", "panda"])
+def test_pinocchio_agrees_on_every_pose_and_jacobian_kind(robot):
+    pytest.importorskip("pinocchio")
+    report, text = run(robot, samples=60, compare_pk=False)
+    assert report.ok and report.pin_version
+    tol = 1e-12 * (1 + report.reach)
+    for r in report.links:  # every link, planar, floating and mimic joints included
+        assert r.pin_position is not None and r.pin_position <= tol, r.link
+        assert r.pin_rotation is not None and r.pin_rotation <= 1e-12, r.link
+    for r in report.jacobians:
+        assert r.pin_errors is not None and set(r.pin_errors) == {"world", "link", "spatial"}
+        assert max(r.pin_errors.values()) <= tol, (r.link, r.pin_errors)
+    assert f"Pinocchio {report.pin_version} (float64)" in text
+    assert "pin world" in text and "pin spatial" in text and "LOCAL_WORLD_ALIGNED" in text
+    if robot != "arm7":
+        assert any("mimic" in d for d in report.pin_deviations)
+
+
+@pytest.mark.parametrize("kind", ["world", "link", "spatial"])
+def test_detects_a_jacobian_kind_mismatch_against_pinocchio(monkeypatch, kind):
+    pytest.importorskip("pinocchio")
+    real = V._Pin.evaluate
+
+    def off(self, q64, links, leaves):
+        poses, jacs = real(self, q64, links, leaves)
+        return poses, {k: v * 1.001 if k[1] == kind else v for k, v in jacs.items()}
+
+    monkeypatch.setattr(V._Pin, "evaluate", off)
+    report, text = run("arm7", samples=20, compare_pk=False)
+    assert not report.ok and not any(j.ok for j in report.jacobians)
+    assert all(r.ok for r in report.links)
+    for j in report.jacobians:
+        assert j.pin_errors is not None
+        assert j.pin_errors[kind] > 1e-6
+        assert all(e <= 1e-12 * (1 + report.reach) for k, e in j.pin_errors.items() if k != kind)
+
+
+def test_without_pinocchio_columns():
+    report, text = run("arm7", samples=20, compare_pk=False, compare_pin=False)
+    assert report.ok and report.pin_version is None and report.pin_deviations == []
+    assert all(r.pin_position is None for r in report.links)
+    assert all(j.pin_errors is None for j in report.jacobians)
+    assert "pin |dp|" not in text and "Pinocchio" not in text
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        assert V.main(["arm7", "--samples", "10", "--no-progress", "--no-pk", "--no-pin"]) == 0
+    assert "pin |dp|" not in out.getvalue()

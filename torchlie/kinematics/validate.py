@@ -1,8 +1,10 @@
-"""Validate torchlie's kinematics of a robot against pytorch-kinematics and a float64 reference.
+"""Validate torchlie's kinematics of a robot against pytorch-kinematics, Pinocchio and a float64
+reference.
 
 Usage::
 
     python -m torchlie.kinematics.validate [ROBOT.urdf] [--samples N] [--dtype float32|float64]
+                                           [--no-pk] [--no-pin]
     torchlie-validate tree            # a bundled robot: arm7 (the default), tree or panda
 
 For ``N`` random configurations within the joint limits it compares every link's pose and the
@@ -17,11 +19,39 @@ Jacobian of every end link (a link without children) computed by :class:`Chain` 
   as torchlie failures: it ignores ``<mimic>`` (it is given the expanded joint values), it reads
   an omitted ``<axis>`` as +Z instead of +X (it is given the axis explicitly), and it cannot
   load floating or planar joints (they become fixed joints in its copy, and the links below
-  them are compared with the reference only).
+  them are compared with the reference only);
+* Pinocchio (``pip install 'torchlie[pinocchio]'``), if installed, in float64 at the
+  reference's tolerance: every link pose, and each end link's Jacobian in all three kinds of
+  :meth:`Chain.jacobian <torchlie.kinematics.Chain.jacobian>`.  Where the two libraries
+  differ in convention, the comparison maps Pinocchio onto torchlie:
+
+  - frames: torchlie's ``frame="world"`` (velocity of the link's origin and angular velocity,
+    in world coordinates) is Pinocchio's ``LOCAL_WORLD_ALIGNED``, ``frame="link"`` (the same
+    in the link's coordinates, the body twist) is ``LOCAL``, and ``frame="spatial"`` (the
+    spatial twist: angular velocity and the velocity of the body point at the world origin)
+    is ``WORLD``.  Links are Pinocchio's ``BODY`` frames of the same name.
+  - motion vectors: both order a twist (linear; angular), Pinocchio's ``(v, w)``, so rows map
+    one to one.
+  - configuration: Pinocchio orders joints depth-first and gives some joints several
+    coordinates: a continuous joint is ``(cos q, sin q)``, a planar joint ``(x, y, cos theta,
+    sin theta)``, a floating joint ``(x, y, z, qx, qy, qz, qw)``.  torchlie's ``q`` (document
+    order, angles and rotation vectors, see :mod:`torchlie.kinematics.chain`) is converted to
+    that layout joint by joint.
+  - velocities: Pinocchio's Jacobian columns are its velocity coordinates, one per
+    revolute/prismatic/continuous joint, ``(R^T (dx, dy), dtheta)`` in the moving frame for a
+    planar joint and the body twist ``(R^T dt, w)`` for a floating one; they are mapped to
+    torchlie's DoFs by ``J_torchlie = J_pin D`` with ``D`` the derivative of Pinocchio's
+    velocity with respect to ``dq`` (``R(theta)^T`` for a planar joint's translation;
+    ``R^T`` and ``so3.jac_right(r)`` for a floating joint's translation and rotation vector).
+  - mimic joints: its URDF reader (``mimic=False``) makes them independent joints, so it is
+    given their expanded values and its columns are folded onto the joint they follow, as for
+    pytorch-kinematics.  A planar joint whose axis is not +z in its frame cannot be modelled
+    by Pinocchio's (xy-plane) planar joint: the links below it are not compared with it.
 
 It prints a table (per link: largest position error in m and rotation error in rad, per end
-link: largest Jacobian error) and timings of both libraries, shows a progress bar on stderr for
-long runs, and ends with one verdict line:
+link: largest Jacobian error per comparison) and timings of torchlie and pytorch-kinematics
+(Pinocchio computes one configuration per call: it is compared, not timed), shows a progress
+bar on stderr for long runs, and ends with one verdict line:
 
 * ``PASS``: every link pose and end-link Jacobian is within tolerance;
 * ``FAIL``: something is outside tolerance; a ``nan`` error (a result that is not a number
@@ -97,16 +127,24 @@ class LinkResult:
     pk_position: float | None
     pk_rotation: float | None
     ok: bool
+    pin_position: float | None = None
+    pin_rotation: float | None = None
 
 
 @dataclass
 class JacobianResult:
-    """Largest absolute error of one end link's Jacobian (``None``: not compared)."""
+    """Largest absolute error of one end link's Jacobian (``None``: not compared).
+
+    ``ref_error`` and ``pk_error`` are of the world-frame Jacobian at the link's origin;
+    ``pin_errors`` maps each kind (``"world"``, ``"link"``, ``"spatial"``, see
+    :meth:`Chain.jacobian`) to its largest error against Pinocchio.
+    """
 
     link: str
     ref_error: float
     pk_error: float | None
     ok: bool
+    pin_errors: dict[str, float] | None = None
 
 
 @dataclass
@@ -128,6 +166,8 @@ class ValidationReport:
     deviations: list[str] = field(default_factory=list)
     timings: dict[str, dict[str, float]] = field(default_factory=dict)
     pk_version: str | None = None
+    pin_version: str | None = None
+    pin_deviations: list[str] = field(default_factory=list)
     ok: bool = True
     status: str = PASS
 
@@ -218,6 +258,133 @@ class _PK:
 
 
 # ----------------------------------------------------------------------------------------------
+# Pinocchio adapter
+# ----------------------------------------------------------------------------------------------
+
+#: Pinocchio's reference frames for torchlie's Jacobian kinds (``Chain.jacobian(frame=...)``).
+PIN_FRAMES = {"world": "LOCAL_WORLD_ALIGNED", "link": "LOCAL", "spatial": "WORLD"}
+
+
+def _import_pin():
+    try:
+        import pinocchio as pin
+    except ImportError:
+        return None
+    return pin
+
+
+class _Pin:
+    """Pinocchio's model of the robot (float64, one configuration at a time), fed torchlie's
+    configurations: ``q`` converted to its layout and its Jacobian columns to torchlie's DoFs
+    (see the module docstring)."""
+
+    def __init__(self, pin, spec: RobotSpec, chain: Chain, text: bytes) -> None:
+        self.pin = pin
+        self.model = pin.buildModelFromXML(text.decode("utf-8"))
+        self.data = self.model.createData()
+        self.n = chain.n_dof
+        dof = {name: i for i, name in enumerate(chain.joint_names)}
+        mimic = _resolve_mimics(spec, dof)
+        by_name = {j.name: j for j in spec.joints}
+        # Per Pinocchio joint: (kind, idx_q, idx_v, first DoF, multiplier, offset).
+        self.joints: list[tuple[str, int, int, int, float, float]] = []
+        self.skipped: list[str] = []  # joints Pinocchio does not model as URDF says
+        for i in range(1, self.model.njoints):
+            name = self.model.names[i]
+            jm = self.model.joints[i]
+            j = by_name[name]
+            if j.type == "floating":
+                entry = ("free", dof[f"{name}:x"], 1.0, 0.0)
+            elif j.type == "planar":
+                entry = ("planar", dof[f"{name}:x"], 1.0, 0.0)
+                if tuple(_unit_axis(j.axis)) != (0.0, 0.0, 1.0):
+                    self.skipped.append(name)  # Pinocchio's planar joint is in its xy plane
+            else:
+                d, mult, off = mimic[name] if name in mimic else (dof[name], 1.0, 0.0)
+                entry = ("circle" if j.type == "continuous" else "scalar", d, mult, off)
+            kind, d, mult, off = entry
+            self.joints.append((kind, jm.idx_q, jm.idx_v, d, mult, off))
+        self.frames = {
+            link: self.model.getFrameId(link, pin.FrameType.BODY)
+            for link in spec.links
+            if self.model.existFrame(link, pin.FrameType.BODY)
+        }
+
+    def _q_and_map(self, q: Tensor):
+        """Pinocchio's ``q`` for torchlie's ``q (n_dof,)`` and ``D (nv, n_dof)`` with
+        ``v_pin = D dq``."""
+        import numpy as np
+
+        qp = np.zeros(self.model.nq)
+        D = np.zeros((self.model.nv, self.n))
+        x = q.tolist()
+        for kind, iq, iv, d, mult, off in self.joints:
+            if kind in ("scalar", "circle"):
+                v = mult * x[d] + off
+                if kind == "scalar":
+                    qp[iq] = v
+                else:  # a unit complex number (cos, sin)
+                    qp[iq : iq + 2] = (math.cos(v), math.sin(v))
+                D[iv, d] += mult
+            elif kind == "planar":  # (x, y, cos, sin); velocity in the moving frame
+                c, s = math.cos(x[d + 2]), math.sin(x[d + 2])
+                qp[iq : iq + 4] = (x[d], x[d + 1], c, s)
+                D[iv : iv + 2, d : d + 2] = ((c, s), (-s, c))
+                D[iv + 2, d + 2] = 1.0
+            else:  # free flyer: (t, quaternion xyzw); velocity (R^T dt, Jr(r) dr)
+                r = q[d + 3 : d + 6]
+                R = so3.exp(r)
+                qp[iq : iq + 3] = x[d : d + 3]
+                qp[iq + 3 : iq + 7] = self.pin.Quaternion(R.numpy()).coeffs()
+                D[iv : iv + 3, d : d + 3] = R.T.numpy()
+                D[iv + 3 : iv + 6, d + 3 : d + 6] = so3.jac_right(r).numpy()
+        return qp, D
+
+    def evaluate(
+        self, q64: Tensor, links: list[str], leaves: list[str]
+    ) -> tuple[dict[str, Tensor], dict[tuple[str, str], Tensor]]:
+        """Poses ``(B, 4, 4)`` of ``links`` and Jacobians ``(B, 6, n_dof)`` of ``leaves`` per
+        kind, in torchlie's conventions."""
+        import numpy as np
+
+        pin, model, data = self.pin, self.model, self.data
+        poses = {k: np.zeros((q64.shape[0], 4, 4)) for k in links if k in self.frames}
+        jacs = {
+            (k, kind): np.zeros((q64.shape[0], 6, self.n))
+            for k in leaves
+            if k in self.frames
+            for kind in PIN_FRAMES
+        }
+        for b in range(q64.shape[0]):
+            qp, D = self._q_and_map(q64[b])
+            pin.framesForwardKinematics(model, data, qp)
+            pin.computeJointJacobians(model, data, qp)
+            for k, P in poses.items():
+                P[b] = data.oMf[self.frames[k]].homogeneous
+            for (k, kind), J in jacs.items():
+                ref = getattr(pin.ReferenceFrame, PIN_FRAMES[kind])
+                J[b] = pin.getFrameJacobian(model, data, self.frames[k], ref) @ D
+        return (
+            {k: torch.from_numpy(v) for k, v in poses.items()},
+            {k: torch.from_numpy(v) for k, v in jacs.items()},
+        )
+
+
+def _unit_axis(axis) -> list[float]:
+    n = math.hypot(*axis)
+    return [x / n + 0.0 for x in axis]
+
+
+def _pin_version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("pin")
+    except Exception:  # pragma: no cover - metadata missing
+        return "?"
+
+
+# ----------------------------------------------------------------------------------------------
 # Helpers
 # ----------------------------------------------------------------------------------------------
 
@@ -266,11 +433,11 @@ def _reach(spec: RobotSpec) -> float:
     return max(total.values())
 
 
-def _below(spec: RobotSpec, types: tuple[str, ...]) -> dict[str, str]:
-    """Links below a joint of one of ``types``: link -> that joint's name."""
+def _below(spec: RobotSpec, types: tuple[str, ...], names: tuple[str, ...] = ()) -> dict[str, str]:
+    """Links below a joint of one of ``types`` or named in ``names``: link -> that joint."""
     out: dict[str, str] = {}
     for j in _top_down(spec):
-        if j.type in types:
+        if j.type in types or j.name in names:
             out[j.child] = j.name
         elif j.parent in out:
             out[j.child] = out[j.parent]
@@ -350,6 +517,7 @@ def validate(
     seed: int = 0,
     batch: int = 1000,
     compare_pk: bool = True,
+    compare_pin: bool = True,
     progress: bool | None = None,
     out: TextStream | None = None,
     err: TextStream | None = None,
@@ -364,6 +532,7 @@ def validate(
         seed: seed of the configurations.
         batch: configurations per batch (and batch size of the timings), at least 1.
         compare_pk: compare with pytorch-kinematics when it is installed.
+        compare_pin: compare with Pinocchio when it is installed.
         progress: progress bar on ``err``; ``None`` shows it when there is more than one batch.
         out, err: streams for the report and the progress bar (default stdout, stderr).
 
@@ -460,11 +629,23 @@ def validate(
             f"at {tol_ref:g}"
         )
 
+    pinc = _pin_setup(report, spec, chain, text, compare_pin)
+    pin_nc = _below(spec, (), tuple(pinc.skipped)) if pinc is not None else {}
+
+    def pin_ok(n: str) -> bool:
+        return pinc is not None and n not in pin_nc and n in pinc.frames
+
     parent = {j.child: j for j in spec.joints}
     stats = {
-        n: [0.0, 0.0, 0.0 if pkc and n not in free else None, 0.0] for n in spec.links
-    }  # ref dp, ref dr, pk dp (None: n/c), pk dr
-    jstats = {n: [0.0, 0.0 if pkc and n not in free else None] for n in chain.leaf_links}
+        n: [0.0, 0.0, 0.0 if pkc and n not in free else None, 0.0]
+        + [0.0 if pin_ok(n) else None, 0.0]
+        for n in spec.links
+    }  # ref dp, ref dr, pk dp (None: n/c), pk dr, pin dp (None: n/c), pin dr
+    jstats = {
+        n: [0.0, 0.0 if pkc and n not in free else None]
+        + [dict.fromkeys(PIN_FRAMES, 0.0) if pin_ok(n) else None]
+        for n in chain.leaf_links
+    }
 
     chunks = [(i, min(i + batch, samples)) for i in range(0, samples, batch)]
     show = (len(chunks) > 1) if progress is None else progress
@@ -493,6 +674,8 @@ def validate(
             if js[1] is not None and pkc is not None and th is not None and n != spec.root:
                 J_pk = pkc.jacobian(th, n)
                 js[1] = _worse(js[1], float((J - J_pk).abs().max()))
+        if pinc is not None:
+            _pin_compare(pinc, chain, qc, qc64, stats, jstats)
         bar.update(b)
     bar.close()
 
@@ -502,6 +685,8 @@ def validate(
         ok = s[0] <= tol_ref * scale and s[1] <= tol_ref
         if s[2] is not None:
             ok = ok and s[2] <= TOL_PK * scale and s[3] <= TOL_PK
+        if s[4] is not None:
+            ok = ok and s[4] <= tol_ref * scale and s[5] <= tol_ref
         report.links.append(
             LinkResult(
                 n,
@@ -512,12 +697,16 @@ def validate(
                 s[2],
                 None if s[2] is None else s[3],
                 ok,
+                s[4],
+                None if s[4] is None else s[5],
             )
         )
     for n in chain.leaf_links:
         js = jstats[n]
         ok = js[0] <= tol_ref * scale and (js[1] is None or js[1] <= TOL_PK * scale)
-        report.jacobians.append(JacobianResult(n, js[0], js[1], ok))
+        if js[2] is not None:
+            ok = ok and all(e <= tol_ref * scale for e in js[2].values())
+        report.jacobians.append(JacobianResult(n, js[0], js[1], ok, js[2]))
     report.ok = all(r.ok for r in report.links) and all(r.ok for r in report.jacobians)
     report.status = PASS if report.ok else FAIL
 
@@ -532,6 +721,62 @@ def validate(
 
     _print_report(report, chain, tol_ref, scale, nb, out)
     return report
+
+
+def _pin_setup(
+    report: ValidationReport, spec: RobotSpec, chain: Chain, text: bytes, compare_pin: bool
+) -> _Pin | None:
+    """Pinocchio's model of the robot, or None (with the reason in ``report``)."""
+    pin = _import_pin() if compare_pin else None
+    if pin is None:
+        if compare_pin:
+            report.pin_deviations.append(
+                "Pinocchio is not installed (pip install 'torchlie[pinocchio]'): not compared"
+            )
+        return None
+    report.pin_version = _pin_version()
+    try:
+        pinc = _Pin(pin, spec, chain, text)
+    except Exception as e:  # Pinocchio cannot load it: not torchlie's failure
+        report.pin_deviations.append(
+            f"Pinocchio could not load this URDF ({type(e).__name__}: {e}); not compared"
+        )
+        report.pin_version = None
+        return None
+    if any(j.mimic is not None for j in spec.joints):
+        report.pin_deviations.append(
+            "Pinocchio's URDF reader (mimic=False) makes mimic joints independent: it was given "
+            "the expanded values, and its Jacobian columns were folded accordingly"
+        )
+    if pinc.skipped:
+        report.pin_deviations.append(
+            f"Pinocchio's planar joint moves in its xy plane only: {', '.join(pinc.skipped)} "
+            "(another axis) and the links below are not compared with it"
+        )
+    report.pin_deviations.append(
+        "Pinocchio computes in float64 from its own parse of the file; q and Jacobian columns "
+        "are mapped to torchlie's layout (see the module docstring)"
+    )
+    return pinc
+
+
+def _pin_compare(
+    pinc: _Pin, chain: Chain, qc: Tensor, qc64: Tensor, stats: dict, jstats: dict
+) -> None:
+    """Fold the errors against Pinocchio of one batch into ``stats`` and ``jstats``."""
+    links = [n for n, s in stats.items() if s[4] is not None]
+    leaves = [n for n, js in jstats.items() if js[2] is not None]
+    P, J = pinc.evaluate(qc64, links, leaves)
+    T = chain.forward_kinematics(qc, links) if links else {}
+    for n in links:
+        dp, dr = _pose_errors(T[n], P[n])
+        s = stats[n]
+        s[4], s[5] = _worse(s[4], dp), _worse(s[5], dr)
+    for kind in PIN_FRAMES:
+        Jt = chain.jacobian(qc, leaves, frame=kind) if leaves else {}
+        for n in leaves:
+            err = float((Jt[n].to(torch.float64) - J[(n, kind)]).abs().max())
+            jstats[n][2][kind] = _worse(jstats[n][2][kind], err)
 
 
 def _time_all(
@@ -587,37 +832,61 @@ def _print_report(
         if report.pk_version
         else "pytorch_kinematics: not compared"
     )
-    w(f"compared with: exact float64 reference; {pk_desc}\n")
+    pin = report.pin_version is not None
+    pin_desc = f"; Pinocchio {report.pin_version} (float64)" if pin else ""
+    w(f"compared with: exact float64 reference; {pk_desc}{pin_desc}\n")
+    pin_tol = "; Pinocchio at the reference's" if pin else ""
     w(
         f"tolerances: reference {tol_ref:g} rad, {tol_ref * scale:.1e} m; pytorch_kinematics "
-        f"{TOL_PK:g} rad, {TOL_PK * scale:.1e} m (1 + reach = {scale:.2f} m)\n\n"
+        f"{TOL_PK:g} rad, {TOL_PK * scale:.1e} m{pin_tol} (1 + reach = {scale:.2f} m)\n\n"
     )
     name_w = max(12, *(len(r.link) for r in report.links)) + 2
     joint_w = max(10, *(len(r.joint) for r in report.links)) + 2
+    pin_head = f"{'pin |dp| m':>12}{'pin |dR| rad':>14}" if pin else ""
     head = (
         f"{'link':<{name_w}}{'joint':<{joint_w}}{'type':<12}"
-        f"{'ref |dp| m':>12}{'ref |dR| rad':>14}{'pk |dp| m':>12}{'pk |dR| rad':>14}  status\n"
+        f"{'ref |dp| m':>12}{'ref |dR| rad':>14}{'pk |dp| m':>12}{'pk |dR| rad':>14}"
+        f"{pin_head}  status\n"
     )
     w(head)
     w("-" * (len(head) - 1) + "\n")
     for r in report.links:
+        pin_cols = f"{_fmt(r.pin_position):>12}{_fmt(r.pin_rotation):>14}" if pin else ""
         w(
             f"{r.link:<{name_w}}{r.joint:<{joint_w}}{r.joint_type:<12}"
             f"{_fmt(r.ref_position):>12}{_fmt(r.ref_rotation):>14}"
-            f"{_fmt(r.pk_position):>12}{_fmt(r.pk_rotation):>14}  "
+            f"{_fmt(r.pk_position):>12}{_fmt(r.pk_rotation):>14}{pin_cols}  "
             f"{'ok' if r.ok else 'MISMATCH'}\n"
         )
-    w(f"\n{'Jacobian of end link':<{name_w + joint_w + 12}}{'ref max|dJ|':>12}{'pk max|dJ|':>14}\n")
+    pin_head = "".join(f"{'pin ' + k:>14}" for k in PIN_FRAMES) if pin else ""
+    w(
+        f"\n{'Jacobian of end link':<{name_w + joint_w + 12}}{'ref max|dJ|':>12}"
+        f"{'pk max|dJ|':>14}{pin_head}\n"
+    )
     for r in report.jacobians:
+        pin_cols = ""
+        if pin:
+            errs = r.pin_errors or {}
+            pin_cols = "".join(f"{_fmt(errs.get(k)):>14}" for k in PIN_FRAMES)
+        pad = "" if pin else f"{'':>26}"
         w(
             f"{r.link:<{name_w + joint_w + 12}}{_fmt(r.ref_error):>12}{_fmt(r.pk_error):>14}"
-            f"{'':>26}  {'ok' if r.ok else 'MISMATCH'}\n"
+            f"{pin_cols}{pad}  {'ok' if r.ok else 'MISMATCH'}\n"
         )
     if any(r.pk_position is None for r in report.links) and report.pk_version:
         w("n/c: not comparable with pytorch_kinematics (see below)\n")
+    if pin:
+        w(
+            "pin world / link / spatial: Chain.jacobian(frame=...) against Pinocchio's "
+            "LOCAL_WORLD_ALIGNED / LOCAL / WORLD\n"
+        )
     if report.deviations:
         w("\npytorch_kinematics deviations from URDF, handled (not torchlie failures):\n")
         for d in report.deviations:
+            w(f"  - {d}\n")
+    if report.pin_deviations:
+        w("\nPinocchio:\n")
+        for d in report.pin_deviations:
             w(f"  - {d}\n")
     if report.timings:
         w(f"\ntimings, batch of {nb}, one thread (best of repeated calls, ms per call):\n")
@@ -653,7 +922,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="torchlie-validate",
         description="Compare torchlie's forward kinematics and Jacobians of a URDF robot with "
-        "pytorch-kinematics and an exact float64 reference.",
+        "pytorch-kinematics, Pinocchio and an exact float64 reference.",
     )
     parser.add_argument(
         "robot",
@@ -666,6 +935,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--batch", type=int, default=1000, help="configurations per batch")
     parser.add_argument("--no-pk", action="store_true", help="skip pytorch-kinematics")
+    parser.add_argument("--no-pin", action="store_true", help="skip Pinocchio")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
     if args.samples < 1 or args.batch < 1:
@@ -678,6 +948,7 @@ def main(argv: list[str] | None = None) -> int:
             seed=args.seed,
             batch=args.batch,
             compare_pk=not args.no_pk,
+            compare_pin=not args.no_pin,
             progress=False if args.no_progress else None,
         )
     except (URDFError, OSError) as e:
