@@ -78,6 +78,8 @@ def factory(fn: str, batch: tuple[object, ...], dtype: object) -> tuple[torch.dt
     and cast back by the caller (``out``).
     """
     for b in batch:
+        if type(b) is int and b >= 0:  # the common case, before the slower ABC checks
+            continue
         if isinstance(b, bool) or not isinstance(b, (numbers.Integral, torch.SymInt)):
             raise TypeError(
                 f"{fn}: expected the batch sizes to be ints, got {type(b).__name__} ({b!r})"
@@ -115,7 +117,8 @@ def real(x: object, fn: str, arg: str, like: Tensor, ref: tuple[str, Tensor]) ->
             )
         same_dtype(fn, **{ref[0]: ref[1], arg: x})
         return x if x.dtype == like.dtype else x.to(like.dtype)
-    if isinstance(x, numbers.Real) and not isinstance(x, bool):  # numpy's bool_ is not Real
+    # float and int first (the ABC check is slower); numpy's bool_ is not a numbers.Real
+    if type(x) in (float, int) or (isinstance(x, numbers.Real) and not isinstance(x, bool)):
         return torch.tensor(float(x), dtype=like.dtype, device=like.device)
     if isinstance(x, np.ndarray) and x.dtype.kind in "fiu":
         return torch.as_tensor(x).to(dtype=like.dtype, device=like.device)
