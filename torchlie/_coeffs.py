@@ -112,7 +112,9 @@ def _series_where(name: str, t2: Tensor, exact) -> Tensor:
     coeffs, thr2 = _plan(name, t2.dtype)
     small = t2 < thr2
     safe = torch.where(small, torch.ones_like(t2), t2)
-    return torch.where(small, _horner(t2, coeffs), exact(safe))
+    # each branch sees only its own arguments (a large t2's powers overflow in the series)
+    tiny = torch.where(small, t2, torch.zeros_like(t2))
+    return torch.where(small, _horner(tiny, coeffs), exact(safe))
 
 
 # --------------------------------------------------------------------------------------------
@@ -222,6 +224,71 @@ def sqrt0(x: Tensor) -> Tensor:
 def norm(v: Tensor, dim: int = -1, keepdim: bool = False) -> Tensor:
     """Euclidean norm whose gradient at v = 0 is 0 (a subgradient) instead of NaN; NaN stays."""
     return sqrt0((v * v).sum(dim=dim, keepdim=keepdim))
+
+
+# --------------------------------------------------------------------------------------------
+# Extreme magnitudes
+# --------------------------------------------------------------------------------------------
+
+#: Largest component magnitude, per dtype, of the rotation vectors the formulas above take as
+#: they are (beyond it, :func:`reduction`).
+_HUGE = {torch.float32: 2.0**60, torch.float64: 2.0**200}
+#: Range of the largest component magnitude that :func:`rescaled` leaves as it is: the squared
+#: norm and its powers up to ``+-3/2`` (in derivatives) are normal and finite.
+_PLAIN = {torch.float32: (2.0**-30, 2.0**30), torch.float64: (2.0**-300, 2.0**300)}
+
+
+def rescaled(v: Tensor) -> tuple[Tensor, Tensor]:
+    """``(v / k, k)`` with ``k = 1`` where the largest ``|v_i|`` lies within :data:`_PLAIN`
+    (so ``v / k`` is ``v`` itself, bit for bit) and ``k = max |v_i|`` elsewhere, over the
+    last dimension (``k`` has it kept, size 1, and is detached).
+
+    For the functions that are invariant to the scale of a quaternion, and for norms: the
+    squares of ``v / k`` neither overflow nor underflow, so every finite non-zero ``v`` has a
+    finite, accurate result.  A zero ``v`` gives ``k = 0`` and ``v / k`` NaN (no direction).
+    """
+    m = v.detach().abs().amax(-1, keepdim=True)
+    c = m.clamp(*_PLAIN[m.dtype])
+    k = torch.where(c == m, torch.ones_like(m), m)
+    return v / k, k
+
+
+def reduction(w: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """``(w', lam, u)``: the rotation vectors ``w`` ``(..., 3)`` with the angle reduced modulo
+    ``2 pi`` where the largest ``|w_i|`` exceeds ``_HUGE`` (``2**60`` in float32, ``2**200`` in
+    float64, where the formulas' fifth powers of the angle still fit), ``lam = |w'| / |w|``
+    and the unit axis ``u = w / |w|`` there (``lam`` of shape ``(..., 1)``); elsewhere ``w``
+    itself, bit for bit, ``lam = 1`` and ``u = w``.
+
+    ``Exp`` is periodic in the angle, so ``Exp(w') = Exp(w)`` with the same derivatives (the
+    reduction is differentiable: its derivative is ``I`` along ``u`` and ``lam`` across), and
+    the left Jacobian follows from the reduced one, ``Jl(w) = lam Jl(w') + (1 - lam) u u^T``.
+    Beyond those magnitudes the angle ``|w|`` is known only to far more than ``2 pi`` (its
+    rounding), so one angle is as right as another; the reduction keeps the axis ``u``, and
+    every result is that of a valid rotation about it.  Half the angle is reduced modulo ``pi``
+    and doubled, so that no intermediate value overflows.
+    """
+    m = w.detach().abs().amax(-1, keepdim=True)
+    big = m > _HUGE[m.dtype]
+    k = torch.where(big, m, torch.ones_like(m))
+    ws = w / k
+    x, y, z = ws.unbind(-1)
+    t2 = torch.where(big[..., 0], torch.addcmul(torch.addcmul(x * x, y, y), z, z), 1.0)
+    tau = t2.sqrt().unsqueeze(-1)  # |ws|, in [1, sqrt(3)] where big
+    u = ws / tau
+    # The reduced angle, and (adding an exact 0) its derivative d|w|/dw = u, which autograd
+    # would otherwise form through the factor k of |w| = k tau (overflowing near the maximum).
+    angle = 2.0 * torch.fmod((0.5 * k) * tau.detach(), math.pi)
+    ud, dw = u.detach().unbind(-1), (w - w.detach()).unbind(-1)
+    zero = torch.addcmul(torch.addcmul(ud[0] * dw[0], ud[1], dw[1]), ud[2], dw[2])
+    f = torch.where(big, (angle + zero.unsqueeze(-1)) / tau, 1.0)
+    return ws * f, f / k, u
+
+
+def reduced(w: Tensor) -> Tensor:
+    """The rotation vectors ``w`` with the angle reduced modulo ``2 pi`` where it is beyond the
+    range of the formulas (:func:`reduction`), ``w`` itself elsewhere."""
+    return reduction(w)[0]
 
 
 #: Clamp of the half angle in the forward-only evaluations: sin(h)/h rounds to 1 below it.

@@ -293,7 +293,7 @@ def axis_angle_to_matrix(
     n, dtype = _checks.tensor(axis, fn, "axis", (3,))
     t = _checks.real(angle, fn, "angle", n, ("axis", axis))
     _checks.batch_broadcast(fn, (n.shape[:-1], "axis"), (t.shape, "angle"))
-    unit = n * torch.rsqrt((n * n).sum(-1, keepdim=True))  # zero axis -> NaN (documented)
+    unit = _unit(n)  # zero axis -> NaN (documented)
     return _checks.out(_so3._ExpFn(t.unsqueeze(-1) * unit), dtype)
 
 

@@ -194,9 +194,9 @@ def normalize(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
 
 
 def _normalize(q: Tensor) -> Tensor:
-    n2 = (q * q).sum(-1, keepdim=True)
     # |q| = 0 -> 0/0 = NaN for that element only (documented), never identity.
-    return q * torch.rsqrt(n2)
+    q = _coeffs.rescaled(q)[0]
+    return q * torch.rsqrt(_norm2(*q.unbind(-1)).unsqueeze(-1))
 
 
 def canonicalize(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
@@ -358,7 +358,7 @@ _ToMatrixFn = custom_function(
 
 
 def _to_matrix(q: Tensor) -> Tensor:
-    return _ToMatrixFn(q)
+    return _ToMatrixFn(_coeffs.rescaled(q)[0])
 
 
 def from_matrix(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 4"]:
@@ -573,8 +573,13 @@ def _from_rotvec(omega: Tensor) -> Tensor:
 
 
 def _exp_pure(a: Tensor) -> Tensor:
-    """``exp([0, a]) = [cos|a|, sin|a| a/|a|]`` for ``a`` of shape ``(..., 3)``; smooth at 0."""
-    t2 = (a * a).sum(-1, keepdim=True)
+    """``exp([0, a]) = [cos|a|, sin|a| a/|a|]`` for ``a`` of shape ``(..., 3)``; smooth at 0.
+
+    ``|a|`` is reduced modulo ``2 pi`` first where it is too large for the formulas
+    (:func:`torchlie._coeffs.reduced`; the same value and derivatives)."""
+    a = _coeffs.reduced(a)
+    x, y, z = a.unbind(-1)
+    t2 = torch.addcmul(torch.addcmul(x * x, y, y), z, z).unsqueeze(-1)
     return torch.cat((_coeffs.cos_sqrt(t2), _coeffs.sinc(t2) * a), dim=-1)
 
 
@@ -593,7 +598,7 @@ def to_rotvec(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 3"]:
 
 
 def _to_rotvec(q: Tensor) -> Tensor:
-    return _rotvec_of_canonical(_canonicalize(q))
+    return _rotvec_of_canonical(_canonicalize(_coeffs.rescaled(q)[0]))
 
 
 def _rotvec_of_canonical(q: Tensor) -> Tensor:
@@ -653,7 +658,8 @@ def inverse(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
 
 
 def _inverse(q: Tensor) -> Tensor:
-    return _conjugate(q) / (q * q).sum(-1, keepdim=True)
+    u, k = _coeffs.rescaled(q)  # q = k u: q^-1 = conj(u) / |u|^2 / k
+    return _conjugate(u) / _norm2(*u.unbind(-1)).unsqueeze(-1) / k
 
 
 def apply(q: Float[Tensor, "*b1 4"], points: Float[Tensor, "*b2 3"]) -> Float[Tensor, "*b 3"]:
@@ -760,7 +766,7 @@ _ApplyFn = custom_function(
 
 
 def _apply(q: Tensor, p: Tensor) -> Tensor:
-    return _ApplyFn(q, p)
+    return _ApplyFn(_coeffs.rescaled(q)[0], p)
 
 
 def exp(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
@@ -809,16 +815,18 @@ def log(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
 
 
 def _log(q: Tensor) -> Tensor:
+    q, k = _coeffs.rescaled(q)  # ln|q| = ln|q / k| + ln k; the rest is invariant to the scale
     w = q[..., :1]
     v = q[..., 1:]
-    n2 = (v * v).sum(-1, keepdim=True)
-    n = _coeffs.norm(v, keepdim=True)
+    x, y, z = v.unbind(-1)
+    n2 = torch.addcmul(torch.addcmul(x * x, y, y), z, z).unsqueeze(-1)
+    n = _coeffs.sqrt0(n2)
     # atan_ratio is smooth at n = 0 for w > 0 and returns 0 (finite, with a finite gradient)
     # where n = 0 and w <= 0; those points are fixed below.
     vec = _coeffs.atan_ratio(n, w) * v
     cut = torch.cat((torch.full_like(w, torch.pi), torch.zeros_like(v[..., 1:])), dim=-1)
     vec = torch.where((n == 0) & (w < 0), cut, vec)
-    out = torch.cat((0.5 * torch.log(w * w + n2), vec), dim=-1)
+    out = torch.cat((0.5 * torch.log(w * w + n2) + k.log(), vec), dim=-1)
     zero = (n == 0) & (w == 0)
     return torch.where(zero, torch.full_like(out, float("nan")), out)
 

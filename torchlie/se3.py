@@ -535,7 +535,7 @@ def _exp_jvp(saved, dxi: Tensor) -> Tensor:
     return _pad_row(torch.cat((dR, dt.unsqueeze(-1)), dim=-1))
 
 
-_ExpFn = custom_function(
+_ExpMapFn = custom_function(
     "Se3Exp",
     forward=_exp_forward,
     save=lambda inputs, out: (inputs[0], out),
@@ -546,7 +546,24 @@ _ExpFn = custom_function(
 
 
 def _exp(xi: Tensor) -> Tensor:
-    return _ExpFn(xi)
+    return _ExpMapFn(_reduced(xi))
+
+
+def _reduced(xi: Tensor) -> Tensor:
+    """A twist with the same ``Exp`` as ``xi`` (and the same derivatives), the angle reduced
+    modulo ``2 pi`` where it is too large for the formulas, ``xi`` itself elsewhere.
+
+    With ``phi'``, ``lam`` and ``u`` of :func:`torchlie._coeffs.reduction`,
+    ``Jl(phi) = lam Jl(phi') + (1 - lam) u u^T`` and ``Jl(phi') u = u``, so
+    ``Jl(phi) rho = Jl(phi') rho'`` with ``rho' = lam rho + (1 - lam) (u . rho) u``.
+    """
+    rho = xi[..., :3]
+    phi, lam, u = _coeffs.reduction(xi[..., 3:])
+    x, y, z = u.unbind(-1)
+    a, b, c = rho.unbind(-1)
+    along = torch.addcmul(torch.addcmul(x * a, y, b), z, c).unsqueeze(-1) * u
+    rho = torch.where(lam < 1.0, torch.lerp(along, rho, lam), rho)
+    return torch.cat((rho, phi), dim=-1)
 
 
 def _log_forward(T: Tensor) -> Tensor:

@@ -226,7 +226,7 @@ def _exp_jvp(saved, dw: Tensor) -> Tensor:
     return R @ _hat(_jl_apply(w, dw, sign=-1.0))
 
 
-_ExpFn = custom_function(
+_ExpMapFn = custom_function(
     "So3Exp",
     forward=_exp,
     save=lambda inputs, out: (inputs[0], out),
@@ -234,6 +234,12 @@ _ExpFn = custom_function(
     jvp=_exp_jvp,
     event_dims=(1,),
 )
+
+
+def _ExpFn(w: Tensor) -> Tensor:
+    """``Exp(w)``, the angle reduced modulo ``2 pi`` first where it is too large for the
+    formulas (:func:`torchlie._coeffs.reduced`: the same rotation and derivatives)."""
+    return _ExpMapFn(_coeffs.reduced(w))
 
 
 def _jl_inv_apply_values(
@@ -446,7 +452,23 @@ def adjoint(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3 3"]:
 
 def _jac_matrix(w: Tensor, kind: str) -> Tensor:
     """``Jl``, ``Jr``, ``Jl^-1`` or ``Jr^-1`` of ``w`` (``kind`` = ``"left"``, ``"right"``,
-    ``"left_inv"``, ``"right_inv"``) as a matrix, from components (no input checks)."""
+    ``"left_inv"``, ``"right_inv"``) as a matrix, from components (no input checks).
+
+    ``Jl`` and ``Jr`` of angles beyond the range of the formulas from those of the reduced
+    angle, ``Jl(w) = lam Jl(w') + (1 - lam) u u^T`` (:func:`torchlie._coeffs.reduction`);
+    the inverses are meant for angles below ``2 pi``.
+    """
+    if kind in ("left", "right"):
+        r, lam, u = _coeffs.reduction(w)
+        J = _jac_formula(r, kind)
+        lam = lam.unsqueeze(-1)
+        huge = lam * J + (1.0 - lam) * (u.unsqueeze(-1) * u.unsqueeze(-2))
+        return torch.where(lam < 1.0, huge, J)
+    return _jac_formula(w, kind)
+
+
+def _jac_formula(w: Tensor, kind: str) -> Tensor:
+    """:func:`_jac_matrix` by the formula of each kind."""
     # I + b hat + c hat^2 = (1 - c t2) I + b hat + c w w^T
     t2 = _coeffs.theta2(w)
     if kind in ("left", "right"):

@@ -1,0 +1,263 @@
+"""Every finite input, from the smallest to the largest magnitude, gives a finite, right result.
+
+Quaternions, rotation vectors and twists are swept over magnitudes from ``1e-45`` (float32) or
+``1e-300`` (float64) to ``torch.finfo(dtype).max``:
+
+* functions invariant to the scale of a quaternion give the result of a moderate scale;
+* functions homogeneous in it give that result scaled;
+* exponential maps give valid rotations (orthonormal, about the axis of the rotation vector);
+  beyond about ``1 / eps`` the angle is known only to more than ``2 pi`` (its rounding), and
+  is reduced modulo ``2 pi`` (:func:`torchlie._coeffs.reduction`);
+* gradients are finite (where the true gradient is representable).
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from torchlie import _coeffs, conversions, nn, quaternion, se3, so3
+
+DTYPES = [torch.float32, torch.float64]
+
+
+def _magnitudes(dtype: torch.dtype) -> torch.Tensor:
+    fi = torch.finfo(dtype)
+    low = -45 if dtype == torch.float32 else -300
+    exps = list(range(low, int(math.log10(fi.max)) + 1, 5))
+    extra = [1.0, math.pi, 2.0**59, 2.0**61, 2.0**499, 2.0**501, fi.tiny, fi.max / 2, fi.max]
+    values = [10.0**e for e in exps] + [x for x in extra if x <= fi.max]
+    return torch.tensor(sorted(set(values)), dtype=torch.float64).to(dtype)
+
+
+def _directions(n: int, dtype: torch.dtype, seed: int = 0) -> torch.Tensor:
+    """``(d, n)`` directions with largest component 1 (so any scale up to ``max`` is finite)."""
+    g = torch.Generator().manual_seed(seed)
+    d = torch.cat((torch.randn(4, n, generator=g, dtype=torch.float64), torch.eye(n)[:2]))
+    return (d / d.abs().amax(-1, keepdim=True)).to(dtype)
+
+
+def _sweep(
+    n: int, dtype: torch.dtype, seed: int = 0, top: float = 1.0
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(s, x)``: every magnitude up to ``top * max`` times every direction, flattened;
+    ``x = s * u``."""
+    s = _magnitudes(dtype)
+    s = s[s <= top * torch.finfo(dtype).max]
+    u = _directions(n, dtype, seed)
+    s, u = torch.broadcast_tensors(s[:, None, None], u[None])
+    return s[..., 0].reshape(-1), (s * u).reshape(-1, n)
+
+
+def _unit_of(x: torch.Tensor) -> torch.Tensor:
+    """``x / |x|`` computed in float64 from a prescaled copy (the test's own reference)."""
+    y = x.double() / x.double().abs().amax(-1, keepdim=True)
+    return y / y.norm(dim=-1, keepdim=True)
+
+
+def _norm_of(x: torch.Tensor) -> torch.Tensor:
+    """``|x|`` ``(..., 1)`` in float64 from a prescaled copy."""
+    m = x.double().abs().amax(-1, keepdim=True)
+    return m * (x.double() / m).norm(dim=-1, keepdim=True)
+
+
+def _tol(dtype: torch.dtype) -> float:
+    return 16 * torch.finfo(dtype).eps
+
+
+# ----------------------------------------------------------------------------------------------
+# Quaternion functions invariant to the scale of q
+# ----------------------------------------------------------------------------------------------
+
+_P = torch.tensor([0.3, -1.2, 2.0])
+INVARIANT = {
+    "to_matrix": quaternion.to_matrix,
+    "to_rotvec": quaternion.to_rotvec,
+    "normalize": quaternion.normalize,
+    "apply": lambda q: quaternion.apply(q, _P.to(q.dtype)),
+    "slerp": lambda q: quaternion.slerp(q, q.flip(-1) * torch.tensor([1.0, -1.0, 1.0, 1.0]).to(
+        q.dtype), 0.3),
+    "log_vector": lambda q: quaternion.log(q)[..., 1:],
+    "quaternion_to_euler": lambda q: conversions.quaternion_to_euler(q, "ZYX"),
+    "from_pos_quat": lambda q: se3.from_pos_quat(torch.cat((torch.ones_like(q[..., :3]), q), -1)),
+    "representation_quaternion": lambda q: nn.representation_to_matrix(q, "quaternion"),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+@pytest.mark.parametrize("name", list(INVARIANT))
+def test_scale_invariant_quaternion_functions(name, dtype):
+    fn = INVARIANT[name]
+    s, q = _sweep(4, dtype)
+    want = fn(_unit_of(q).to(dtype))
+    got = fn(q)
+    assert torch.isfinite(got).all(), (name, s[~torch.isfinite(got).flatten(1).all(-1)])
+    torch.testing.assert_close(got, want, rtol=0, atol=_tol(dtype) * 4)
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+@pytest.mark.parametrize("name", ["to_matrix", "to_rotvec", "normalize", "apply", "log_vector"])
+def test_scale_invariant_gradients(name, dtype):
+    """``d f(s q) / dq = (d f / dq)(q) / s``: finite wherever ``1 / s`` is."""
+    fn = INVARIANT[name]
+    s, q = _sweep(4, dtype)
+    keep = s > 64.0 / torch.finfo(dtype).max
+    s, q = s[keep], q[keep].clone().requires_grad_()
+    out = fn(q)
+    c = torch.randn(out.shape, generator=torch.Generator().manual_seed(1), dtype=dtype)
+    (grad,) = torch.autograd.grad(out, q, c)
+    assert torch.isfinite(grad).all(), s[~torch.isfinite(grad).all(-1)]
+    u = _unit_of(q.detach()).to(dtype).requires_grad_()
+    (ref,) = torch.autograd.grad(fn(u), u, c)
+    m = q.detach().double().abs().amax(-1, keepdim=True)
+    scaled = grad.double() * m * (q.detach().double() / m).norm(dim=-1, keepdim=True)
+    torch.testing.assert_close(scaled, ref.double(), rtol=0, atol=_tol(dtype) * 8)
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+def test_inverse_and_log_norm(dtype):
+    s, q = _sweep(4, dtype, top=0.25)  # |q| up to twice the largest component
+    u = _unit_of(q)
+    n = _norm_of(q)
+    ok = s > 4.0 / torch.finfo(dtype).max  # 1/|q| representable
+    inv = quaternion.inverse(q[ok])
+    assert torch.isfinite(inv).all()
+    want = u[ok] * torch.tensor([1.0, -1.0, -1.0, -1.0], dtype=torch.float64)
+    torch.testing.assert_close(inv.double() * n[ok], want, rtol=0, atol=_tol(dtype) * 4)
+    log_norm = quaternion.log(q)[..., 0]
+    assert torch.isfinite(log_norm).all()
+    ref = q.double().abs().amax(-1).log() + (q.double() / q.double().abs().amax(-1, keepdim=True)
+                                             ).norm(dim=-1).log()  # fmt: skip
+    torch.testing.assert_close(log_norm.double(), ref, rtol=_tol(dtype), atol=_tol(dtype))
+
+
+HOMOGENEOUS = {
+    "multiply_left": lambda q: quaternion.multiply(q, _Q.to(q.dtype)),
+    "multiply_right": lambda q: quaternion.multiply(_Q.to(q.dtype), q),
+    "conjugate": quaternion.conjugate,
+    "canonicalize": quaternion.canonicalize,
+    "to_xyzw": quaternion.to_xyzw,
+    "to_jpl": quaternion.to_jpl,
+    "left_matrix": quaternion.left_matrix,
+    "right_matrix": quaternion.right_matrix,
+    "derivative": lambda q: quaternion.derivative(q, _P.to(q.dtype)),
+    "integrate": lambda q: quaternion.integrate(q, _P.to(q.dtype), 0.7),
+}
+_Q = torch.tensor([0.5, -0.5, 0.5, 0.5])
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+@pytest.mark.parametrize("name", list(HOMOGENEOUS))
+def test_homogeneous_quaternion_functions(name, dtype):
+    """``f(s q) = s f(q)`` for unit ``q``: finite up to the largest ``s``."""
+    fn = HOMOGENEOUS[name]
+    s, q = _sweep(4, dtype, top=0.25)  # results up to |q|, twice the largest component
+    u = _unit_of(q)
+    got = fn(q)
+    assert torch.isfinite(got).all()
+    n = _norm_of(q).view((-1,) + (1,) * (got.dim() - 1))
+    tiny = torch.finfo(dtype).tiny  # results below it are subnormal: absolute error up to it
+    err = (got.double() / n - fn(u)).abs()
+    assert (err <= _tol(dtype) + tiny / n).all(), err.max()
+
+
+# ----------------------------------------------------------------------------------------------
+# Rotation vectors and twists
+# ----------------------------------------------------------------------------------------------
+
+
+def _assert_rotation(R: torch.Tensor, axis: torch.Tensor, dtype: torch.dtype) -> None:
+    """Orthonormal with determinant 1, and ``R axis = axis``."""
+    assert torch.isfinite(R).all()
+    R = R.double()
+    eye = torch.eye(3, dtype=torch.float64)
+    tol = _tol(dtype)
+    assert (R.mT @ R - eye).abs().amax() <= tol
+    assert (torch.linalg.det(R) - 1.0).abs().amax() <= tol
+    assert (R @ axis.unsqueeze(-1) - axis.unsqueeze(-1)).abs().amax() <= tol
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+def test_rotation_vector_exp_maps(dtype):
+    s, w = _sweep(3, dtype)
+    axis = _unit_of(w)
+    for R in (
+        so3.exp(w),
+        quaternion.to_matrix(quaternion.from_rotvec(w)),
+        quaternion.to_matrix(quaternion.exp(torch.cat((torch.zeros_like(w[:, :1]), w), -1))),
+        conversions.axis_angle_to_matrix(w, 1.0),
+        conversions.axis_angle_to_matrix(axis.to(dtype), s),
+        nn.representation_to_matrix(w, "rotvec"),
+        so3.rplus(so3.identity(dtype=dtype), w),
+        so3.lplus(so3.identity(dtype=dtype), w),
+        se3.exp(torch.cat((torch.ones_like(w), w), -1))[..., :3, :3],
+    ):
+        _assert_rotation(R, axis, dtype)
+    for q in (quaternion.from_rotvec(w), quaternion.integrate(quaternion.identity(dtype=dtype),
+                                                              w, 1.0)):  # fmt: skip
+        assert torch.isfinite(q).all()
+        assert ((q.double().norm(dim=-1) - 1.0).abs() <= _tol(dtype)).all()
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+def test_moderate_angles_keep_their_bits(dtype):
+    """Below the reduction's threshold the exp maps are those of the formulas, unreduced."""
+    w = _directions(3, dtype) * _coeffs._HUGE[dtype]
+    assert torch.equal(_coeffs.reduced(w), w)
+    assert (_coeffs.reduced(w * 2.0).norm(dim=-1) < 2 * math.pi).all()
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+def test_se3_exp_translation(dtype):
+    """``t = Jl(phi) rho``: along the axis ``(u . rho) u`` plus ``O(|rho| / |phi|)`` across."""
+    s, phi = _sweep(3, dtype)
+    g = torch.Generator().manual_seed(2)
+    rho = torch.randn(phi.shape, generator=g, dtype=dtype)
+    T = se3.exp(torch.cat((rho, phi), -1))
+    assert torch.isfinite(T).all()
+    u = _unit_of(phi)
+    t = T[..., :3, 3].double()
+    along = (t * u).sum(-1)
+    torch.testing.assert_close(along, (rho.double() * u).sum(-1), rtol=0, atol=_tol(dtype) * 8)
+    across = (t - along[:, None] * u).norm(dim=-1)
+    assert (across <= 2.0 * rho.double().norm(dim=-1) / s.double().clamp_max(2.0) + 1e-6).all()
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+def test_left_and_right_jacobians(dtype):
+    """Finite at every magnitude; ``Jl(w) u = u`` and ``Jl(w) -> u u^T`` as ``|w| -> inf``."""
+    s, w = _sweep(3, dtype)
+    u = _unit_of(w)
+    for J in (so3.jac_left(w), so3.jac_right(w)):
+        assert torch.isfinite(J).all()
+        Ju = (J.double() @ u.unsqueeze(-1)).squeeze(-1)
+        torch.testing.assert_close(Ju, u, rtol=0, atol=_tol(dtype) * 4)
+        big = s.double() > 1e8
+        far = J.double()[big] - u[big].unsqueeze(-1) * u[big].unsqueeze(-2)
+        assert far.abs().amax() <= 1e-7
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+def test_gradients_are_finite(dtype):
+    s, w = _sweep(3, dtype)
+    g = torch.Generator().manual_seed(3)
+    xi = torch.cat((torch.randn(w.shape, generator=g, dtype=dtype), w), -1)
+    q = torch.cat((torch.zeros_like(w[:, :1]), w), -1)
+    cases = [
+        (so3.exp, w),
+        (so3.jac_left, w),
+        (so3.jac_right, w),
+        (quaternion.from_rotvec, w),
+        (quaternion.exp, q),
+        (se3.exp, xi),
+        # d (v / |v|) / dv ~ 1 / |v|: representable from |v| ~ 1 / max
+        (lambda v: conversions.axis_angle_to_matrix(v, 1.0), w[s > 64 / torch.finfo(dtype).max]),
+    ]
+    for fn, x in cases:
+        leaf = x.clone().requires_grad_()
+        out = fn(leaf)
+        c = torch.randn(out.shape, generator=g, dtype=dtype)
+        (grad,) = torch.autograd.grad(out, leaf, c)
+        assert torch.isfinite(grad).all(), fn
