@@ -36,12 +36,13 @@ Environment: run as a script, this file re-executes itself once with
 
 * ``OMP_WAIT_POLICY=PASSIVE`` (OpenMP threads sleep instead of spinning: oversubscribed runs
   otherwise stall for milliseconds);
-* ``MALLOC_MMAP_THRESHOLD_=4294967296 MALLOC_TRIM_THRESHOLD_=68719476736`` unless
-  ``--malloc default``: glibc then keeps freed memory for reuse (as PyTorch's CUDA caching
-  allocator does), so N = 1e6 timings are of arithmetic and memory traffic.  With glibc's
-  defaults every allocation of 32 MB or more is a fresh ``mmap`` whose page faults cost more
-  than the copy itself (a 48 MB ``clone()``: ~6x slower), and smaller ones are or are not,
-  depending on the allocation history: the results then depend on the order of the runs.
+* with ``--malloc reuse`` only: ``MALLOC_MMAP_THRESHOLD_=4294967296
+  MALLOC_TRIM_THRESHOLD_=68719476736``, so that glibc keeps freed memory for reuse (as
+  PyTorch's CUDA caching allocator does) and N = 1e6 timings are of arithmetic and memory
+  traffic alone.  The default (``--malloc default``) is the environment a user's process has:
+  with glibc's own thresholds a result of 32 MB or more is a fresh ``mmap`` whose pages are
+  faulted in on first touch, for the ops and the copy floor alike (``clone()`` allocates its
+  result as the ops do).  Every table says which setting it was measured under.
 
 Output (``--out``, default ``benchmarks/results``): ``results.md`` (also printed), ``results.json``
 (every measurement and the machine; rewritten after every op, so an interrupted run keeps what
@@ -59,10 +60,10 @@ _REEXEC_FLAG = "TORCHLIE_BENCH_REEXEC"
 
 
 def _wanted_env(argv: list[str]) -> dict[str, str]:
-    default_malloc = "--malloc=default" in argv or any(
-        a == "--malloc" and b == "default" for a, b in zip(argv, argv[1:], strict=False)
+    reuse = "--malloc=reuse" in argv or any(
+        a == "--malloc" and b == "reuse" for a, b in zip(argv, argv[1:], strict=False)
     )
-    return {**ENV, **({} if default_malloc else MALLOC_ENV)}
+    return {**ENV, **(MALLOC_ENV if reuse else {})}
 
 
 if __name__ == "__main__" and "torch" not in sys.modules:
@@ -172,10 +173,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     )
     p.add_argument(
         "--malloc",
-        choices=("reuse", "default"),
-        default="reuse",
-        help="reuse: glibc keeps freed memory (set by the re-exec, see the module docstring); "
-        "default: glibc's own thresholds",
+        choices=("default", "reuse"),
+        default="default",
+        help="default: glibc's own thresholds, as in a user's process; reuse: glibc keeps "
+        "freed memory (set by the re-exec, see the module docstring)",
     )
     p.add_argument("--out", type=str, default=str(ROOT / "benchmarks" / "results"))
     p.add_argument("--no-plot", action="store_true", help="skip the PNG")
@@ -288,6 +289,7 @@ def machine(args: argparse.Namespace) -> dict:
         "threads": args.threads,
         "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY"),
         "malloc": {k: os.environ.get(k) for k in MALLOC_ENV},
+        "malloc_setting": malloc_setting(),
         "compile_cache": "on-disk caches" if args.compile_cache else "fresh (cold compiles)",
         "clock": {"cpu": "thread CPU time (time.thread_time)", "wall": "wall clock (perf_counter)"}[
             args.clock
@@ -603,6 +605,17 @@ def fastest_peer(tab: Table, peers: list[str], *key) -> tuple[str | None, float 
     return best, best_t
 
 
+def malloc_setting() -> str:
+    """``reuse`` where this process has :data:`MALLOC_ENV`, else ``default``."""
+    return "reuse" if all(os.environ.get(k) == v for k, v in MALLOC_ENV.items()) else "default"
+
+
+def _malloc_label(meta: dict) -> str:
+    if meta.get("malloc_setting", "reuse") == "reuse":
+        return "reuse (" + " ".join(f"{k}={v}" for k, v in MALLOC_ENV.items()) + ", not a default)"
+    return "default (glibc's own thresholds, as in a user's process)"
+
+
 def markdown(result: dict) -> str:
     meta, args = result["meta"], result["args"]
     tab = Table(result)
@@ -618,8 +631,7 @@ def markdown(result: dict) -> str:
         f"{meta['cpu_capability']}), torchlie {meta['torchlie']} ({meta['git']})",
         f"- threads: {meta['threads']}, OMP_WAIT_POLICY={meta['omp_wait_policy']}, clock: "
         f"{meta['clock']}; compile first-call times: wall clock, compile cache "
-        f"{meta['compile_cache']}; malloc "
-        f"{meta['malloc']}; load average "
+        f"{meta['compile_cache']}; allocator: {_malloc_label(meta)}; load average "
         f"at start {meta['loadavg_start']}, at end {meta['loadavg_end']}",
         f"- peers: {peer_v}",
         "- left out: " + "; ".join(f"{k} ({v})" for k, v in meta["left_out"].items()),
@@ -649,7 +661,7 @@ def markdown(result: dict) -> str:
     ]
     for dname in dtypes:
         for mode in modes:
-            out += [f"## {dname}, {mode}", ""]
+            out += [f"## {dname}, {mode}, allocator {meta.get('malloc_setting', 'reuse')}", ""]
             head = ["op", "N", "floor", "torchlie", "compiled", *short, "best peer/torchlie",
                     "torchlie/floor"]  # fmt: skip
             out += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]

@@ -162,11 +162,20 @@ def _run(tmp_path: Path, *extra: str) -> dict:
     return json.loads((tmp_path / "results.json").read_text())
 
 
+def test_reuse_allocator_is_set_and_labelled_when_asked(tmp_path: Path) -> None:
+    result = _run(tmp_path, "--ops", "so3.exp", "--sizes", "8", "--no-compile", "--malloc", "reuse")
+    assert result["meta"]["malloc"] == brun.MALLOC_ENV
+    assert result["meta"]["malloc_setting"] == "reuse"
+    assert "allocator reuse" in (tmp_path / "results.md").read_text()
+
+
 def test_quick_run(tmp_path: Path) -> None:
     ops = ["so3.exp", "se3.act"]
     result = _run(tmp_path, "--ops", ",".join(ops), "--sizes", "1,8", "--no-compile")
     assert result["meta"]["omp_wait_policy"] == "PASSIVE"
-    assert result["meta"]["malloc"] == brun.MALLOC_ENV
+    # the default is the environment a user's process has; the reuse setting only on request
+    assert result["meta"]["malloc_setting"] == "default"
+    assert "allocator default" in (tmp_path / "results.md").read_text()
     assert result["meta"]["threads"] == 1
     assert result["check_failures"] == []
     timed = {
