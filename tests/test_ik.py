@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import importlib.util
 import math
+from pathlib import Path
 
 import pytest
 import torch
@@ -235,7 +237,7 @@ def test_residual_jacobian_is_the_exact_derivative(robot, links):
         for name in links
     ]  # fmt: skip
     w = torch.tensor([1.0, 1.0, 1.0, 0.5, 0.5, 0.5] * len(links), dtype=F64)
-    b, A, _, _ = ik_module._residuals(chain, q.mT.contiguous(), tasks, w)
+    b, A, _, _ = ik_module._residuals(chain, q.mT.contiguous(), tasks, w, None)
 
     def residual(x: torch.Tensor) -> torch.Tensor:
         T = chain.forward_kinematics(x, links)
@@ -398,3 +400,33 @@ def test_so3_wrap_keeps_the_rotation():
     torch.testing.assert_close(so3.exp(w[1:4].mT), so3.exp(q[1:4].mT), atol=1e-12, rtol=0)
     assert float(w[1:4].norm(dim=0).max()) <= math.pi + 1e-12
     assert torch.equal(w[0], q[0])
+
+
+# ----------------------------------------------------------------------------------------------
+# The example
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_inverse_kinematics_example_quick_run(tmp_path, capsys):
+    path = Path(__file__).resolve().parents[1] / "examples" / "inverse_kinematics.py"
+    spec = importlib.util.spec_from_file_location("example_inverse_kinematics", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    fig = module.main(["--quick", "--out", str(tmp_path)])
+    assert fig["targets"] == 200 and fig["restarts"] == 8
+    assert fig["success_rate"] >= 0.99 and fig["within_limits"]
+    assert fig["reported_success_rate"] == fig["success_rate"]
+    assert fig["max_position_error_m"] <= 1e-4 and fig["max_rotation_error_rad"] <= 1e-3
+    ks = [c[0] for c in fig["curve"]]
+    assert ks[0] == 0 and ks[-1] == 40
+    rates = [c[1] for c in fig["curve"]]
+    assert rates[0] < 0.05 and rates[-1] == fig["reported_success_rate"]
+    assert fig["loss_last"] < 1e-6 * fig["loss_first"]
+    out = capsys.readouterr().out
+    assert "success (solved within 0.1 mm and 1 mrad" in out
+    if importlib.util.find_spec("matplotlib") is not None:
+        assert fig["plot"] == str(tmp_path / "convergence.png")
+        assert (tmp_path / "convergence.png").stat().st_size > 1000
+    else:
+        assert fig["plot"] is None and "matplotlib is not installed" in out

@@ -359,6 +359,7 @@ class _JacPlan:
     dof_index: Tensor  # (n_cols,) long
     col_weight: Tensor | None  # (n_cols,)
     in_dof_order: bool  # column k is DoF k's, for every DoF (a serial arm): no scatter needed
+    dofs: tuple[int, ...]  # the DoFs that move the link (those of dof_index, sorted)
 
 
 def _frame_jacobian(
@@ -960,6 +961,7 @@ class Chain:
             floats=floats,
             dof_index=torch.tensor(dofs, dtype=torch.long, device=dev),
             in_dof_order=dofs == list(range(self.n_dof)),
+            dofs=tuple(sorted(set(dofs))),
             col_weight=(
                 None
                 if all(w == 1.0 for w in col_w)
@@ -1006,6 +1008,11 @@ class Chain:
             return C
         # Each column into its DoF's column (summed where mimic joints share one).
         return C.new_zeros(self.n_dof, 6, B).index_add(0, jp.dof_index, C)
+
+    def _moving_dofs(self, targets: tuple[int, ...]) -> tuple[int, ...]:
+        """The DoFs that move at least one of the links ``targets`` (sorted): the others have
+        zero Jacobian columns."""
+        return tuple(sorted({d for t in targets for d in self._jac_plan(t).dofs}))
 
     def _poses_and_jacobians(
         self, q2: Tensor, targets: tuple[int, ...]

@@ -335,13 +335,16 @@ def _combine(G: Tensor, rows: tuple[Tensor, ...], G2: Tensor | None = None,
 
 
 def _residuals(
-    chain: Chain, q: Tensor, tasks: list[_Task], weights: Tensor
+    chain: Chain, q: Tensor, tasks: list[_Task], weights: Tensor, dofs: Tensor | None
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Weighted residuals ``b (m, N)``, their Jacobian ``A (m, n_dof, N)`` and the position and
-    rotation errors ``(N,)`` (worst over the tasks) at ``q (n_dof, N)``."""
+    """Weighted residuals ``b (m, N)``, their Jacobian ``A (m, k, N)`` with respect to the DoFs
+    ``dofs`` (``k`` of them; all if None) and the position and rotation errors ``(N,)`` (worst
+    over the tasks) at ``q (n_dof, N)``."""
     poses, jacs = chain._poses_and_jacobians(q.mT, tuple(t.link for t in tasks))
     rs, As, perr, rerr = [], [], [], []
     for task, P, J in zip(tasks, poses, jacs, strict=True):
+        if dofs is not None:
+            J = J.index_select(0, dofs)
         # P (4, 4, N) with P[c, r] = T[r, c]; J (n, 6, N) in world coordinates.
         if task.pose:
             Ti = task.target  # (4, 4, N): T*^-1
@@ -554,16 +557,19 @@ def inverse_kinematics(
         tasks.append(_Task(name, index, pose, rep.mT.contiguous().view(*tail, N)))
         weights += [wp] * 3 + ([wr] * 3 if pose else [])
     w_sqrt = torch.tensor(weights, dtype=dtype, device=device).sqrt()
+    # Only the DoFs that move a target link are solved for (the others keep their start).
+    moving = chain._moving_dofs(tuple(index for _, index, _, _ in items))
+    dofs = None if moving == tuple(range(n)) else torch.tensor(moving, device=device)
 
     with torch.no_grad():
         q_best, out = _solve(
-            chain, seeds, tasks, w_sqrt, lo1, hi1, (P, K), max_iterations,
+            chain, seeds, tasks, w_sqrt, dofs, lo1, hi1, (P, K), max_iterations,
             restart_after, (tol_p, tol_r), early_exit,
         )  # fmt: skip
 
     q_out = q_best
     if torch.is_grad_enabled() and any(t.requires_grad for *_, t in items):
-        q_out = q_best + _implicit_step(chain, q_best, grad_tasks, w_sqrt, lo1, hi1)
+        q_out = q_best + _implicit_step(chain, q_best, grad_tasks, w_sqrt, dofs, lo1, hi1)
     return IKResult(q_out.mT.reshape(*batch, n), *(x.reshape(batch) for x in out))
 
 
@@ -572,6 +578,7 @@ def _solve(
     seeds: Tensor,
     tasks: list[_Task],
     w_sqrt: Tensor,
+    dofs: Tensor | None,
     lo: Tensor,
     hi: Tensor,
     PK: tuple[int, int],
@@ -594,8 +601,9 @@ def _solve(
     dtype, device = seeds.dtype, seeds.device
     rot_dofs = [i for i, name in enumerate(chain.joint_names) if name.endswith(":rx")]
     q = seeds[0]
-    b, A, perr, rerr = _residuals(chain, q, tasks, w_sqrt)
+    b, A, perr, rerr = _residuals(chain, q, tasks, w_sqrt, dofs)
     cost = 0.5 * (b * b).sum(0)
+    lo_a, hi_a = (lo, hi) if dofs is None else (lo.index_select(0, dofs), hi.index_select(0, dofs))
     conv = (perr <= tol_p) & (rerr <= tol_r)
     zeros = torch.zeros(N, dtype=torch.int64, device=device)
     # Every per-start tensor, last dimension the start (so that early exit can select).
@@ -642,13 +650,14 @@ def _solve(
         # Projection with an active set: a joint on a limit that the gradient pushes outwards
         # is left out of the step; the trial point is clamped into the limits.
         g = (A * b.unsqueeze(1)).sum(0)
-        blocked = ((q <= lo) & (g > 0)) | ((q >= hi) & (g < 0))
-        dq = _step(A * (~blocked).to(dtype), b, lam)
+        q_a = q if dofs is None else q.index_select(0, dofs)
+        blocked = ((q_a <= lo_a) & (g > 0)) | ((q_a >= hi_a) & (g < 0))
+        dq = _full(_step(A * (~blocked).to(dtype), b, lam), dofs, n)
         q_new = _clamp(_wrap_rotvecs(q - dq, rot_dofs), lo, hi)
         if restart_after:
             fresh_q = st["seeds"].gather(0, st["seed"].view(1, 1, -1).expand(1, n, -1))
             q_new = torch.where(fresh, fresh_q.squeeze(0), q_new)
-        b_new, A_new, perr_new, rerr_new = _residuals(chain, q_new, tasks, w_sqrt)
+        b_new, A_new, perr_new, rerr_new = _residuals(chain, q_new, tasks, w_sqrt, dofs)
         cost_new = 0.5 * (b_new * b_new).sum(0)
         ok = (cost_new < st["cost"]) | fresh  # False for nan: a failed step is refused
         for key, new in (("q", q_new), ("b", b_new), ("A", A_new), ("perr", perr_new),
@@ -677,17 +686,31 @@ def _key(conv: Tensor, cost: Tensor) -> Tensor:
     return (~conv).to(cost.dtype) * 2.0 + cost / (1.0 + cost)
 
 
+def _full(dq: Tensor, dofs: Tensor | None, n: int) -> Tensor:
+    """A step ``(k, N)`` of the DoFs ``dofs`` as a step ``(n_dof, N)`` (zero elsewhere)."""
+    if dofs is None:
+        return dq
+    return dq.new_zeros(n, dq.shape[1]).index_add(0, dofs, dq)
+
+
 def _implicit_step(
-    chain: Chain, q: Tensor, tasks: list[_Task], w_sqrt: Tensor, lo: Tensor, hi: Tensor
+    chain: Chain,
+    q: Tensor,
+    tasks: list[_Task],
+    w_sqrt: Tensor,
+    dofs: Tensor | None,
+    lo: Tensor,
+    hi: Tensor,
 ) -> Tensor:
     """``s - s.detach()`` with ``s = -(A^T A)^+ A^T b``: zero, with the implicit-function
     gradient of the solution with respect to the targets (only ``b`` carries a graph)."""
     with torch.no_grad():
         fixed = [t._replace(target=t.target.detach()) for t in tasks]
-        _, A, _, _ = _residuals(chain, q, fixed, w_sqrt)
-        A = A * ((q > lo) & (q < hi)).to(A.dtype)  # a joint on a limit stays there
+        _, A, _, _ = _residuals(chain, q, fixed, w_sqrt, dofs)
+        free = (q > lo) & (q < hi)  # a joint on a limit stays there
+        A = A * (free if dofs is None else free.index_select(0, dofs)).to(A.dtype)
     b = _residual_values(chain, q, tasks, w_sqrt)
-    s = -_step(A, b, torch.zeros_like(q[0]))
+    s = -_full(_step(A, b, torch.zeros_like(q[0])), dofs, q.shape[0])
     return s - s.detach()
 
 
