@@ -360,6 +360,7 @@ class _JacPlan:
     col_weight: Tensor | None  # (n_cols,)
     in_dof_order: bool  # column k is DoF k's, for every DoF (a serial arm): no scatter needed
     dofs: tuple[int, ...]  # the DoFs that move the link (those of dof_index, sorted)
+    col_dofs: tuple[int, ...]  # dof_index as Python ints
 
 
 def _frame_jacobian(
@@ -962,6 +963,7 @@ class Chain:
             dof_index=torch.tensor(dofs, dtype=torch.long, device=dev),
             in_dof_order=dofs == list(range(self.n_dof)),
             dofs=tuple(sorted(set(dofs))),
+            col_dofs=tuple(dofs),
             col_weight=(
                 None
                 if all(w == 1.0 for w in col_w)
@@ -973,10 +975,16 @@ class Chain:
         return plan
 
     def _jacobian_columns(
-        self, jp: _JacPlan, pose: Callable[[int], Tensor], q2: Tensor, target: int
+        self,
+        jp: _JacPlan,
+        pose: Callable[[int], Tensor],
+        q2: Tensor,
+        target: int,
+        dofs: tuple[int, ...] | None = None,
     ) -> Tensor:
         """World Jacobian at the origin of ``target`` as ``(n_dof, 6, B)`` (batch innermost; see
-        :meth:`jacobian`); ``pose(i)`` gives link ``i``'s internal ``(4, 4, B)`` pose."""
+        :meth:`jacobian`), or only the columns of ``dofs`` (sorted DoFs, ``(len(dofs), 6, B)``);
+        ``pose(i)`` gives link ``i``'s internal ``(4, 4, B)`` pose."""
         B = q2.shape[0]
         us: list[Tensor] = []
         if jp.vs is not None:
@@ -999,15 +1007,24 @@ class Chain:
         if jp.vs is not None and jp.n_rot_const < jp.vs.shape[0]:
             Ut = U[jp.n_rot_const :]
             cols.append(torch.cat((Ut, torch.zeros_like(Ut)), dim=1))
+        n_out = self.n_dof if dofs is None else len(dofs)
         if not cols:
-            return q2.new_zeros(self.n_dof, 6, B)
+            return q2.new_zeros(n_out, 6, B)
         C = torch.cat(cols) if len(cols) > 1 else cols[0]  # (n_cols, 6, B)
         if jp.col_weight is not None:
             C = C * jp.col_weight
-        if jp.in_dof_order:
-            return C
+        if dofs is None:
+            if jp.in_dof_order:
+                return C
+            index = jp.dof_index
+        else:
+            pos = {d: i for i, d in enumerate(dofs)}
+            where = [pos[d] for d in jp.col_dofs]
+            if where == list(range(n_out)):
+                return C
+            index = torch.tensor(where, dtype=torch.long, device=C.device)
         # Each column into its DoF's column (summed where mimic joints share one).
-        return C.new_zeros(self.n_dof, 6, B).index_add(0, jp.dof_index, C)
+        return C.new_zeros(n_out, 6, B).index_add(0, index, C)
 
     def _moving_dofs(self, targets: tuple[int, ...]) -> tuple[int, ...]:
         """The DoFs that move at least one of the links ``targets`` (sorted): the others have
@@ -1015,12 +1032,13 @@ class Chain:
         return tuple(sorted({d for t in targets for d in self._jac_plan(t).dofs}))
 
     def _poses_and_jacobians(
-        self, q2: Tensor, targets: tuple[int, ...]
+        self, q2: Tensor, targets: tuple[int, ...], dofs: tuple[int, ...] | None = None
     ) -> tuple[list[Tensor], list[Tensor]]:
         """Poses and world Jacobians at the origins of ``targets`` for ``q2`` of shape
         ``(B, n_dof)``, from one forward-kinematics pass over the links they need, batch
         innermost: poses ``(4, 4, B)`` transposed (entry ``[c, r, b]`` is ``T[b][r, c]``),
-        Jacobians ``(n_dof, 6, B)`` (used by :meth:`jacobian` and the inverse kinematics)."""
+        Jacobians ``(n_dof, 6, B)``, or only the columns of the sorted DoFs ``dofs`` (used by
+        :meth:`jacobian` and the inverse kinematics)."""
         B = q2.shape[0]
         plan = self._plan(targets)
         out = self._run(plan, q2)
@@ -1028,7 +1046,7 @@ class Chain:
         def pose(i: int) -> Tensor:
             return self._pose(plan, out, i, B, q2)
 
-        Js = [self._jacobian_columns(self._jac_plan(t), pose, q2, t) for t in targets]
+        Js = [self._jacobian_columns(self._jac_plan(t), pose, q2, t, dofs) for t in targets]
         return [pose(t) for t in targets], Js
 
     def jacobian(

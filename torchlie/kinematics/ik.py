@@ -117,8 +117,9 @@ class IKResult(NamedTuple):
         rotation_error: ``(...)`` largest rotation angle, in rad, between a link's orientation
             and its target pose's (``0`` for position-only targets; detached).
         converged: ``(...)`` bool, both errors within their tolerances.
-        iterations: ``(...)`` int64, the iterations the kept start took to come within the
-            tolerances (``max_iterations`` when it did not).
+        iterations: ``(...)`` int64, the iterations spent on the kept start (and on the starts
+            it replaced, see ``restart_after``) before it came within the tolerances
+            (``max_iterations``, or fewer with ``early_exit``, when it did not).
     """
 
     q: Tensor
@@ -128,11 +129,18 @@ class IKResult(NamedTuple):
     iterations: Tensor
 
 
+class _Dofs(NamedTuple):
+    """The DoFs solved for (those that move a target link), when not all of them."""
+
+    ids: tuple[int, ...]  # sorted
+    index: Tensor  # the same, a long tensor on the chain's device
+
+
 class _Task(NamedTuple):
     name: str
     link: int  # internal index of the link
     pose: bool  # pose target (else a position)
-    target: Tensor  # (N, 4, 4) T*^-1, or (N, 3) p*
+    target: Tensor  # batch innermost: (4, 4, N) T*^-1, or (3, N) p*
 
 
 # ----------------------------------------------------------------------------------------------
@@ -204,7 +212,6 @@ def _targets(chain: Chain, targets: object, link: object) -> list[tuple[str, int
             )
         items = [(link, targets)]
     out = []
-    seen: set[str] = set()
     for name, t in items:
         if not isinstance(name, str):
             raise TypeError(
@@ -212,9 +219,6 @@ def _targets(chain: Chain, targets: object, link: object) -> list[tuple[str, int
                 f"{type(name).__name__} {reprlib.repr(name)}"
             )
         (index,) = chain._targets(name, "inverse_kinematics")
-        if name in seen:  # pragma: no cover - dict keys are unique
-            continue
-        seen.add(name)
         what = f"targets[{name!r}]" if isinstance(targets, Mapping) else "targets"
         t = _tensor(chain, t, what)
         shape = tuple(t.shape)
@@ -335,16 +339,15 @@ def _combine(G: Tensor, rows: tuple[Tensor, ...], G2: Tensor | None = None,
 
 
 def _residuals(
-    chain: Chain, q: Tensor, tasks: list[_Task], weights: Tensor, dofs: Tensor | None
+    chain: Chain, q: Tensor, tasks: list[_Task], weights: Tensor, dofs: _Dofs | None
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Weighted residuals ``b (m, N)``, their Jacobian ``A (m, k, N)`` with respect to the DoFs
     ``dofs`` (``k`` of them; all if None) and the position and rotation errors ``(N,)`` (worst
     over the tasks) at ``q (n_dof, N)``."""
-    poses, jacs = chain._poses_and_jacobians(q.mT, tuple(t.link for t in tasks))
+    links = tuple(t.link for t in tasks)
+    poses, jacs = chain._poses_and_jacobians(q.mT, links, None if dofs is None else dofs.ids)
     rs, As, perr, rerr = [], [], [], []
     for task, P, J in zip(tasks, poses, jacs, strict=True):
-        if dofs is not None:
-            J = J.index_select(0, dofs)
         # P (4, 4, N) with P[c, r] = T[r, c]; J (n, 6, N) in world coordinates.
         if task.pose:
             Ti = task.target  # (4, 4, N): T*^-1
@@ -485,15 +488,17 @@ def inverse_kinematics(
             the limits: the first start of every target.
         restarts: starts solved side by side per target, at least 1; those not from ``q0`` are
             uniform within the limits (drawn on the CPU with ``generator``).
-        position_weight, rotation_weight: weights of the translation and rotation rows of the
-            residual (m against rad); ``rotation_weight=0`` ignores orientations.
+        position_weight, rotation_weight: weights (> 0 and >= 0) of the translation and
+            rotation rows of the residual (m against rad); ``rotation_weight=0`` makes pose
+            targets position targets (their orientation is neither solved for nor checked).
         max_iterations: Levenberg-Marquardt iterations (each one forward-kinematics and
             Jacobian pass), at least 0.
         restart_after: a start that is not within tolerance after this many iterations is
             replaced by a fresh uniform one (``None``: never), so a budget of
             ``max_iterations`` tries up to ``restarts * (1 + max_iterations // restart_after)``
             starts per target at the cost of ``restarts``; the best point of every start is
-            kept.
+            kept.  Only the DoFs that move a target link are solved for: the others keep their
+            start value.
         position_tolerance, rotation_tolerance: thresholds of ``converged`` (m, rad).
         early_exit: stop once every target has a start within tolerance (one device
             synchronisation per iteration; not for ``torch.compile(fullgraph=True)``).
@@ -515,10 +520,11 @@ def inverse_kinematics(
     max_iterations = _count(max_iterations, "max_iterations", 0)
     if restart_after is not None:
         restart_after = _count(restart_after, "restart_after", 1)
-    wp = _number(position_weight, "position_weight", False)
+    wp = _number(position_weight, "position_weight", True)
     wr = _number(rotation_weight, "rotation_weight", False)
-    if wp == 0 and wr == 0:
-        raise ValueError(f"{_FN}: position_weight and rotation_weight are both 0")
+    if wr == 0:  # orientations ignored: pose targets are position targets
+        items = [(nm, i, False, t[..., :3, 3]) if pose else (nm, i, pose, t)
+                 for nm, i, pose, t in items]  # fmt: skip
     tol_p = _number(position_tolerance, "position_tolerance", False)
     tol_r = _number(rotation_tolerance, "rotation_tolerance", False)
     lo, hi = _limits(chain, lower, upper)
@@ -559,7 +565,7 @@ def inverse_kinematics(
     w_sqrt = torch.tensor(weights, dtype=dtype, device=device).sqrt()
     # Only the DoFs that move a target link are solved for (the others keep their start).
     moving = chain._moving_dofs(tuple(index for _, index, _, _ in items))
-    dofs = None if moving == tuple(range(n)) else torch.tensor(moving, device=device)
+    dofs = None if moving == tuple(range(n)) else _Dofs(moving, torch.tensor(moving, device=device))
 
     with torch.no_grad():
         q_best, out = _solve(
@@ -578,7 +584,7 @@ def _solve(
     seeds: Tensor,
     tasks: list[_Task],
     w_sqrt: Tensor,
-    dofs: Tensor | None,
+    dofs: _Dofs | None,
     lo: Tensor,
     hi: Tensor,
     PK: tuple[int, int],
@@ -603,7 +609,8 @@ def _solve(
     q = seeds[0]
     b, A, perr, rerr = _residuals(chain, q, tasks, w_sqrt, dofs)
     cost = 0.5 * (b * b).sum(0)
-    lo_a, hi_a = (lo, hi) if dofs is None else (lo.index_select(0, dofs), hi.index_select(0, dofs))
+    sel = None if dofs is None else dofs.index
+    lo_a, hi_a = (lo, hi) if sel is None else (lo.index_select(0, sel), hi.index_select(0, sel))
     conv = (perr <= tol_p) & (rerr <= tol_r)
     zeros = torch.zeros(N, dtype=torch.int64, device=device)
     # Every per-start tensor, last dimension the start (so that early exit can select).
@@ -650,10 +657,11 @@ def _solve(
         # Projection with an active set: a joint on a limit that the gradient pushes outwards
         # is left out of the step; the trial point is clamped into the limits.
         g = (A * b.unsqueeze(1)).sum(0)
-        q_a = q if dofs is None else q.index_select(0, dofs)
+        q_a = q if sel is None else q.index_select(0, sel)
         blocked = ((q_a <= lo_a) & (g > 0)) | ((q_a >= hi_a) & (g < 0))
-        dq = _full(_step(A * (~blocked).to(dtype), b, lam), dofs, n)
-        q_new = _clamp(_wrap_rotvecs(q - dq, rot_dofs), lo, hi)
+        dq = _step(A * (~blocked).to(dtype), b, lam)
+        q_new = q - dq if sel is None else q.index_add(0, sel, dq, alpha=-1.0)
+        q_new = _clamp(_wrap_rotvecs(q_new, rot_dofs), lo, hi)
         if restart_after:
             fresh_q = st["seeds"].gather(0, st["seed"].view(1, 1, -1).expand(1, n, -1))
             q_new = torch.where(fresh, fresh_q.squeeze(0), q_new)
@@ -686,19 +694,12 @@ def _key(conv: Tensor, cost: Tensor) -> Tensor:
     return (~conv).to(cost.dtype) * 2.0 + cost / (1.0 + cost)
 
 
-def _full(dq: Tensor, dofs: Tensor | None, n: int) -> Tensor:
-    """A step ``(k, N)`` of the DoFs ``dofs`` as a step ``(n_dof, N)`` (zero elsewhere)."""
-    if dofs is None:
-        return dq
-    return dq.new_zeros(n, dq.shape[1]).index_add(0, dofs, dq)
-
-
 def _implicit_step(
     chain: Chain,
     q: Tensor,
     tasks: list[_Task],
     w_sqrt: Tensor,
-    dofs: Tensor | None,
+    dofs: _Dofs | None,
     lo: Tensor,
     hi: Tensor,
 ) -> Tensor:
@@ -708,9 +709,11 @@ def _implicit_step(
         fixed = [t._replace(target=t.target.detach()) for t in tasks]
         _, A, _, _ = _residuals(chain, q, fixed, w_sqrt, dofs)
         free = (q > lo) & (q < hi)  # a joint on a limit stays there
-        A = A * (free if dofs is None else free.index_select(0, dofs)).to(A.dtype)
+        A = A * (free if dofs is None else free.index_select(0, dofs.index)).to(A.dtype)
     b = _residual_values(chain, q, tasks, w_sqrt)
-    s = -_full(_step(A, b, torch.zeros_like(q[0])), dofs, q.shape[0])
+    s = -_step(A, b, torch.zeros_like(q[0]))
+    if dofs is not None:  # zero for the DoFs that do not move a target link
+        s = q.new_zeros(q.shape).index_add(0, dofs.index, s)
     return s - s.detach()
 
 
