@@ -9,11 +9,15 @@
 torch.Size([1000, 4, 4])
 >>> arm.jacobian(q, "tool_tcp").shape                     # rows (linear; angular)
 torch.Size([1000, 6, 7])
+>>> res = arm.inverse_kinematics(poses["tool_tcp"][:8], "tool_tcp", restarts=4)
+>>> res.q.shape, res.converged.shape                      # batched, differentiable IK
+(torch.Size([8, 7]), torch.Size([8]))
 
-Conventions (joint coordinates, ``q`` layout, Jacobian meaning) are in
-:mod:`torchlie.kinematics.chain`.  ``python -m torchlie.kinematics.validate ROBOT.urdf``
-checks every link pose and the end links' Jacobians against pytorch-kinematics and an exact
-float64 reference.
+Conventions (joint coordinates, ``q`` layout, Jacobian kinds) are in
+:mod:`torchlie.kinematics.chain`, the inverse kinematics solver in
+:mod:`torchlie.kinematics.ik`.  ``python -m torchlie.kinematics.validate ROBOT.urdf`` checks
+every link pose and the end links' Jacobians against pytorch-kinematics, Pinocchio (where
+installed) and an exact float64 reference.
 """
 
 from __future__ import annotations
