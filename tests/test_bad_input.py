@@ -243,7 +243,11 @@ def test_bool_is_refused_where_a_real_parameter_is_expected(name, f, bad):
         f(bad)
 
 
-@pytest.mark.parametrize("bad", ["0.5", {"t": 0.5}, object(), 0.5j, np.array(["a"])], ids=repr)
+@pytest.mark.parametrize(
+    "bad",
+    ["0.5", {"t": 0.5}, object(), 0.5j, np.array(["a"])],
+    ids=["str", "dict", "object", "complex", "str-array"],
+)
 @pytest.mark.parametrize("name,f", REAL_PARAMS, ids=_IDS)
 def test_non_numbers_are_refused_naming_what_came(name, f, bad):
     came = "numpy array of dtype <U1" if isinstance(bad, np.ndarray) else type(bad).__name__
