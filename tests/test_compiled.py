@@ -62,9 +62,7 @@ def test_inductor_options():
     assert compiled.inductor_options("so3", "exp") == vectorised
     assert compiled.inductor_options("se3", "log") == vectorised
     assert compiled.inductor_options("conversions", "matrix_to_euler") == vectorised
-    for module, names in compiled.KEEP_HEURISTIC.items():
-        for name in names:
-            assert compiled.inductor_options(module, name) == compiled.FUSION
+    assert compiled.inductor_options("se3", "compose") == vectorised
     with pytest.raises(ValueError, match=r"inductor_options: expected module to be one of"):
         compiled.inductor_options("so2", "exp")
     with pytest.raises(ValueError, match=r"torchlie\.so3 has no public function '_exp'"):

@@ -18,10 +18,10 @@ here read and write the components of ``(..., 3)``, ``(..., 4)`` and ``(..., 3, 
 small strides, so nearly every kernel would be judged so and call the scalar ``sin``, ``cos``,
 ``atan2`` and ``sqrt`` once per element.  The functions here are compiled with that heuristic off
 (:func:`inductor_options`), which vectorises the loop (the strided components are gathered) and
-runs the transcendental functions on vectors.  A few functions that are only multiply-adds and
-copies are faster with the heuristic and keep it (:data:`KEEP_HEURISTIC`).  ``torch.compile`` of
-one's own code that calls torchlie can pass the same options: ``torch.compile(fn,
-options={"cpp.enable_tiling_heuristics": False})``.  GPU code generation does not read them.
+runs the transcendental functions on vectors.  Every function is compiled with the same
+options.  ``torch.compile`` of one's own code that calls torchlie can pass them too:
+``torch.compile(fn, options={"cpp.enable_tiling_heuristics": False})``.  GPU code generation
+does not read them.
 
 One loop per op.  Inductor fuses two element-wise computations into one loop only when they read
 a common buffer, and the constant entries of a result (the ``(0, 0, 0, 1)`` row of a pose) read
@@ -50,21 +50,10 @@ __all__ = [
     "quaternion",
     "conversions",
     "inductor_options",
-    "KEEP_HEURISTIC",
     "FUSION",
 ]
 
 _EAGER_ONLY = frozenset({"identity", "random"})
-
-#: Functions compiled with Inductor's default CPU vectorisation heuristic (measured faster with
-#: it: a few multiply-adds or copies per element, no transcendental functions).
-KEEP_HEURISTIC: dict[str, frozenset[str]] = {
-    "so3": frozenset({"act", "jac_compose"}),
-    "se3": frozenset({"act", "jac_compose", "hat", "compose", "inverse"}),
-    "quaternion": frozenset({"to_matrix", "log"}),
-    "conversions": frozenset(),
-}
-
 
 #: Inductor options of every function here: computations that share no buffer (constant entries
 #: of a result among them) are fused into one loop too, and the C++ backend's limit of 16 such
@@ -85,12 +74,10 @@ def inductor_options(module: str, name: str) -> dict[str, bool | int]:
     """The Inductor options :mod:`torchlie.compiled` compiles ``torchlie.<module>.<name>`` with.
 
     :data:`FUSION` and ``{"cpp.enable_tiling_heuristics": False}`` (vectorised CPU loops, see the
-    module docstring), the latter left out for the functions in :data:`KEEP_HEURISTIC`.
+    module docstring), the same for every function.
 
     Example:
         >>> inductor_options("so3", "exp")["cpp.enable_tiling_heuristics"]
-        False
-        >>> "cpp.enable_tiling_heuristics" in inductor_options("so3", "act")
         False
     """
     fn = "torchlie.compiled.inductor_options"
@@ -98,8 +85,6 @@ def inductor_options(module: str, name: str) -> dict[str, bool | int]:
         raise ValueError(f"{fn}: expected module to be one of {sorted(_MODULES)}, got {module!r}")
     if name not in _MODULES[module].__all__:
         raise ValueError(f"{fn}: torchlie.{module} has no public function {name!r}")
-    if name in KEEP_HEURISTIC[module]:
-        return dict(FUSION)
     return {**FUSION, "cpp.enable_tiling_heuristics": False}
 
 
