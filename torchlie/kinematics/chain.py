@@ -536,6 +536,8 @@ class Chain:
         )
         self._plans: dict[tuple[int, ...], _Plan] = {}
         self._jac_plans: dict[int, _JacPlan] = {}
+        # (link, DoFs) -> where the link's Jacobian columns go among those DoFs (None: in order).
+        self._dof_maps: dict[tuple[int, tuple[int, ...]], Tensor | None] = {}
         self._mimic_t: tuple[Tensor, Tensor, Tensor] | None = None
 
     # ------------------------------------------------------------------------------------------
@@ -1018,11 +1020,19 @@ class Chain:
                 return C
             index = jp.dof_index
         else:
-            pos = {d: i for i, d in enumerate(dofs)}
-            where = [pos[d] for d in jp.col_dofs]
-            if where == list(range(n_out)):
+            key = (target, dofs)
+            if key in self._dof_maps:
+                index = self._dof_maps[key]
+            else:
+                pos = {d: i for i, d in enumerate(dofs)}
+                where = [pos[d] for d in jp.col_dofs]
+                index = None
+                if where != list(range(n_out)):
+                    index = torch.tensor(where, dtype=torch.long, device=C.device)
+                if not torch.compiler.is_compiling():
+                    self._dof_maps[key] = index
+            if index is None:  # the link's columns are those DoFs, in order
                 return C
-            index = torch.tensor(where, dtype=torch.long, device=C.device)
         # Each column into its DoF's column (summed where mimic joints share one).
         return C.new_zeros(n_out, 6, B).index_add(0, index, C)
 

@@ -445,12 +445,16 @@ def _clamp(q: Tensor, lo: Tensor, hi: Tensor) -> Tensor:
 
 
 def _starts(
-    chain: Chain, lo: Tensor, hi: Tensor, shape: tuple[int, ...], generator: torch.Generator | None
+    chain: Chain,
+    bounds: tuple[Tensor, Tensor] | None,
+    shape: tuple[int, ...],
+    generator: torch.Generator | None,
 ) -> Tensor:
-    """Uniform draws ``(*shape, n_dof)`` within the bounds (the free ranges of
-    :meth:`Chain.random_configuration` where a bound is infinite), drawn on the CPU."""
+    """Uniform draws ``(*shape, n_dof)`` within the chain's limits, or within ``bounds`` (given
+    bounds, already on the host), with the free ranges of :meth:`Chain.random_configuration`
+    where a bound is infinite; drawn on the CPU in float64 (no device value is read)."""
     slo, shi = chain._sampling_bounds()
-    lo64, hi64 = lo.detach().cpu().double(), hi.detach().cpu().double()
+    lo64, hi64 = chain._limits64 if bounds is None else bounds
     slo = torch.where(torch.isfinite(lo64), lo64, torch.minimum(slo, hi64))
     shi = torch.where(torch.isfinite(hi64), hi64, torch.maximum(shi, lo64))
     u = torch.rand(*shape, chain.n_dof, generator=generator, dtype=torch.float64)
@@ -541,13 +545,16 @@ def inverse_kinematics(
     lo1, hi1 = lo.unsqueeze(-1), hi.unsqueeze(-1)
 
     # Seeds (S, n, N): seed 0 of every start, then the replacements.
+    host = None
+    if lower is not None or upper is not None:  # read on the host once (checked above)
+        host = (lo.detach().cpu().double(), hi.detach().cpu().double())
     n_seeds = 1 + (max_iterations // restart_after if restart_after else 0)
     if q0 is None:
-        draws = _starts(chain, lo, hi, (n_seeds, P, K), generator)  # (S, P, K, n)
+        draws = _starts(chain, host, (n_seeds, P, K), generator)  # (S, P, K, n)
     else:
         draws = q0.detach().expand(*batch, n).reshape(1, P, 1, n)
         if K > 1 or n_seeds > 1:  # (no random draw otherwise: nothing to trace but q0)
-            more = _starts(chain, lo, hi, (n_seeds, P, K), generator)
+            more = _starts(chain, host, (n_seeds, P, K), generator)
             draws = torch.cat((torch.cat((draws, more[:1, :, 1:]), 2), more[1:]), 0)
     seeds = _clamp(draws.reshape(n_seeds, N, n).mT.contiguous(), lo1, hi1)
 
