@@ -634,11 +634,11 @@ def _solve(
     q_out = q.new_zeros(n, P)
     outs = [perr.new_zeros(P), perr.new_zeros(P), conv.new_zeros(P), zeros.new_zeros(P)]
 
-    def finish(sel: Tensor | None) -> None:
-        """Write the kept start of the targets ``sel`` (positions in the batch; all if None)."""
+    def finish(which: Tensor | None) -> None:
+        """Write the kept start of the targets ``which`` (positions in the batch; all if None)."""
         p_now = st["q"].shape[-1] // K
         pick = st["best_key"].view(p_now, K).argmin(1)
-        rows = torch.arange(p_now, device=device) if sel is None else sel
+        rows = torch.arange(p_now, device=device) if which is None else which
         cols = rows * K + pick.index_select(0, rows)
         where = ids.index_select(0, rows)
         q_out.index_copy_(1, where, st["best_q"].index_select(1, cols))
