@@ -11,6 +11,7 @@ so before rendering this extension rewrites, in every docstring of the package:
 * roles as cross-references: the target is looked up from the object's own scope outwards
   (class, module, parent packages, then absolute) and linked at the path where it is defined;
   a target outside the package (``torch.nn.Module``, ``repr``) stays plain code;
+* doctest blocks of the prose (outside ``Examples:``) as console code;
 * ``text::`` as ``text:`` (the indented block after it is already a Markdown code block);
 * simple tables as Markdown tables (cell continuation lines joined).
 
@@ -133,9 +134,29 @@ def _tables(text: str) -> str:
     return "\n".join(out)
 
 
+def _doctests(text: str) -> str:
+    """Doctest blocks of the prose (``>>>`` at the start of a line, up to the next blank line)
+    as console code blocks; those of an ``Examples:`` section are indented and left to it."""
+    lines = text.split("\n")
+    out: list[str] = []
+    i = 0
+    while i < len(lines):
+        if lines[i].startswith(">>>") and (i == 0 or not lines[i - 1].strip()):
+            j = i
+            while j < len(lines) and lines[j].strip():
+                j += 1
+            out += ["```pycon", *lines[i:j], "```"]
+            i = j
+        else:
+            out.append(lines[i])
+            i += 1
+    return "\n".join(out)
+
+
 def rewrite(text: str, where: griffe.Object, root: griffe.Module) -> str:
     """The Markdown form of one docstring of ``where`` (see the module docstring)."""
     text = _EXAMPLE.sub(r"\g<indent>Examples:", text)
+    text = _doctests(text)
     text = _tables(text)
     text = "\n".join(_LITERAL.sub(":", line) for line in text.split("\n"))
     return _ROLE.sub(lambda m: _role(m, where, root), text)
