@@ -183,6 +183,33 @@ def jinv(t2: Tensor) -> Tensor:
     return (sinc3(t2) - 2.0 * cosc4(t2)) / (2.0 * cosc(t2))
 
 
+#: The smallest positive subnormal of each dtype (a denominator clamped at it is unchanged
+#: unless it is 0).
+_SUBNORMAL = {torch.float32: 2.0**-149, torch.float64: 2.0**-1074}
+
+
+def atan2(y: Tensor, x: Tensor) -> Tensor:
+    """``torch.atan2(y, x)`` for finite input (signed zeros included), from ``torch.atan``.
+
+    torch's CPU ``atan2`` rounds differently in its vectorised loop and in its scalar loop (the
+    tail of an array, strided operands), so its bits would depend on the batch size and the
+    layout; ``atan`` of the ratio of the smaller to the larger magnitude, moved to its
+    quadrant, rounds alike in both (one more rounding than ``atan2``).
+    """
+    ax, ay = x.abs(), y.abs()
+    r = torch.minimum(ax, ay) / torch.maximum(ax, ay).clamp_min(_SUBNORMAL[x.dtype])
+    a = torch.atan(r)
+    a = torch.where(ay > ax, torch.rsub(a, 0.5 * math.pi), a)
+    a = torch.where(torch.signbit(x), torch.rsub(a, math.pi), a)
+    return torch.copysign(a, y)
+
+
+def atan2_nonneg(y: Tensor, x: Tensor) -> Tensor:
+    """:func:`atan2` for ``y > 0`` and ``x >= 0`` (the half angle of a rotation)."""
+    a = torch.atan(torch.minimum(x, y) / torch.maximum(x, y))
+    return torch.where(y > x, torch.rsub(a, 0.5 * math.pi), a)
+
+
 def atan_ratio(n: Tensor, w: Tensor) -> Tensor:
     """atan2(n, w)/n for n >= 0: the angle of a quaternion over the norm of its vector part.
 
@@ -199,7 +226,7 @@ def atan_ratio(n: Tensor, w: Tensor) -> Tensor:
     ok = n > 0
     n_e = torch.where(small | ~ok, torch.ones_like(n), n)
     w_e = torch.where(small, torch.ones_like(w), w)
-    exact = torch.where(ok, torch.atan2(n_e, w_e) / n_e, torch.zeros_like(n))
+    exact = torch.where(ok, atan2(n_e, w_e) / n_e, torch.zeros_like(n))
     return torch.where(small, series, exact)
 
 
@@ -221,9 +248,21 @@ def sqrt0(x: Tensor) -> Tensor:
     return torch.where(pos, torch.where(pos, x, torch.ones_like(x)).sqrt(), x)
 
 
-def norm(v: Tensor, dim: int = -1, keepdim: bool = False) -> Tensor:
-    """Euclidean norm whose gradient at v = 0 is 0 (a subgradient) instead of NaN; NaN stays."""
-    return sqrt0((v * v).sum(dim=dim, keepdim=keepdim))
+def norm(v: Tensor, keepdim: bool = False) -> Tensor:
+    """Euclidean norm over the last dimension whose gradient at v = 0 is 0 (a subgradient)
+    instead of NaN; NaN stays."""
+    return sqrt0(sum_squares(v, keepdim))
+
+
+def sum_squares(v: Tensor, keepdim: bool = False) -> Tensor:
+    """``sum_i v_i^2`` over the last dimension, component by component from the first (the
+    same bits whatever the layout of ``v``; torch's reductions sum in an order that depends
+    on it)."""
+    parts = v.unbind(-1)
+    acc = parts[0] * parts[0]
+    for p in parts[1:]:
+        acc = torch.addcmul(acc, p, p)
+    return acc.unsqueeze(-1) if keepdim else acc
 
 
 # --------------------------------------------------------------------------------------------
@@ -246,49 +285,81 @@ def rescaled(v: Tensor) -> tuple[Tensor, Tensor]:
     For the functions that are invariant to the scale of a quaternion, and for norms: the
     squares of ``v / k`` neither overflow nor underflow, so every finite non-zero ``v`` has a
     finite, accurate result.  A zero ``v`` gives ``k = 0`` and ``v / k`` NaN (no direction).
+
+    While compiling, ``(v, 1)``: the scaled copy would be a buffer of its own, and the fused
+    kernels of :mod:`torchlie.compiled` keep their one loop (and the range of the formulas,
+    magnitudes between about ``1e-19`` and ``1e19`` in float32, ``1e-154`` and ``1e154`` in
+    float64).
     """
+    if torch.compiler.is_compiling():
+        return v, torch.ones_like(v[..., :1])
     m = v.detach().abs().amax(-1, keepdim=True)
-    c = m.clamp(*_PLAIN[m.dtype])
-    k = torch.where(c == m, torch.ones_like(m), m)
+    k = torch.where(m.clamp(*_PLAIN[m.dtype]) == m, 1.0, m)
     return v / k, k
 
 
 def reduction(w: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """``(w', lam, u)``: the rotation vectors ``w`` ``(..., 3)`` with the angle reduced modulo
-    ``2 pi`` where the largest ``|w_i|`` exceeds ``_HUGE`` (``2**60`` in float32, ``2**200`` in
-    float64, where the formulas' fifth powers of the angle still fit), ``lam = |w'| / |w|``
-    and the unit axis ``u = w / |w|`` there (``lam`` of shape ``(..., 1)``); elsewhere ``w``
-    itself, bit for bit, ``lam = 1`` and ``u = w``.
+    """``(w', lam, u)``: rotation vectors ``w`` ``(..., 3)`` with the same axis and an angle
+    below ``2 pi sqrt(3)`` where the largest ``|w_i|`` exceeds ``_HUGE`` (``2**60`` in float32,
+    ``2**200`` in float64, where the formulas' fifth powers of the angle still fit), with
+    ``lam = |w'| / |w|`` and the unit axis ``u = w / |w|`` there (``lam`` of shape
+    ``(..., 1)``); elsewhere ``w`` itself, bit for bit, ``lam = 1`` and ``u = w``.
 
-    ``Exp`` is periodic in the angle, so ``Exp(w') = Exp(w)`` with the same derivatives (the
-    reduction is differentiable: its derivative is ``I`` along ``u`` and ``lam`` across), and
-    the left Jacobian follows from the reduced one, ``Jl(w) = lam Jl(w') + (1 - lam) u u^T``.
-    Beyond those magnitudes the angle ``|w|`` is known only to far more than ``2 pi`` (its
-    rounding), so one angle is as right as another; the reduction keeps the axis ``u``, and
-    every result is that of a valid rotation about it.  Half the angle is reduced modulo ``pi``
-    and doubled, so that no intermediate value overflows.
+    Beyond those magnitudes the angle ``t = |w|`` is known only to far more than ``2 pi`` (its
+    rounding), so its residue modulo ``2 pi`` is not determined by ``w``: the one taken is
+    ``r = |w'|``, with ``w' = lam w`` and ``lam = 2 fmod(m / 2, pi) / m`` (``m`` the largest
+    ``|w_i|``; half of it reduced, so that nothing overflows).  Every function of the rotation
+    vector then sees ``t`` with ``sin t = sin r`` and ``cos t = cos r``: ``Exp(w) = Exp(w')``, a
+    valid rotation about ``u``, and the left Jacobian follows from the reduced one,
+    ``Jl(w) = lam Jl(w') + (1 - lam) u u^T``.  Derivatives: ``d w' / d w`` is ``I`` along ``u``
+    (``d|w| / d w = u``, as for the true angle) and ``lam`` across, so gradients are those of the
+    functions at ``t`` and finite.
+
+    While compiling, ``(w, 1, w)``, as :func:`rescaled` (the fused kernels of
+    :mod:`torchlie.compiled` keep their one loop, and the range of the formulas).
     """
+    if torch.compiler.is_compiling():
+        return w, torch.ones_like(w[..., :1]), w
+    reduced_w, lam, big, m = _reduce(w)
+    return reduced_w, lam, _axis(w, big, m)
+
+
+def _reduce(w: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """``(w', lam, big, m)`` of :func:`reduction` (``m`` the largest ``|w_i|``, ``big`` where
+    it is reduced)."""
     m = w.detach().abs().amax(-1, keepdim=True)
     big = m > _HUGE[m.dtype]
-    k = torch.where(big, m, torch.ones_like(m))
-    ws = w / k
-    x, y, z = ws.unbind(-1)
-    t2 = torch.where(big[..., 0], torch.addcmul(torch.addcmul(x * x, y, y), z, z), 1.0)
-    tau = t2.sqrt().unsqueeze(-1)  # |ws|, in [1, sqrt(3)] where big
-    u = ws / tau
-    # The reduced angle, and (adding an exact 0) its derivative d|w|/dw = u, which autograd
-    # would otherwise form through the factor k of |w| = k tau (overflowing near the maximum).
-    angle = 2.0 * torch.fmod((0.5 * k) * tau.detach(), math.pi)
-    ud, dw = u.detach().unbind(-1), (w - w.detach()).unbind(-1)
-    zero = torch.addcmul(torch.addcmul(ud[0] * dw[0], ud[1], dw[1]), ud[2], dw[2])
-    f = torch.where(big, (angle + zero.unsqueeze(-1)) / tau, 1.0)
-    return ws * f, f / k, u
+    lam = torch.where(big, torch.fmod(0.5 * m, math.pi).mul_(2.0).div_(m), 1.0)
+    reduced_w = w * lam
+    if torch.is_grad_enabled() and w.requires_grad:
+        # radial derivative 1 (that of the angle), not lam: add (1 - lam) u (u . dw), an exact 0
+        u = _axis(w.detach(), big, m)
+        radial = _dot(u, w - w.detach()).unsqueeze(-1)
+        reduced_w = reduced_w + torch.where(big, (1.0 - lam) * radial, 0.0) * u
+    return reduced_w, lam, big, m
+
+
+def _axis(w: Tensor, big: Tensor, m: Tensor) -> Tensor:
+    """``w / |w|`` where ``big``, from ``w / m`` (no overflow); ``w`` elsewhere."""
+    v = w / torch.where(big, m, 1.0)
+    return v * torch.where(big, sum_squares(v, keepdim=True), 1.0).rsqrt()
+
+
+def _dot(a: Tensor, b: Tensor) -> Tensor:
+    """``sum_i a_i b_i`` over the last dimension, component by component from the first."""
+    x, y = a.unbind(-1), b.unbind(-1)
+    acc = x[0] * y[0]
+    for xi, yi in zip(x[1:], y[1:], strict=True):
+        acc = torch.addcmul(acc, xi, yi)
+    return acc
 
 
 def reduced(w: Tensor) -> Tensor:
-    """The rotation vectors ``w`` with the angle reduced modulo ``2 pi`` where it is beyond the
-    range of the formulas (:func:`reduction`), ``w`` itself elsewhere."""
-    return reduction(w)[0]
+    """The rotation vectors ``w`` with the angle reduced where it is beyond the range of the
+    formulas (:func:`reduction`), ``w`` itself elsewhere (and while compiling)."""
+    if torch.compiler.is_compiling():
+        return w
+    return _reduce(w)[0]
 
 
 #: Clamp of the half angle in the forward-only evaluations: sin(h)/h rounds to 1 below it.

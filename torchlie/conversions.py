@@ -153,10 +153,11 @@ def _quaternion_to_euler(q: Tensor, plan: tuple[int, int, int, bool]) -> Tensor:
     sa, sb = torch.where(lock_diff, one, a), torch.where(lock_diff, zero, b)
     sc, sd = torch.where(lock_sum, one, c), torch.where(lock_sum, zero, d)
     # With A = a + ib = |A| e^{i(t1+t3)/2} and C = c + id = |C| e^{i(t3-t1)/2}:
-    first = torch.atan2(sb * sc - sa * sd, sa * sc + sb * sd)  # arg(A conj(C)) = t1
-    third = torch.atan2(sb * sc + sa * sd, sa * sc - sb * sd)  # arg(A C) = t3
-    sum_ = torch.atan2(2.0 * sa * sb, sa * sa - sb * sb)  # arg(A^2) = t1 + t3
-    diff = torch.atan2(2.0 * sc * sd, sc * sc - sd * sd)  # arg(C^2) = t3 - t1
+    atan2 = _coeffs.atan2  # the same bits whatever the batch size and layout
+    first = atan2(sb * sc - sa * sd, sa * sc + sb * sd)  # arg(A conj(C)) = t1
+    third = atan2(sb * sc + sa * sd, sa * sc - sb * sd)  # arg(A C) = t3
+    sum_ = atan2(2.0 * sa * sb, sa * sa - sb * sb)  # arg(A^2) = t1 + t3
+    diff = atan2(2.0 * sc * sd, sc * sc - sd * sd)  # arg(C^2) = t3 - t1
     locked = lock_sum | lock_diff
     if intrinsic:  # the angle set to 0 is t1 (the last of the intrinsic triple)
         first = torch.where(locked, zero, first)
@@ -166,9 +167,9 @@ def _quaternion_to_euler(q: Tensor, plan: tuple[int, int, int, bool]) -> Tensor:
         third = torch.where(locked, zero, third)
     nab, ncd = _coeffs.sqrt0(nab2), _coeffs.sqrt0(ncd2)
     if proper:
-        middle = 2.0 * torch.atan2(ncd, nab)
+        middle = 2.0 * atan2(ncd, nab)
     else:
-        middle = torch.atan2(ncd2 - nab2, 2.0 * nab * ncd)  # t2' - pi/2, without rounding pi/2
+        middle = atan2(ncd2 - nab2, 2.0 * nab * ncd)  # t2' - pi/2, without rounding pi/2
         third = e * third
     if intrinsic:
         first, third = third, first

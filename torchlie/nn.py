@@ -32,7 +32,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from . import _checks, se3, so3
+from . import _checks, _coeffs, se3, so3
 from . import conversions as _conv
 from . import quaternion as _quat
 from ._typing import Float
@@ -321,6 +321,12 @@ class PoseHead(nn.Module):
 # ----------------------------------------------------------------------------------------------
 
 
+def _sum_squares(d: Tensor, k: int) -> Tensor:
+    """``sum d^2`` over the last ``k`` dimensions, entry by entry in a fixed order (the same
+    bits whatever the layout of ``d``; torch's reductions sum in an order that depends on it)."""
+    return _coeffs.sum_squares(d.flatten(-k) if k > 1 else d)
+
+
 def _reduce(loss: Tensor, reduction: str) -> Tensor:
     if reduction == "mean":
         return loss.mean()
@@ -370,7 +376,7 @@ def geodesic_loss(
         loss = so3.distance(a, b)
     else:
         d = a - b
-        loss = (d * d).sum(dim=(-1, -2))
+        loss = _sum_squares(d, 2)
     return _checks.out(_reduce(loss, reduction), dtype)
 
 
@@ -417,7 +423,7 @@ def se3_geodesic_loss(
     else:
         dR = a[..., :3, :3] - b[..., :3, :3]
         dt = a[..., :3, 3] - b[..., :3, 3]
-        rot, trans = (dR * dR).sum(dim=(-1, -2)), (dt * dt).sum(dim=-1)
+        rot, trans = _sum_squares(dR, 2), _sum_squares(dt, 1)
     loss = rotation_weight * rot + translation_weight * trans
     return _checks.out(_reduce(loss, reduction), dtype)
 

@@ -542,7 +542,7 @@ def _log_and_cot(
     nv = torch.addcmul(torch.addcmul(cx * cx, cy, cy), cz, cz).sqrt_()
     nv = nv.clamp_min_(_coeffs.H_MIN[nv.dtype])
     a = cw.abs()
-    theta = torch.atan2(nv, a).mul_(2.0)
+    theta = _coeffs.atan2_nonneg(nv, a).mul_(2.0)
     f = torch.div(theta, nv).mul_(sign)
     phi = (f * cx, f * cy, f * cz)
     if not cot:

@@ -556,14 +556,19 @@ def _reduced(xi: Tensor) -> Tensor:
     With ``phi'``, ``lam`` and ``u`` of :func:`torchlie._coeffs.reduction`,
     ``Jl(phi) = lam Jl(phi') + (1 - lam) u u^T`` and ``Jl(phi') u = u``, so
     ``Jl(phi) rho = Jl(phi') rho'`` with ``rho' = lam rho + (1 - lam) (u . rho) u``.
+    ``xi`` itself while compiling (:func:`torchlie._coeffs.reduction`).
     """
-    rho = xi[..., :3]
+    if torch.compiler.is_compiling():
+        return xi
     phi, lam, u = _coeffs.reduction(xi[..., 3:])
-    x, y, z = u.unbind(-1)
-    a, b, c = rho.unbind(-1)
-    along = torch.addcmul(torch.addcmul(x * a, y, b), z, c).unsqueeze(-1) * u
-    rho = torch.where(lam < 1.0, torch.lerp(along, rho, lam), rho)
-    return torch.cat((rho, phi), dim=-1)
+    lam, u = lam[..., 0], u.unbind(-1)
+    rho = xi[..., :3].unbind(-1)
+    along = torch.addcmul(torch.addcmul(u[0] * rho[0], u[1], rho[1]), u[2], rho[2])
+    big = lam < 1.0
+    rho = [
+        torch.where(big, torch.lerp(along * ui, ri, lam), ri) for ui, ri in zip(u, rho, strict=True)
+    ]
+    return torch.stack((*rho, *phi.unbind(-1)), dim=-1)
 
 
 def _log_forward(T: Tensor) -> Tensor:

@@ -676,7 +676,7 @@ def _angle(M: Tensor) -> Tensor:
     """Rotation angle of ``M`` as ``atan2(|skew|, (tr - 1)/2)``: accurate at 0 and at pi."""
     s = _coeffs.norm(_vee(M))
     c = 0.5 * (M[..., 0, 0] + M[..., 1, 1] + M[..., 2, 2] - 1.0)
-    return torch.atan2(s, c)
+    return _coeffs.atan2(s, c)
 
 
 def distance(R1: Float[Tensor, "*b1 3 3"], R2: Float[Tensor, "*b2 3 3"]) -> Float[Tensor, "*b"]:

@@ -191,7 +191,7 @@ def _weights(fn: str, x: Tensor, weights: object, n: int, ref: tuple[str, Tensor
             f"{fn}: expected weights of shape (..., {n}) (one per element of the set), got "
             f"{tuple(w.shape)}"
         )
-    return w / w.sum(-1, keepdim=True)
+    return w / _sum(w, -1).unsqueeze(-1)
 
 
 def _set(fn: str, g: _Group, X: Tensor, weights: object, arg: str):
@@ -222,7 +222,17 @@ def _check_method(fn: str, method: str, iterations: int) -> None:
 
 def _wsum(w: Tensor, x: Tensor, k: int) -> Tensor:
     """``sum_i w_i x_i`` over the set dimension (``x`` has ``k`` trailing data dimensions)."""
-    return (w[(...,) + (None,) * k] * x).sum(-1 - k)
+    return _sum(w[(...,) + (None,) * k] * x, -1 - k)
+
+
+def _sum(x: Tensor, dims: int | tuple[int, ...]) -> Tensor:
+    """``x.sum(dims)`` in an order fixed by the numbers summed alone: the summed dimensions
+    are moved last and made contiguous first (torch sums in an order that depends on the
+    layout of the operand, so the same numbers laid out otherwise would round otherwise)."""
+    dims = (dims,) if isinstance(dims, int) else dims
+    n = len(dims)
+    y = x.movedim(dims, tuple(range(-n, 0))).contiguous()
+    return (y.flatten(-n) if n > 1 else y).sum(-1)
 
 
 def _chordal_so3(x: Tensor, w: Tensor) -> Tensor:
@@ -486,7 +496,7 @@ def align(
         q = (q - q0) - dq.unsqueeze(-2)
     # H = (w q)^T p and R p_bar as products and sums (not matmul): an element's result has the
     # same bits whatever the batch around it.
-    H = ((q * w.unsqueeze(-1)).unsqueeze(-1) * p.unsqueeze(-2)).sum(-3)
+    H = _sum((q * w.unsqueeze(-1)).unsqueeze(-1) * p.unsqueeze(-2), -3)
     # H = 0 (the weighted points of P, or those of Q, all at one place): every rotation fits
     # equally; the identity is returned with zero gradient (project's backward would be 0/0).
     flat = (H == 0).all(dim=-1).all(dim=-1)[..., None, None]
@@ -494,14 +504,14 @@ def align(
     if scale:
         # All points of P at one place (zero spread): every scale fits equally, and s = 1 is
         # returned, with zero gradient (the double where keeps 0/0 out of the backward too).
-        spread = (w * (p * p).sum(-1)).sum(-1)
+        spread = _sum(w * _sum(p * p, -1), -1)
         some = spread > 0
-        s = (R * H).sum((-1, -2)) / torch.where(some, spread, torch.ones_like(spread))
+        s = _sum(R * H, (-1, -2)) / torch.where(some, spread, torch.ones_like(spread))
         s = torch.where(some, s, torch.ones_like(s))
     else:
         s = torch.ones(batch, dtype=p.dtype, device=p.device)
     if translation:
-        t = q_bar - s.unsqueeze(-1) * (R * p_bar.unsqueeze(-2)).sum(-1)
+        t = q_bar - s.unsqueeze(-1) * _sum(R * p_bar.unsqueeze(-2), -1)
     else:
         t = torch.zeros((*batch, 3), dtype=p.dtype, device=p.device)
     return Alignment(_checks.out(R, dtype), _checks.out(t, dtype), _checks.out(s, dtype))
