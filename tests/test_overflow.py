@@ -9,6 +9,10 @@ Quaternions, rotation vectors and twists are swept over magnitudes from ``1e-45`
   beyond about ``1 / eps`` the angle is known only to more than ``2 pi`` (its rounding), and
   is reduced modulo ``2 pi`` (:func:`torchlie._coeffs.reduction`);
 * gradients are finite (where the true gradient is representable).
+
+Not swept: the inverse Jacobians (meant for angles below ``2 pi``) and the Jacobians of SE(3),
+whose ``Q`` block is formed from powers of the rotation vector up to the fifth (finite up to
+about ``1e19`` in float32 and ``1e60`` in float64).
 """
 
 from __future__ import annotations
@@ -18,7 +22,7 @@ import math
 import pytest
 import torch
 
-from torchlie import _coeffs, conversions, nn, quaternion, se3, so3
+from torchlie import _coeffs, conversions, nn, quaternion, se3, so3, statistics
 
 DTYPES = [torch.float32, torch.float64]
 
@@ -193,6 +197,10 @@ def test_rotation_vector_exp_maps(dtype):
         so3.rplus(so3.identity(dtype=dtype), w),
         so3.lplus(so3.identity(dtype=dtype), w),
         se3.exp(torch.cat((torch.ones_like(w), w), -1))[..., :3, :3],
+        se3.rplus(se3.identity(dtype=dtype), torch.cat((torch.ones_like(w), w), -1))[..., :3, :3],
+        se3.lplus(se3.identity(dtype=dtype), torch.cat((torch.ones_like(w), w), -1))[..., :3, :3],
+        statistics.so3_integrate(so3.identity(dtype=dtype), w, 1.0),
+        so3.jac_rplus(so3.identity(dtype=dtype), w)[0].mT,
     ):
         _assert_rotation(R, axis, dtype)
     for q in (quaternion.from_rotvec(w), quaternion.integrate(quaternion.identity(dtype=dtype),
@@ -230,7 +238,7 @@ def test_left_and_right_jacobians(dtype):
     """Finite at every magnitude; ``Jl(w) u = u`` and ``Jl(w) -> u u^T`` as ``|w| -> inf``."""
     s, w = _sweep(3, dtype)
     u = _unit_of(w)
-    for J in (so3.jac_left(w), so3.jac_right(w)):
+    for J in (so3.jac_left(w), so3.jac_right(w), so3.jac_rplus(so3.identity(dtype=dtype), w)[1]):
         assert torch.isfinite(J).all()
         Ju = (J.double() @ u.unsqueeze(-1)).squeeze(-1)
         torch.testing.assert_close(Ju, u, rtol=0, atol=_tol(dtype) * 4)
