@@ -12,7 +12,7 @@ Quaternions, rotation vectors and twists are swept over magnitudes from ``1e-45`
 
 Not swept: the inverse Jacobians (meant for angles below ``2 pi``) and the Jacobians of SE(3),
 whose ``Q`` block is formed from powers of the rotation vector up to the fifth (finite up to
-about ``1e19`` in float32 and ``1e60`` in float64).
+about ``1e19`` in float32 and ``1e102`` in float64).
 """
 
 from __future__ import annotations
