@@ -17,6 +17,15 @@ written into its rows of one preallocated result: the many element-wise operatio
 formula then keep their operands in the cache instead of streaming them through main memory.
 Everywhere else (CUDA, compile, transforms, a graph being recorded) the formula runs once on
 the whole batch.
+
+Under ``torch.compile``, Dynamo traces a Function with its own backward only outside the
+``torch.func`` transforms (inside them it inlines the forward and drops the backward) and
+refuses a custom ``jvp``.  There, an op is traced as ``f(x0) + jvp(x0; x - x0)`` with ``x0`` the
+input detached: the value of ``f``, and as first derivatives, in forward and reverse mode, the
+op's own ``jvp`` formula (which is the transpose of its backward).  Second derivatives of these
+ops through ``torch.func`` under ``torch.compile`` are not those of the op (the coefficients
+are constants there); eager ``torch.func`` and compiled ``autograd.grad(create_graph=True)``
+give them.
 """
 
 from __future__ import annotations
@@ -59,6 +68,18 @@ def forward_ad_active() -> bool:
     the Function, which handles tangents).
     """
     return getattr(_forward_ad, "_current_level", 0) >= 0
+
+
+def fma(x: Tensor, t1: Tensor, t2: Tensor, value: float = 1.0, out: Tensor | None = None) -> Tensor:
+    """``x + value * t1 * t2``: ``torch.addcmul`` in eager mode, spelled out while compiling.
+
+    torch's forward-mode rule of ``addcmul`` crashes under ``torch.compile`` when some operands
+    carry a tangent and others do not, as the terms of a linearised op do (see the module
+    docstring); Inductor generates the same fused code from either spelling.
+    """
+    if torch.compiler.is_compiling():
+        return x + t1 * t2 if value == 1.0 else x + value * t1 * t2
+    return torch.addcmul(x, t1, t2, value=value, out=out)
 
 
 def _records(inputs: Sequence[Tensor]) -> bool:
@@ -179,8 +200,22 @@ class CustomFunction:
         )
         self.forward = run_forward
 
+        def linearized(*inputs: Tensor) -> Tensor:
+            # f(x0) + J(x0) (x - x0) at x = x0: the value of f, and as derivative the op's own
+            # jvp (whose reverse is its backward), whatever transform differentiates it.
+            bare = tuple(x.detach() for x in inputs)
+            y = forward(*bare)
+            return y + jvp(save(bare, y), *(x - b for x, b in zip(inputs, bare, strict=True)))
+
+        self.linearized = linearized
+
     def __call__(self, *inputs: Tensor) -> Tensor:
         if torch.compiler.is_compiling():
+            # Dynamo inlines a Function's forward under torch.func transforms (dropping its
+            # backward) and refuses a custom jvp: there the op's value and its own first
+            # derivatives are traced as plain ops instead (see ``linearized``).
+            if transforms_active() or forward_ad_active():
+                return self.linearized(*inputs)
             return self.compiled.apply(*inputs)
         if transforms_active():
             return self.transform.apply(*inputs)

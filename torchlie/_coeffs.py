@@ -35,6 +35,8 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
+from ._autograd import fma
+
 # --------------------------------------------------------------------------------------------
 # Series coefficients (exact rationals, converted to float once).
 # --------------------------------------------------------------------------------------------
@@ -261,7 +263,7 @@ def sum_squares(v: Tensor, keepdim: bool = False) -> Tensor:
     parts = v.unbind(-1)
     acc = parts[0] * parts[0]
     for p in parts[1:]:
-        acc = torch.addcmul(acc, p, p)
+        acc = fma(acc, p, p)
     return acc.unsqueeze(-1) if keepdim else acc
 
 
@@ -350,7 +352,7 @@ def _dot(a: Tensor, b: Tensor) -> Tensor:
     x, y = a.unbind(-1), b.unbind(-1)
     acc = x[0] * y[0]
     for xi, yi in zip(x[1:], y[1:], strict=True):
-        acc = torch.addcmul(acc, xi, yi)
+        acc = fma(acc, xi, yi)
     return acc
 
 
@@ -473,7 +475,7 @@ def q_values(t2: Tensor, b: Tensor, c: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     c3 = (c2 - 3.0 * s5).mul_(0.5)
     large = 1.0 - small
     return tuple(
-        torch.addcmul(exact * large, (tl * k2).add_(k1).mul_(tl).add_(k0), small)
+        fma(exact * large, (tl * k2).add_(k1).mul_(tl).add_(k0), small)
         for (k0, k1, k2), exact in zip(_Q_SERIES, (c, c2, c3), strict=True)
     )
 
@@ -501,5 +503,5 @@ def theta2(w: Tensor | Sequence[Tensor], keepdim: bool = False) -> Tensor:
     x, y, z = w.unbind(-1) if isinstance(w, Tensor) else w
     if x.dtype == torch.float32:
         x, y, z = x.double(), y.double(), z.double()
-    t2 = torch.addcmul(torch.addcmul(x * x, y, y), z, z)
+    t2 = fma(fma(x * x, y, y), z, z)
     return t2.unsqueeze(-1) if keepdim else t2

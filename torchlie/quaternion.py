@@ -24,7 +24,7 @@ import torch
 from torch import Tensor
 
 from . import _checks, _coeffs, _layout
-from ._autograd import blocked, custom_function
+from ._autograd import blocked, custom_function, fma
 from ._typing import Bool, Float, Shaped
 
 __all__ = [
@@ -120,8 +120,8 @@ def _hamilton(
     for ((j, k, _), *rest), o in zip(_SIGNED_TERMS[(conj_a, conj_b)], out, strict=True):
         acc = a[j] * b[k]
         (j1, k1, s1), (j2, k2, s2), (j3, k3, s3) = rest
-        acc = torch.addcmul(torch.addcmul(acc, a[j1], b[k1], value=s1), a[j2], b[k2], value=s2)
-        result.append(torch.addcmul(acc, a[j3], b[k3], value=s3, out=o))
+        acc = fma(fma(acc, a[j1], b[k1], value=s1), a[j2], b[k2], value=s2)
+        result.append(fma(acc, a[j3], b[k3], value=s3, out=o))
     return result
 
 
@@ -254,14 +254,14 @@ def _to_matrix_forward(q: Tensor) -> Tensor:
     # 1 - (yy + zz) s rounds a sum near 2 close to pi (3.1e-16 instead of 5.0e-16 in float64).
     # The last two share their halves: (ww - xx) +- (yy - zz).  Squares and products enter
     # by multiply-adds (one rounding each, where the CPU fuses them).
-    a, b = torch.addcmul(ww, x, x), torch.addcmul(yy, z, z)
+    a, b = fma(ww, x, x), fma(yy, z, z)
     hs = torch.reciprocal(a + b)  # 1 / |q|^2
     s = hs + hs
-    u, v = torch.addcmul(ww, x, x, value=-1.0), torch.addcmul(yy, z, z, value=-1.0)
+    u, v = fma(ww, x, x, value=-1.0), fma(yy, z, z, value=-1.0)
     xs, ys, zs = x * s, y * s, z * s
     xy, xz, yz = x * ys, x * zs, y * zs
     o = _layout.outputs(w, 9)
-    mul, fma = torch.mul, torch.addcmul
+    mul = torch.mul
     entries = (
         mul(a - b, hs, out=o[0]), fma(xy, w, zs, value=-1.0, out=o[1]), fma(xz, w, ys, out=o[2]),
         fma(xy, w, zs, out=o[3]), mul(u + v, hs, out=o[4]), fma(yz, w, xs, value=-1.0, out=o[5]),
@@ -272,7 +272,7 @@ def _to_matrix_forward(q: Tensor) -> Tensor:
 
 def _norm2(w: Tensor, x: Tensor, y: Tensor, z: Tensor) -> Tensor:
     """``w^2 + x^2 + y^2 + z^2`` from components (multiply-adds, left to right)."""
-    return torch.addcmul(torch.addcmul(torch.addcmul(w * w, x, x), y, y), z, z)
+    return fma(fma(fma(w * w, x, x), y, y), z, z)
 
 
 def _skew_vee(M: Tensor) -> Tensor:
@@ -285,7 +285,7 @@ def _skew_vee(M: Tensor) -> Tensor:
 def _conj_product_vec(q: Tensor, p: Tensor) -> Tensor:
     """Vector part of ``conj(q) p``: ``w p_v - p_w v - v x p_v`` (differentiable)."""
     w, v = q[..., :1], q[..., 1:]
-    u = torch.addcmul(w * p[..., 1:], p[..., :1], v, value=-1.0)
+    u = fma(w * p[..., 1:], p[..., :1], v, value=-1.0)
     return u - torch.linalg.cross(v, p[..., 1:], dim=-1)
 
 
@@ -303,9 +303,9 @@ def _rt_g_vee(
     for i, j in ((1, 2), (2, 0), (0, 1)):
         acc = g[i] * r[j]
         for k in (3, 6):
-            acc = torch.addcmul(acc, g[k + i], r[k + j])
+            acc = fma(acc, g[k + i], r[k + j])
         for k in (0, 3, 6):
-            acc = torch.addcmul(acc, g[k + j], r[k + i], value=-1.0)
+            acc = fma(acc, g[k + j], r[k + i], value=-1.0)
         out.append(acc)
     return out[0], out[1], out[2]
 
@@ -328,10 +328,10 @@ def _to_matrix_grad_values_block(q: Tensor, R: Tensor, G: Tensor) -> Tensor:
     a1, a2, a3 = _rt_g_vee(R, G)
     k = 2.0 / _norm2(w, x, y, z)
     o = _layout.outputs(w, 4)
-    gw = torch.mul(torch.addcmul(torch.addcmul(x * a1, y, a2), z, a3), k, out=o[0]).neg_()
+    gw = torch.mul(fma(fma(x * a1, y, a2), z, a3), k, out=o[0]).neg_()
     c = _cross_planes((x, y, z), (a1, a2, a3))
     gv = [
-        torch.mul(torch.addcmul(ci, w, ai), k, out=oi)
+        torch.mul(fma(ci, w, ai), k, out=oi)
         for ai, ci, oi in zip((a1, a2, a3), c, o[1:], strict=True)
     ]
     return _layout.interleave((gw, *gv), o)
@@ -390,7 +390,7 @@ def _orthogonalize_step(R: Tensor | Sequence[Tensor]) -> tuple[Tensor, ...]:
     m00, m01, m02, m10, m11, m12, m20, m21, m22 = _planes(R, 9)
 
     def dot3(a: Tensor, b: Tensor, c: Tensor, d: Tensor, e: Tensor, f: Tensor) -> Tensor:
-        return torch.addcmul(torch.addcmul(a * d, b, e), c, f)
+        return fma(fma(a * d, b, e), c, f)
 
     e00 = dot3(m00, m10, m20, m00, m10, m20) - 1.0
     e11 = dot3(m01, m11, m21, m01, m11, m21) - 1.0
@@ -432,7 +432,7 @@ def _from_matrix_parts(
     f0 = rest.sub_(f1)
 
     def pick(c0: Tensor, c1: Tensor, c2: Tensor, c3: Tensor) -> Tensor:
-        return torch.addcmul(torch.addcmul(torch.addcmul(c0 * f0, c1, f1), c2, f2), c3, f3)
+        return fma(fma(fma(c0 * f0, c1, f1), c2, f2), c3, f3)
 
     cw = pick(d0, s21, s02, s10)
     # Canonical sign: the pivot entry is positive, so flipping on w < 0 gives the canonical
@@ -460,9 +460,9 @@ def _cross_planes(
     ax, ay, az = a
     bx, by, bz = b
     return (
-        torch.addcmul(ay * bz, az, by, value=-1.0, out=out[0]),
-        torch.addcmul(az * bx, ax, bz, value=-1.0, out=out[1]),
-        torch.addcmul(ax * by, ay, bx, value=-1.0, out=out[2]),
+        fma(ay * bz, az, by, value=-1.0, out=out[0]),
+        fma(az * bx, ax, bz, value=-1.0, out=out[1]),
+        fma(ax * by, ay, bx, value=-1.0, out=out[2]),
     )
 
 
@@ -487,7 +487,7 @@ def _from_matrix_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]
     gw, gx, gy, gz = _planes(g, 4)
     c = _cross_planes((x, y, z), (gx, gy, gz))
     u = [
-        torch.addcmul(w * gi, gw, vi, value=-1.0).sub_(ci).mul_(0.25)
+        fma(w * gi, gw, vi, value=-1.0).sub_(ci).mul_(0.25)
         for gi, vi, ci in zip((gx, gy, gz), (x, y, z), c, strict=True)
     ]
     return (_r_hat_values(R, u),)
@@ -539,7 +539,7 @@ def _log_and_cot(
     the angle and the quotient (which tends to ``2 / |c_w|``; ``phi`` is exactly 0 at
     ``c_v = 0``) and ``cot(theta/2) = |c_w| / |c_v|``."""
     cw, cx, cy, cz, sign = _from_matrix_parts(R)
-    nv = torch.addcmul(torch.addcmul(cx * cx, cy, cy), cz, cz).sqrt_()
+    nv = fma(fma(cx * cx, cy, cy), cz, cz).sqrt_()
     nv = nv.clamp_min_(_coeffs.H_MIN[nv.dtype])
     a = cw.abs()
     theta = _coeffs.atan2_nonneg(nv, a).mul_(2.0)
@@ -579,7 +579,7 @@ def _exp_pure(a: Tensor) -> Tensor:
     (:func:`torchlie._coeffs.reduced`; the same value and derivatives)."""
     a = _coeffs.reduced(a)
     x, y, z = a.unbind(-1)
-    t2 = torch.addcmul(torch.addcmul(x * x, y, y), z, z).unsqueeze(-1)
+    t2 = fma(fma(x * x, y, y), z, z).unsqueeze(-1)
     return torch.cat((_coeffs.cos_sqrt(t2), _coeffs.sinc(t2) * a), dim=-1)
 
 
@@ -692,8 +692,7 @@ def _apply_values(q: Tensor, p: Tensor) -> Tensor:
     vc = _cross_planes(v, c)
     o = _layout.outputs((w, pc[0]), 3)  # batches may broadcast
     parts = [
-        torch.addcmul(pi, s, torch.addcmul(vci, w, ci), out=oi)
-        for pi, ci, vci, oi in zip(pc, c, vc, o, strict=True)
+        fma(pi, s, fma(vci, w, ci), out=oi) for pi, ci, vci, oi in zip(pc, c, vc, o, strict=True)
     ]
     return _layout.interleave(parts, o)
 
@@ -727,15 +726,15 @@ def _apply_grads_block(q: Tensor, p: Tensor, g: Tensor) -> tuple[Tensor, Tensor]
     # R^T g = g + s (v x (v x g) - w (v x g))
     c = _cross_planes(v, gc)
     dp = [
-        torch.addcmul(gi, s, torch.addcmul(vci, w, ci, value=-1.0), out=oi)
+        fma(gi, s, fma(vci, w, ci, value=-1.0), out=oi)
         for gi, ci, vci, oi in zip(gc, c, _cross_planes(v, c), op, strict=True)
     ]
     # q (0, a) = (-v . a, w a + v x a), times s, with a = p x R^T g
     a = _cross_planes(pc, dp)
-    va = torch.addcmul(torch.addcmul(v[0] * a[0], v[1], a[1]), v[2], a[2])
+    va = fma(fma(v[0] * a[0], v[1], a[1]), v[2], a[2])
     dq = [torch.mul(va, s, out=oq[0]).neg_()]
     dq += [
-        torch.mul(torch.addcmul(ci, w, ai), s, out=oi)
+        torch.mul(fma(ci, w, ai), s, out=oi)
         for ai, ci, oi in zip(a, _cross_planes(v, a), oq[1:], strict=True)
     ]
     return _layout.interleave(dq, oq), _layout.interleave(dp, op)
@@ -752,7 +751,7 @@ def _apply_jvp(saved: tuple[Tensor, ...], dq: Tensor | None, dp: Tensor | None) 
         d = _multiply(_conjugate(q), dq)[..., 1:] * (2.0 / (q * q).sum(-1, keepdim=True))
         d, pb = torch.broadcast_tensors(d, p)
         u = u + torch.linalg.cross(d, pb, dim=-1)
-    return _apply(q, u)
+    return _apply_values(q, u)
 
 
 _ApplyFn = custom_function(
@@ -819,7 +818,7 @@ def _log(q: Tensor) -> Tensor:
     w = q[..., :1]
     v = q[..., 1:]
     x, y, z = v.unbind(-1)
-    n2 = torch.addcmul(torch.addcmul(x * x, y, y), z, z).unsqueeze(-1)
+    n2 = fma(fma(x * x, y, y), z, z).unsqueeze(-1)
     n = _coeffs.sqrt0(n2)
     # atan_ratio is smooth at n = 0 for w > 0 and returns 0 (finite, with a finite gradient)
     # where n = 0 and w <= 0; those points are fixed below.

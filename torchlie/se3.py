@@ -35,7 +35,7 @@ from torch import Tensor
 
 from . import _checks, _coeffs, _layout, so3
 from . import quaternion as _quat
-from ._autograd import blocked, custom_function
+from ._autograd import blocked, custom_function, fma
 from ._typing import Bool, Float
 
 __all__ = [
@@ -159,14 +159,13 @@ def _q_components(
     b = so3._cross(phi, a)
     rv, ra, rb = so3._cross(rho, v), so3._cross(rho, a), so3._cross(rho, b)
     c13 = c1 - 3.0 * c2
-    inner = so3._cross(phi, [torch.addcmul(c2 * x, c3, y) for x, y in zip(rv, ra, strict=True)])
+    inner = so3._cross(phi, [fma(c2 * x, c3, y) for x, y in zip(rv, ra, strict=True)])
     mid = [
-        torch.addcmul(torch.addcmul(torch.addcmul(i, c1, x), c13, y), c3, z)
-        for x, y, z, i in zip(rv, ra, rb, inner, strict=True)
+        fma(fma(fma(i, c1, x), c13, y), c3, z) for x, y, z, i in zip(rv, ra, rb, inner, strict=True)
     ]
     outer = so3._cross(phi, mid)
     return [
-        torch.addcmul(torch.addcmul(o.add(x, alpha=0.5), c1, y), c2, z)
+        fma(fma(o.add(x, alpha=0.5), c1, y), c2, z)
         for x, y, z, o in zip(rv, ra, rb, outer, strict=True)
     ]
 
@@ -300,10 +299,9 @@ def _compose_entries(A: Tensor, B: Tensor) -> Tensor:
     rows = []
     for ai, oi in zip(a, top, strict=True):
         row = [
-            torch.addcmul(torch.addcmul(ai[0] * b[0][j], ai[1], b[1][j]), ai[2], b[2][j], out=oi[j])
-            for j in range(3)
+            fma(fma(ai[0] * b[0][j], ai[1], b[1][j]), ai[2], b[2][j], out=oi[j]) for j in range(3)
         ]
-        t = torch.addcmul(torch.addcmul(ai[0] * b[0][3], ai[1], b[1][3]), ai[2], b[2][3])
+        t = fma(fma(ai[0] * b[0][3], ai[1], b[1][3]), ai[2], b[2][3])
         rows.append([*row, torch.add(t, ai[3], out=oi[3])])
     return _stack_top(rows, out=o)
 
@@ -315,7 +313,7 @@ def _inverse_entries(T: Tensor) -> Tensor:
     rows = []
     for i in range(3):
         col = [r[0][i], r[1][i], r[2][i]]
-        t = torch.addcmul(torch.addcmul(col[0] * r[0][3], col[1], r[1][3]), col[2], r[2][3])
+        t = fma(fma(col[0] * r[0][3], col[1], r[1][3]), col[2], r[2][3])
         rows.append([*col, torch.neg(t, out=top[i][3])])
     return _stack_top(rows, out=o)
 
@@ -334,8 +332,8 @@ def _compose_bwd_entries(A: Tensor, B: Tensor, G: Tensor) -> tuple[Tensor, Tenso
     ob, top_b = _top_outputs(g[0][0])
     da = [
         [
-            torch.addcmul(
-                torch.addcmul(torch.addcmul(gi[0] * b[j][0], gi[1], b[j][1]), gi[2], b[j][2]),
+            fma(
+                fma(fma(gi[0] * b[j][0], gi[1], b[j][1]), gi[2], b[j][2]),
                 gi[3],
                 b[j][3],
                 out=oi[j],
@@ -347,9 +345,7 @@ def _compose_bwd_entries(A: Tensor, B: Tensor, G: Tensor) -> tuple[Tensor, Tenso
     ]
     db = [
         [
-            torch.addcmul(
-                torch.addcmul(a[0][k] * g[0][j], a[1][k], g[1][j]), a[2][k], g[2][j], out=ok[j]
-            )
+            fma(fma(a[0][k] * g[0][j], a[1][k], g[1][j]), a[2][k], g[2][j], out=ok[j])
             for j in range(4)
         ]
         for k, ok in zip(range(3), top_b, strict=True)
@@ -390,8 +386,8 @@ def _inverse_bwd_entries(T: Tensor, G: Tensor) -> Tensor:
     o, top = _top_outputs(g[0][0])
     rows = []
     for i, oi in zip(range(3), top, strict=True):
-        dR = [torch.addcmul(g[j][i], r[i][3], g[j][3], value=-1.0, out=oi[j]) for j in range(3)]
-        dt = torch.addcmul(torch.addcmul(r[i][0] * g[0][3], r[i][1], g[1][3]), r[i][2], g[2][3])
+        dR = [fma(g[j][i], r[i][3], g[j][3], value=-1.0, out=oi[j]) for j in range(3)]
+        dt = fma(fma(r[i][0] * g[0][3], r[i][1], g[1][3]), r[i][2], g[2][3])
         rows.append([*dR, torch.neg(dt, out=oi[3])])
     return _stack_rows(rows, o)
 
@@ -563,7 +559,7 @@ def _reduced(xi: Tensor) -> Tensor:
     phi, lam, u = _coeffs.reduction(xi[..., 3:])
     lam, u = lam[..., 0], u.unbind(-1)
     rho = xi[..., :3].unbind(-1)
-    along = torch.addcmul(torch.addcmul(u[0] * rho[0], u[1], rho[1]), u[2], rho[2])
+    along = fma(fma(u[0] * rho[0], u[1], rho[1]), u[2], rho[2])
     big = lam < 1.0
     rho = [
         torch.where(big, torch.lerp(along * ui, ri, lam), ri) for ui, ri in zip(u, rho, strict=True)
@@ -615,9 +611,7 @@ def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
     o, top = _top_outputs(r[0])
     G_R = [so3._cross(r[3 * i : 3 * i + 3], u, top[i][:3]) for i in range(3)]  # rows of R hat(u)
     G_t = [
-        torch.addcmul(
-            torch.addcmul(r[i] * h_rho[0], r[i + 1], h_rho[1]), r[i + 2], h_rho[2], out=oi[3]
-        )
+        fma(fma(r[i] * h_rho[0], r[i + 1], h_rho[1]), r[i + 2], h_rho[2], out=oi[3])
         for i, oi in zip((0, 3, 6), top, strict=True)
     ]
     return _stack_rows([(*G_R[i], G_t[i]) for i in range(3)], o)

@@ -33,7 +33,7 @@ from torch import Tensor
 
 from . import _checks, _coeffs, _layout
 from . import quaternion as _quat
-from ._autograd import blocked, custom_function
+from ._autograd import blocked, custom_function, fma
 from ._typing import Bool, Float
 
 __all__ = [
@@ -142,7 +142,7 @@ def _exp_entries(
     bx, by, bz = b * x, b * y, b * z
     ax, ay, az = a * x, a * y, a * z
     bxy, bxz, byz = bx * y, bx * z, by * z
-    o, add, sub, fma = out, torch.add, torch.sub, torch.addcmul
+    o, add, sub = out, torch.add, torch.sub
     return [
         fma(d, bx, x, out=o[0]), sub(bxy, az, out=o[1]), add(bxz, ay, out=o[2]),
         add(bxy, az, out=o[3]), fma(d, by, y, out=o[4]), sub(byz, ax, out=o[5]),
@@ -182,15 +182,15 @@ def _jl_components(
     written to ``out``)."""
     x, y, z = xyz
     p, q, r = v
-    cwv = c * torch.addcmul(torch.addcmul(x * p, y, q), z, r)
+    cwv = c * fma(fma(x * p, y, q), z, r)
     result = []
     for vi, wi, (w1, v2), (w2, v1), o in (
         (p, x, (y, r), (z, q), out[0]),
         (q, y, (z, p), (x, r), out[1]),
         (r, z, (x, q), (y, p), out[2]),
     ):
-        cross = torch.addcmul(w1 * v2, w2, v1, value=-1.0)
-        result.append(torch.addcmul(torch.addcmul(a * vi, b, cross), cwv, wi, out=o))
+        cross = fma(w1 * v2, w2, v1, value=-1.0)
+        result.append(fma(fma(a * vi, b, cross), cwv, wi, out=o))
     return result
 
 
@@ -411,8 +411,8 @@ def _mv(M: Tensor, v: Tensor) -> Tensor:
     """``M @ v`` for a batch of matrices and vectors (batch shapes broadcast), column by
     column: each element's result is summed alike whatever the batch around it."""
     out = M[..., 0] * v[..., :1]
-    out = torch.addcmul(out, M[..., 1], v[..., 1:2])
-    return torch.addcmul(out, M[..., 2], v[..., 2:3])
+    out = fma(out, M[..., 1], v[..., 1:2])
+    return fma(out, M[..., 2], v[..., 2:3])
 
 
 def _act_grads(R: Tensor, p: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
