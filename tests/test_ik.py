@@ -85,6 +85,18 @@ def test_float64_converges_to_machine_precision():
     assert float(res.position_error.max()) < 1e-12 and float(res.rotation_error.max()) < 1e-12
 
 
+def test_rotation_weight_zero_solves_positions_of_pose_targets():
+    arm = ARM
+    gen = torch.Generator().manual_seed(12)
+    T = _fk(arm, arm.random_configuration(6, generator=gen), "tool_tcp")
+    T_turned = se3.compose(T, se3.exp(torch.tensor([0.0, 0.0, 0.0, 0.0, 0.0, 2.0], dtype=F64)))
+    res = arm.inverse_kinematics(T_turned, "tool_tcp", rotation_weight=0.0, restarts=2,
+                                 generator=gen)  # fmt: skip
+    assert bool(res.converged.all()) and torch.equal(res.rotation_error, torch.zeros(6, dtype=F64))
+    got = _fk(arm, res.q, "tool_tcp")[:, :3, 3]
+    assert float((got - T[:, :3, 3]).norm(dim=-1).max()) < 1e-10
+
+
 def test_position_targets():
     arm = ARM
     gen = torch.Generator().manual_seed(1)
@@ -383,10 +395,10 @@ def test_bad_input_names_the_argument():
         arm.inverse_kinematics(T, "tool_tcp", q0=torch.zeros(6, dtype=F64))
     with pytest.raises(ValueError, match=rf"{fn}: .*broadcast"):
         arm.inverse_kinematics(T.expand(3, 4, 4), "tool_tcp", q0=torch.zeros(2, 7, dtype=F64))
-    with pytest.raises(ValueError, match=rf"{fn}: expected position_weight to be finite"):
-        arm.inverse_kinematics(T, "tool_tcp", position_weight=-1.0)
-    with pytest.raises(ValueError, match=rf"{fn}: position_weight and rotation_weight are both 0"):
-        arm.inverse_kinematics(T, "tool_tcp", position_weight=0.0, rotation_weight=0)
+    with pytest.raises(ValueError, match=rf"{fn}: expected position_weight to be finite and > 0"):
+        arm.inverse_kinematics(T, "tool_tcp", position_weight=0.0)
+    with pytest.raises(ValueError, match=rf"{fn}: expected rotation_weight to be finite and >= 0"):
+        arm.inverse_kinematics(T, "tool_tcp", rotation_weight=-1.0)
     with pytest.raises(ValueError, match=rf"{fn}: expected max_iterations >= 0"):
         arm.inverse_kinematics(T, "tool_tcp", max_iterations=-1)
     with pytest.raises(ValueError, match=rf"{fn}: targets is an empty dict"):
