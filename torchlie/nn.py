@@ -139,8 +139,8 @@ def representation_to_matrix(
     ``k`` is ``REPRESENTATIONS[representation]``: 6, 9, 4 or 3.  Every finite input gives a
     valid rotation, with a finite gradient except at the singular 9-D inputs named below, at any
     magnitude: the 6-D, 9-D and quaternion maps are invariant to the (positive) scale of their
-    input, from ``1e-30`` to ``1e30`` in float32; the rotation vector is valid up to
-    ``|x| ~ 1e19`` in float32 (``1e150`` in float64), the range of :func:`torchlie.so3.exp`.
+    input, from ``1e-30`` to ``1e30`` in float32; the rotation vector at every finite
+    magnitude, as :func:`torchlie.so3.exp` (huge angles reduced modulo ``2 pi``).
 
     Degenerate inputs, where the map is undefined, get a fixed, documented value with a zero
     (finite) gradient:
