@@ -24,8 +24,7 @@ refuses a custom ``jvp``.  There, an op is traced as ``f(x0) + jvp(x0; x - x0)``
 input detached: the value of ``f``, and as first derivatives, in forward and reverse mode, the
 op's own ``jvp`` formula (which is the transpose of its backward).  Second derivatives of these
 ops through ``torch.func`` under ``torch.compile`` are not those of the op (the coefficients
-are constants there); eager ``torch.func`` and compiled ``autograd.grad(create_graph=True)``
-give them.
+are constants there); eager ``torch.func`` and eager double backward give them.
 """
 
 from __future__ import annotations
