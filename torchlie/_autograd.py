@@ -86,6 +86,12 @@ def _records(inputs: Sequence[Tensor]) -> bool:
     return torch.is_grad_enabled() and any(x.requires_grad for x in inputs)
 
 
+def needs_graph(inputs: Sequence[Tensor]) -> bool:
+    """Whether autograd may record operations on ``inputs``: a graph being recorded, or a
+    forward-mode level entered (an input may carry a tangent)."""
+    return forward_ad_active() or _records(inputs)
+
+
 def evaluate(fn: Callable[..., _Out], inputs: Sequence[Tensor], event_dims: Sequence[int]) -> _Out:
     """``fn(*inputs)``, over blocks of the flattened batch where that pays.
 
@@ -218,7 +224,7 @@ class CustomFunction:
             return self.compiled.apply(*inputs)
         if transforms_active():
             return self.transform.apply(*inputs)
-        if forward_ad_active() or _records(inputs):
+        if needs_graph(inputs):
             return self.eager.apply(*inputs)
         return self.forward(*inputs)
 

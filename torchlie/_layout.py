@@ -129,7 +129,7 @@ def stacked(M: Tensor, n: int | tuple[int, int]) -> Tensor:
         return torch.mm(select, flat.T).reshape((count,) + batch)
     if matrix:  # one copy even when M is a strided block
         return M.movedim((-2, -1), (0, 1)).contiguous().flatten(0, 1)
-    if large(M, rows) and not needs_graph((M,)):
+    if large(M, rows) and not _autograd.needs_graph((M,)):
         # column by column: faster than the transposing copy below, and than the product for
         # 3-vectors
         out = M.new_empty((n,) + batch)
@@ -183,20 +183,12 @@ def outputs(like: Tensor | Sequence[Tensor], n: int) -> tuple[Tensor | None, ...
     if not eager_cpu(first):
         return (None,) * n
     batch = broadcast(*(x.shape for x in likes))
-    if batch.numel() < MIN_ROWS or needs_graph(likes):
+    if batch.numel() < MIN_ROWS or _autograd.needs_graph(likes):
         return (None,) * n
     whole = torch.empty(batch + (n,), dtype=first.dtype, device=first.device)
     columns = Columns(whole.unbind(-1))
     columns.result = whole
     return columns
-
-
-def needs_graph(inputs: Sequence[Tensor]) -> bool:
-    """Whether autograd may record operations on ``inputs``: grad mode on and one of them
-    requires grad, or a forward-mode level entered (an input may carry a tangent)."""
-    if _autograd.forward_ad_active():
-        return True
-    return torch.is_grad_enabled() and any(x.requires_grad for x in inputs)
 
 
 def interleave(parts: Sequence[Tensor], out: Sequence[Tensor | None] | None = None) -> Tensor:
@@ -212,7 +204,7 @@ def interleave(parts: Sequence[Tensor], out: Sequence[Tensor | None] | None = No
             if part is not column:
                 column.copy_(part)
         return out.result
-    if not large(first, first.numel()) or needs_graph(parts):
+    if not large(first, first.numel()) or _autograd.needs_graph(parts):
         return torch.stack(tuple(parts), dim=-1)
     target = torch.empty(first.shape + (len(parts),), dtype=first.dtype, device=first.device)
     for part, column in zip(parts, target.unbind(-1), strict=True):
