@@ -260,10 +260,7 @@ def sum_squares(v: Tensor, keepdim: bool = False) -> Tensor:
     """``sum_i v_i^2`` over the last dimension, component by component from the first (the
     same bits whatever the layout of ``v``; torch's reductions sum in an order that depends
     on it)."""
-    parts = v.unbind(-1)
-    acc = parts[0] * parts[0]
-    for p in parts[1:]:
-        acc = fma(acc, p, p)
+    acc = _dot(v, v)
     return acc.unsqueeze(-1) if keepdim else acc
 
 
