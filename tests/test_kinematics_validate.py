@@ -14,6 +14,8 @@ import torch
 
 import torchlie.kinematics.validate as V
 from torchlie.kinematics import sample_robot
+from torchlie.kinematics._pin_reference import _Pin
+from torchlie.kinematics._pk_reference import _PK, _pk_text
 
 needs_pk = pytest.mark.skipif(
     importlib.util.find_spec("pytorch_kinematics") is None,
@@ -100,12 +102,12 @@ def test_detects_a_mismatch(monkeypatch):
 
 @needs_pk
 def test_detects_a_jacobian_mismatch_against_pk(monkeypatch):
-    real = V._PK.jacobian
+    real = _PK.jacobian
 
     def scaled(self, th, link):
         return real(self, th, link) * 1.001
 
-    monkeypatch.setattr(V._PK, "jacobian", scaled)
+    monkeypatch.setattr(_PK, "jacobian", scaled)
     report, _ = run("arm7", samples=20)
     assert not report.ok and not any(j.ok for j in report.jacobians)
     assert all(r.ok for r in report.links)
@@ -191,10 +193,10 @@ def test_pk_deviations_are_real():
 
 @needs_pk
 def test_pk_text_makes_pk_agree():
-    fixed = V._pk_text(TWO.encode())
+    fixed = _pk_text(TWO.encode())
     c = _pk_chain(fixed)
     assert c.axes[0].tolist() == [1.0, 0.0, 0.0]
-    tree = V._pk_text(open(sample_robot("tree"), "rb").read())
+    tree = _pk_text(open(sample_robot("tree"), "rb").read())
     assert 'type="floating"' not in tree and 'type="planar"' not in tree
 
 
@@ -255,13 +257,13 @@ def test_pinocchio_agrees_on_every_pose_and_jacobian_kind(robot):
 @pytest.mark.parametrize("kind", ["world", "link", "spatial"])
 def test_detects_a_jacobian_kind_mismatch_against_pinocchio(monkeypatch, kind):
     pytest.importorskip("pinocchio")
-    real = V._Pin.evaluate
+    real = _Pin.evaluate
 
     def off(self, q64, links, leaves):
         poses, jacs = real(self, q64, links, leaves)
         return poses, {k: v * 1.001 if k[1] == kind else v for k, v in jacs.items()}
 
-    monkeypatch.setattr(V._Pin, "evaluate", off)
+    monkeypatch.setattr(_Pin, "evaluate", off)
     report, text = run("arm7", samples=20, compare_pk=False)
     assert not report.ok and not any(j.ok for j in report.jacobians)
     assert all(r.ok for r in report.links)

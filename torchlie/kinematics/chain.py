@@ -60,7 +60,10 @@ rows; the public results are ordinary contiguous ``(..., 4, 4)`` tensors.  A Jac
 column per moving joint on the link's path (a world direction, and for a rotation its moment
 about the link), each added into its DoF's column by one ``index_add`` (mimic joints share a
 DoF), so time and memory are linear in the number of joints.  Everything is plain
-differentiable torch, so first and second derivatives with respect to ``q`` are exact.
+differentiable torch, so first and second derivatives with respect to ``q`` are exact.  The
+constants are built from the parsed URDF in ``_joints.py``, the forward pass is planned and run
+in ``_fk_plan.py`` and the Jacobian columns are computed in ``_jacobian.py``; :class:`Chain`
+holds the constants and caches the plans.
 """
 
 from __future__ import annotations
@@ -69,339 +72,48 @@ import math
 import operator
 import os
 import reprlib
-from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
-from typing import Any
+from collections.abc import Callable, Hashable, Mapping, Sequence
+from typing import Any, TypeVar
 
 import torch
 from torch import Tensor
 
 from .. import _checks
-from .. import so3 as _so3
 from .._typing import Float
+from ._fk_plan import _build_plan, _Plan, _pose, _run
+from ._jacobian import _dof_index, _frame_jacobian, _jacobian_plan, _JacPlan, _link_columns
+from ._joints import (
+    _check_representable,
+    _dof_layout,
+    _mimic_rows,
+    _sampling_ranges,
+    _tree_links,
+    rpy_matrix,
+)
 from .ik import IKResult
 from .ik import inverse_kinematics as _inverse_kinematics
-from .urdf import JointSpec, RobotSpec, URDFError, _describe, parse_urdf
+from .urdf import RobotSpec, parse_urdf
 
 __all__ = ["Chain", "rpy_matrix"]
 
 _NAME = "torchlie.kinematics.Chain."
 
-_SUFFIXES = {"planar": ("x", "y", "theta"), "floating": ("x", "y", "z", "rx", "ry", "rz")}
-_NDOF = {"revolute": 1, "continuous": 1, "prismatic": 1, "fixed": 0, "planar": 3, "floating": 6}
-# Internal kinds (one GEMM per depth and kind).
-_KIND = {
-    "revolute": "rot",
-    "continuous": "rot",
-    "prismatic": "prism",
-    "fixed": "fixed",
-    "planar": "planar",
-    "floating": "float",
-}
-_KIND_ORDER = ("fixed", "rot", "prism", "planar", "float")
-
-# Sampling ranges for coordinates without limits (random_configuration).
-_FREE_ANGLE = math.pi
-_FREE_TRANSLATION = 1.0
-_FREE_ROTVEC = math.pi / math.sqrt(3.0)
-
 # Batch size up to which results are transposed back in one stacked copy (see
 # forward_kinematics).
 _SMALL_BATCH = 2048
 
-
-# ----------------------------------------------------------------------------------------------
-# float64 constants (Python floats -> float64 tensors; no float32 on the way)
-# ----------------------------------------------------------------------------------------------
+_V = TypeVar("_V")
 
 
-def rpy_matrix(roll: float, pitch: float, yaw: float) -> Tensor:
-    """``Rz(yaw) @ Ry(pitch) @ Rx(roll)`` in float64 (URDF's fixed-axis roll, pitch, yaw).
-
-    Example:
-        >>> rpy_matrix(0.0, 0.0, math.pi / 2).round(decimals=12) + 0.0
-        tensor([[ 0., -1.,  0.],
-                [ 1.,  0.,  0.],
-                [ 0.,  0.,  1.]], dtype=torch.float64)
-    """
-    cr, sr = math.cos(roll), math.sin(roll)
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    cy, sy = math.cos(yaw), math.sin(yaw)
-    return torch.tensor(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ],
-        dtype=torch.float64,
-    )
-
-
-def _origin(j: JointSpec) -> Tensor:
-    T = torch.eye(4, dtype=torch.float64)
-    T[:3, :3] = rpy_matrix(*j.rpy)
-    T[:3, 3] = torch.tensor(j.xyz, dtype=torch.float64)
-    return T
-
-
-def _unit(v: Sequence[float]) -> Tensor:
-    n = math.hypot(*v)
-    return torch.tensor([x / n for x in v], dtype=torch.float64)
-
-
-def _block(R: Tensor | None = None, t: Tensor | None = None) -> Tensor:
-    """4x4 ``[[R, t], [0, 0]]`` (zeros where not given)."""
-    M = torch.zeros(4, 4, dtype=torch.float64)
-    if R is not None:
-        M[:3, :3] = R
-    if t is not None:
-        M[:3, 3] = t
-    return M
-
-
-def _plane_basis(n: Tensor) -> tuple[Tensor, Tensor]:
-    m = min(range(3), key=lambda i: abs(float(n[i])))
-    e = torch.zeros(3, dtype=torch.float64)
-    e[m] = 1.0
-    e1 = e - torch.dot(e, n) * n
-    e1 = e1 / torch.linalg.vector_norm(e1)
-    return e1, torch.linalg.cross(n, e1)
-
-
-def _constants(j: JointSpec) -> list[Tensor]:
-    """``[C_0, C_1, ...]`` with ``T_origin @ M(q) = C_0 + sum_f feat_f(q) C_f``."""
-    T = _origin(j)
-    kind = _KIND[j.type]
-    if kind == "fixed":
-        return [T]
-    if kind == "float":
-        # M = E33 + sum_rc R[r, c] E_rc + sum_r t[r] E_r3, E_rc the unit matrices.
-        out = []
-        units = [(3, 3)] + [(r, c) for r in range(3) for c in range(3)] + [(r, 3) for r in range(3)]
-        for r, c in units:
-            E = torch.zeros(4, 4, dtype=torch.float64)
-            E[r, c] = 1.0
-            out.append(T @ E)
-        return out
-    a = _unit(j.axis)
-    K = _so3.hat(a)
-    if kind == "rot":
-        return [T, T @ _block(K), T @ _block(K @ K)]
-    if kind == "prism":
-        return [T, T @ _block(t=a)]
-    e1, e2 = _plane_basis(a)  # planar
-    return [T, T @ _block(K), T @ _block(K @ K), T @ _block(t=e1), T @ _block(t=e2)]
-
-
-def _columns(
-    j: JointSpec, rows: tuple[int, ...], mimic: tuple[int, float] | None
-) -> tuple[tuple, tuple | None]:
-    """Jacobian columns of joint ``j`` (see ``_Link.cols``), from float64 values."""
-    kind = _KIND[j.type]
-    if kind == "fixed":
-        return (), None
-    O_R = _origin(j)[:3, :3]
-
-    def vec(v: Tensor) -> tuple[float, ...]:
-        return tuple(float(x) for x in v)
-
-    if kind == "float":
-        cols = tuple(("tr", vec(O_R[:, k]), rows[k], 1.0) for k in range(3))
-        return cols, (rows[3], tuple(vec(r) for r in O_R))
-    a = _unit(j.axis)
-    d, w = mimic if mimic is not None else (rows[0], 1.0)
-    if kind == "rot":
-        return (("rot", vec(O_R @ a), d, w),), None
-    if kind == "prism":
-        return (("tr", vec(O_R @ a), d, w),), None
-    e1, e2 = _plane_basis(a)  # planar
-    return (
-        ("tr", vec(O_R @ e1), rows[0], 1.0),
-        ("tr", vec(O_R @ e2), rows[1], 1.0),
-        ("rot", vec(O_R @ a), rows[2], 1.0),
-    ), None
-
-
-def _resolve_mimics(spec: RobotSpec, dof_of: dict[str, int]) -> dict[str, tuple[int, float, float]]:
-    """Mimic joint -> ``(DoF, mult, off)`` with value ``mult * q[DoF] + off``, chains composed.
-
-    Each joint is resolved once (memoised), so a chain of ``n`` mimics costs ``O(n)``.
-    """
-    by_name = {j.name: j for j in spec.joints}
-    resolved: dict[str, tuple[int, float, float]] = {}
-    for j in spec.joints:
-        if j.mimic is None or j.name in resolved:
-            continue
-        stack: list[JointSpec] = []  # mimic joints not yet resolved, j first
-        on_stack: set[str] = set()
-        cur = j
-        while cur.mimic is not None and cur.name not in resolved:
-            if cur.name in on_stack:  # parse_urdf rejects this; a hand-made RobotSpec may not
-                raise ValueError(f"{_NAME}__init__: mimic cycle through joint {cur.name!r}")
-            stack.append(cur)
-            on_stack.add(cur.name)
-            cur = by_name[cur.mimic.joint]
-        src, mult, off = (
-            resolved[cur.name] if cur.mimic is not None else (dof_of[cur.name], 1.0, 0.0)
-        )
-        for k in reversed(stack):  # value(k) = m * (mult * q + off) + c
-            spec_k = k.mimic
-            assert spec_k is not None
-            mult, off = spec_k.multiplier * mult, spec_k.multiplier * off + spec_k.offset
-            resolved[k.name] = (src, mult, off)
-    return {j.name: resolved[j.name] for j in spec.joints if j.mimic is not None}
-
-
-def _check_representable(
-    spec: RobotSpec, dtype: torch.dtype, mimic_mult: list[float], mimic_off: list[float]
-) -> None:
-    """Raise :class:`URDFError` where a constant of the chain overflows ``dtype``.
-
-    The origins' translations and the mimic joints' composed multipliers and offsets become
-    constants of the chain; one beyond the dtype's range (``3.4e38`` for float32; in float64
-    only a product of mimic multipliers can get there) would be ``inf`` and make every pose
-    below it ``nan``, so it is an error naming the joint and the value.  Rotations and axes are
-    bounded by construction; a limit beyond the range is ``inf`` (no limit).
-    """
-
-    def first_overflow(values: list[float]) -> int | None:
-        ok = torch.isfinite(torch.tensor(values, dtype=torch.float64).to(dtype))
-        return None if bool(ok.all()) else int((~ok).nonzero()[0, 0])
-
-    big = f"{dtype} (largest finite {torch.finfo(dtype).max:.6g})"
-    k = first_overflow([x for j in spec.joints for x in j.xyz])
-    if k is not None:
-        j = spec.joints[k // 3]
-        raise URDFError(
-            spec.source,
-            _describe("joint", j.name, 0, "origin"),
-            f"attribute 'xyz' value {j.xyz[k % 3]!r} overflows {big}; use dtype=torch.float64",
-        )
-    mimics = [j for j in spec.joints if j.mimic is not None]
-    for what, values in (("multiplier", mimic_mult), ("offset", mimic_off)):
-        k = first_overflow(values)
-        if k is not None:
-            raise URDFError(
-                spec.source,
-                _describe("joint", mimics[k].name, 0, "mimic"),
-                f"the {what} composed along its chain of mimic joints, {values[k]!r}, "
-                f"overflows {big}",
-            )
-
-
-def _sampling_ranges(names: Sequence[str], lower: Tensor, upper: Tensor) -> tuple[Tensor, Tensor]:
-    """The limits, with the free ranges of :meth:`Chain.random_configuration` where a
-    coordinate has none (by the suffix of its DoF name)."""
-    lo, hi = lower.clone(), upper.clone()
-    for i, name in enumerate(names):
-        if math.isfinite(lo[i]) and math.isfinite(hi[i]):
-            continue
-        suffix = name.rsplit(":", 1)[-1] if ":" in name else ""
-        if suffix in ("x", "y", "z"):
-            r = _FREE_TRANSLATION
-        elif suffix in ("rx", "ry", "rz"):
-            r = _FREE_ROTVEC
-        else:
-            r = _FREE_ANGLE
-        lo[i], hi[i] = -r, r
-    return lo, hi
-
-
-# ----------------------------------------------------------------------------------------------
-# Static description of the tree (dtype-free)
-# ----------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class _Link:
-    name: str
-    index: int  # internal (breadth-first) index
-    depth: int
-    parent: int  # internal index of the parent link, -1 for the root
-    joint: JointSpec | None
-    kind: str  # internal kind, "root" for the root
-    rows: tuple[int, ...]  # rows of the value bank feeding this joint
-    consts: tuple[Tensor, ...]  # float64 C_f
-    # Jacobian columns of this joint: (rot|tr, direction in the parent frame, DoF, weight);
-    # for a floating joint also (first rotation-vector DoF, O_R as nested tuples).
-    cols: tuple[tuple[str, tuple[float, ...], int, float], ...] = ()
-    float_rot: tuple[int, tuple[tuple[float, ...], ...]] | None = None
-
-
-@dataclass
-class _Group:
-    links: list[int]
-    kind: str
-    parent_src: tuple | None  # how to gather the parents' poses, None when the parent is root
-    ct: Tensor | tuple[Tensor, ...]  # (n, 4K, 4) stacked C_f^T; root children: K (n, 4, 4, 1)
-    feats: list[tuple[str, object]]  # per feature f >= 1: (bank, rows) with rows int/slice/idx
-
-
-@dataclass
-class _Plan:
-    levels: list[list[_Group]]
-    where: dict[int, tuple[int, int, int]]  # link -> (level, group, position)
-    rot_sel: object  # None, slice or index tensor into the value bank
-    float_idx: Tensor | None  # value rows of the floating joints, 6 per joint
-
-
-@dataclass
-class _JacPlan:
-    parents: list[int]  # parent link of each constant-direction column
-    vs: Tensor | None  # (n, 1, 3) those directions in the parent frames
-    n_rot_const: int  # the first n_rot_const of them are rotational
-    rot_children: list[int]  # the child link (rotation centre) of each
-    floats: list[tuple[int, int, int, Tensor]]  # floating joints: parent, child, rotvec dof, O_R
-    # Column k of the link's motion adds col_weight[k] times itself to the Jacobian column of
-    # DoF dof_index[k] (several columns feed one DoF through mimic joints); col_weight is None
-    # when every weight is 1.  Two vectors of the columns' length, so memory is linear in the
-    # number of joints.
-    dof_index: Tensor  # (n_cols,) long
-    col_weight: Tensor | None  # (n_cols,)
-    in_dof_order: bool  # column k is DoF k's, for every DoF (a serial arm): no scatter needed
-    dofs: tuple[int, ...]  # the DoFs that move the link (those of dof_index, sorted)
-    col_dofs: tuple[int, ...]  # dof_index as Python ints
-
-
-def _frame_jacobian(
-    J: Tensor, P: Tensor, frame: str, point: Tensor | None, batch: tuple[int, ...]
-) -> Tensor:
-    """The world Jacobian at the origin ``J (B, 6, n)`` of a link with internal pose
-    ``P (4, 4, B)``, in ``frame`` and at ``point`` (see :meth:`Chain.jacobian`), ``(..., 6, n)``
-    with ``...`` the broadcast of ``batch`` and ``point``'s batch shape."""
-    n = J.shape[-1]
-    J = J.reshape(*batch, 6, n)
-    T = P.permute(2, 1, 0).reshape(*batch, 4, 4)
-    R, p = T[..., :3, :3], T[..., :3, 3]
-    lin, ang = J[..., :3, :], J[..., 3:, :]
-    if frame == "spatial":  # v - w x p = v + p x w
-        lin = lin + torch.linalg.cross(p.unsqueeze(-1).expand_as(ang), ang, dim=-2)
-    elif frame == "world":
-        if point is not None:  # v + w x (R point)
-            offset = (R @ point.unsqueeze(-1)).squeeze(-1)
-            lin, ang = torch.broadcast_tensors(lin, ang, offset.unsqueeze(-1))[:2]
-            lin = lin + torch.linalg.cross(ang, offset.unsqueeze(-1).expand_as(ang), dim=-2)
-    else:  # link: R^T v (+ w_b x point), R^T w
-        lin, ang = R.mT @ lin, R.mT @ ang
-        if point is not None:
-            lin, ang, pt = torch.broadcast_tensors(lin, ang, point.unsqueeze(-1))
-            lin = lin + torch.linalg.cross(ang, pt, dim=-2)
-    return torch.cat((lin, ang), dim=-2)
-
-
-def _rows_index(rows: Sequence[int], device: torch.device) -> object:
-    """A cheap selector for ``rows``: a slice (a run of rows) or an index tensor."""
-    if len(rows) == 1:
-        return slice(rows[0], rows[0] + 1)
-    if list(rows) == list(range(rows[0], rows[0] + len(rows))):
-        return slice(rows[0], rows[0] + len(rows))
-    return torch.tensor(list(rows), dtype=torch.long, device=device)
-
-
-def _take(bank: Tensor, sel: object) -> Tensor:
-    if isinstance(sel, slice):
-        return bank[sel]
-    return bank.index_select(0, sel)  # type: ignore[arg-type]
+def _cached(cache: dict[Any, _V], key: Hashable, build: Callable[[], _V]) -> _V:
+    """``cache[key]``, built on first use; not stored while dynamo traces (what it builds then
+    is not reusable)."""
+    if key in cache:
+        return cache[key]
+    value = build()
+    if not torch.compiler.is_compiling():
+        cache[key] = value
+    return value
 
 
 class Chain:
@@ -448,24 +160,7 @@ class Chain:
         self.link_names: tuple[str, ...] = spec.links
 
         # Degrees of freedom, in document order.
-        dof_of: dict[str, int] = {}
-        names: list[str] = []
-        lower: list[float] = []
-        upper: list[float] = []
-        for j in spec.joints:
-            n = _NDOF[j.type]
-            if n == 0 or j.mimic is not None:
-                continue
-            dof_of[j.name] = len(names)
-            if n == 1:
-                names.append(j.name)
-                lo, hi = (j.lower, j.upper) if j.type != "continuous" else (None, None)
-                lower.append(-math.inf if lo is None else lo)
-                upper.append(math.inf if hi is None else hi)
-            else:
-                names.extend(f"{j.name}:{s}" for s in _SUFFIXES[j.type])
-                lower.extend([-math.inf] * n)
-                upper.extend([math.inf] * n)
+        dof_of, names, lower, upper = _dof_layout(spec)
         self.joint_names: tuple[str, ...] = tuple(names)
         self.n_dof = len(names)
         self._limits64 = (
@@ -477,16 +172,8 @@ class Chain:
         self.upper = self._limits64[1].to(dtype=dtype, device=self.device)
 
         # Mimic joints: value row = n_dof + k, q[src] * mult + off (chains resolved).
-        mimic_src: list[int] = []
-        mimic_mult: list[float] = []
-        mimic_off: list[float] = []
-        row_of: dict[str, int] = {}
-        for name, (src, mult, off) in _resolve_mimics(spec, dof_of).items():
-            row_of[name] = self.n_dof + len(mimic_src)
-            mimic_src.append(src)
-            mimic_mult.append(mult)
-            mimic_off.append(off)
-        self._mimic = (mimic_src, mimic_mult, mimic_off)
+        row_of, self._mimic = _mimic_rows(spec, dof_of, self.n_dof)
+        mimic_src, mimic_mult, mimic_off = self._mimic
         _check_representable(spec, dtype, mimic_mult, mimic_off)
         # Per DoF column of the Jacobian: which joints (and with which multiplier) move it.
         self._mimic_of = {
@@ -499,38 +186,9 @@ class Chain:
         }
 
         # Breadth-first internal order; children in document order of their joints.
-        children: dict[str, list[JointSpec]] = {}
-        for j in spec.joints:
-            children.setdefault(j.parent, []).append(j)
-        links: list[_Link] = [_Link(spec.root, 0, 0, -1, None, "root", (), ())]
-        frontier = [0]
-        while frontier:
-            nxt = []
-            for p in frontier:
-                for j in children.get(links[p].name, []):
-                    if j.name in row_of:
-                        rows: tuple[int, ...] = (row_of[j.name],)
-                    elif _NDOF[j.type]:
-                        rows = tuple(range(dof_of[j.name], dof_of[j.name] + _NDOF[j.type]))
-                    else:
-                        rows = ()
-                    link = _Link(
-                        j.child,
-                        len(links),
-                        links[p].depth + 1,
-                        p,
-                        j,
-                        _KIND[j.type],
-                        rows,
-                        tuple(_constants(j)),
-                        *_columns(j, rows, self._mimic_of.get(j.name)),
-                    )
-                    links.append(link)
-                    nxt.append(link.index)
-            frontier = nxt
-        self._links = links
-        self._index = {link.name: link.index for link in links}
-        has_child = {link.parent for link in links}
+        self._links = _tree_links(spec, dof_of, row_of, self._mimic_of)
+        self._index = {link.name: link.index for link in self._links}
+        has_child = {link.parent for link in self._links}
         self.leaf_links: tuple[str, ...] = tuple(
             name for name in spec.links if self._index[name] not in has_child
         )
@@ -645,111 +303,13 @@ class Chain:
         return (lo + (hi - lo) * u).to(dtype=self.dtype, device=self.device)
 
     # ------------------------------------------------------------------------------------------
-    # Plans: which links to compute, grouped by depth and joint kind
+    # Forward kinematics: plans (which links, grouped by depth and joint kind) and their run
     # ------------------------------------------------------------------------------------------
-
-    def _needed(self, targets: Iterable[int]) -> list[int]:
-        need: set[int] = set()
-        for t in targets:
-            while t >= 0 and t not in need:
-                need.add(t)
-                t = self._links[t].parent
-        return sorted(need)
 
     def _plan(self, targets: tuple[int, ...]) -> _Plan:
-        plan = self._plans.get(targets)
-        if plan is not None:
-            return plan
-        dev, dt = self.device, self.dtype
-        need = self._needed(targets)
-        by_depth: dict[int, list[_Link]] = {}
-        for i in need:
-            if i:
-                by_depth.setdefault(self._links[i].depth, []).append(self._links[i])
-
-        # Value rows that need sin / 1 - cos, and floating joints' first rows.
-        rot_rows: list[int] = []
-        float_rows: list[int] = []
-        for i in need:
-            link = self._links[i]
-            if link.kind == "rot":
-                rot_rows.append(link.rows[0])
-            elif link.kind == "planar":
-                rot_rows.append(link.rows[2])
-            elif link.kind == "float":
-                float_rows.append(link.rows[0])
-        rot_rows = sorted(set(rot_rows))
-        rot_pos = {r: k for k, r in enumerate(rot_rows)}
-        float_pos = {r: k for k, r in enumerate(float_rows)}
-
-        where: dict[int, tuple[int, int, int]] = {0: (0, 0, 0)}
-        levels: list[list[_Group]] = []
-        for depth in sorted(by_depth):
-            groups: list[_Group] = []
-            for kind in _KIND_ORDER:
-                members = [link for link in by_depth[depth] if link.kind == kind]
-                if not members:
-                    continue
-                g_index = len(groups)
-                for pos, link in enumerate(members):
-                    where[link.index] = (depth, g_index, pos)
-                # Parent gather.
-                if depth == 1:
-                    parent_src = None
-                else:
-                    srcs = [where[link.parent] for link in members]
-                    gset = {s[1] for s in srcs}
-                    positions = [s[2] for s in srcs]
-                    if len(gset) == 1:
-                        gi = gset.pop()
-                        whole = positions == list(range(len(levels[-1][gi].links)))
-                        sel = None if whole else _rows_index(positions, dev)
-                        parent_src = ("group", gi, sel)
-                    else:
-                        prev = levels[-1]
-                        offsets = [0]
-                        for g in prev:
-                            offsets.append(offsets[-1] + len(g.links))
-                        flat = [offsets[s[1]] + s[2] for s in srcs]
-                        whole = flat == list(range(offsets[-1]))
-                        parent_src = ("level", None, None if whole else _rows_index(flat, dev))
-                # Constants: (n, K, 4, 4) of C_f^T.
-                cts = torch.stack([torch.stack([c.T for c in link.consts]) for link in members])
-                n, K = cts.shape[:2]
-                ct: Tensor | tuple[Tensor, ...]
-                if depth == 1:  # K constants (n, 4, 4, 1)
-                    ct = cts.unsqueeze(-1).to(dtype=dt, device=dev).unbind(1)
-                else:
-                    ct = cts.reshape(n, K * 4, 4).to(dtype=dt, device=dev).contiguous()
-                # Features f >= 1.
-                feats: list[tuple[str, object]] = []
-                if kind in ("rot", "planar"):
-                    r_idx = 0 if kind == "rot" else 2
-                    rows = [rot_pos[link.rows[r_idx]] for link in members]
-                    feats += [("s", _rows_index(rows, dev)), ("c", _rows_index(rows, dev))]
-                if kind == "prism":
-                    feats.append(("v", _rows_index([link.rows[0] for link in members], dev)))
-                if kind == "planar":
-                    for k in range(2):
-                        feats.append(("v", _rows_index([link.rows[k] for link in members], dev)))
-                if kind == "float":
-                    for k in range(12):
-                        rows = [float_pos[link.rows[0]] * 12 + k for link in members]
-                        feats.append(("F", _rows_index(rows, dev)))
-                groups.append(_Group([m.index for m in members], kind, parent_src, ct, feats))
-            levels.append(groups)
-        rot_sel = None if not rot_rows else _rows_index(rot_rows, dev)
-        float_idx = None
-        if float_rows:
-            float_idx = torch.tensor([r + k for r in float_rows for k in range(6)], device=dev)
-        plan = _Plan(levels, where, rot_sel, float_idx)
-        if not torch.compiler.is_compiling():  # a plan traced by dynamo is not reusable
-            self._plans[targets] = plan
-        return plan
-
-    # ------------------------------------------------------------------------------------------
-    # The computation
-    # ------------------------------------------------------------------------------------------
+        return _cached(
+            self._plans, targets, lambda: _build_plan(self._links, targets, self.dtype, self.device)
+        )
 
     def _values(self, q2: Tensor) -> Tensor:
         """Value bank ``(n_dof + n_mimic, B)``: ``q`` transposed, then the mimic joints."""
@@ -768,52 +328,11 @@ class Chain:
 
     def _run(self, plan: _Plan, q2: Tensor) -> list[list[Tensor]]:
         """Poses of the plan's links: per level, per group, ``(n, 4, 4, B)`` = ``T[b]^T``."""
-        B = q2.shape[0]
-        v = self._values(q2)
-        # Feature banks, shaped (rows, 1, 1, B) to broadcast over a group's (n, 4, 4, B).
-        # Every size is spelled out: with an empty batch (B = 0) a -1 would be ambiguous.
-        banks: dict[str, Tensor] = {"v": v.view(v.shape[0], 1, 1, B)}
-        if plan.rot_sel is not None:
-            x = _take(v, plan.rot_sel)
-            banks["s"] = torch.sin(x).view(x.shape[0], 1, 1, B)
-            banks["c"] = (1.0 - torch.cos(x)).view(x.shape[0], 1, 1, B)
-        if plan.float_idx is not None:
-            nf = plan.float_idx.shape[0] // 6
-            vals = v.index_select(0, plan.float_idx).view(nf, 6, B)
-            R = _so3.exp(vals[:, 3:].transpose(1, 2))  # (n, B, 3, 3)
-            F = torch.cat((R.permute(0, 2, 3, 1).reshape(nf, 9, B), vals[:, :3]), dim=1)
-            banks["F"] = F.view(nf * 12, 1, 1, B)
-
-        out: list[list[Tensor]] = []
-        for groups in plan.levels:
-            res: list[Tensor] = []
-            for g in groups:
-                if g.parent_src is None:
-                    # Children of the root: the parent pose is the identity.
-                    Y = g.ct  # K x (n, 4, 4, 1)
-                else:
-                    how, gi, sel = g.parent_src
-                    prev = out[-1][gi] if how == "group" else torch.cat(out[-1], dim=0)
-                    P = prev if sel is None else _take(prev, sel)
-                    n, K4 = g.ct.shape[:2]
-                    prod = torch.bmm(g.ct, P.reshape(n, 4, 4 * B))
-                    Y = prod.view(n, K4 // 4, 4, 4, B).unbind(1)
-                if not g.feats:
-                    res.append(Y[0].expand(-1, 4, 4, B) if g.parent_src is None else Y[0])
-                    continue
-                T = Y[0]
-                for f, (b, sel) in enumerate(g.feats):
-                    T = torch.addcmul(T, _take(banks[b], sel), Y[f + 1])
-                res.append(T)
-            out.append(res)
-        return out
+        return _run(plan, self._values(q2))
 
     def _pose(self, plan: _Plan, out: list[list[Tensor]], i: int, B: int, like: Tensor) -> Tensor:
         """Internal ``(4, 4, B)`` transposed pose of link ``i``."""
-        if i == 0:
-            return torch.eye(4, dtype=like.dtype, device=like.device).unsqueeze(-1).expand(4, 4, B)
-        level, g, pos = plan.where[i]
-        return out[level - 1][g][pos]
+        return _pose(plan, out, i, B, like)
 
     def _prepare(self, q: Tensor, fn: str) -> tuple[Tensor, torch.dtype, tuple[int, ...]]:
         x, out_dtype = _checks.tensor(q, _NAME + fn, "q", (self.n_dof,))
@@ -920,61 +439,16 @@ class Chain:
             for i, T in zip(targets, Ts, strict=True)
         }
 
+    # ------------------------------------------------------------------------------------------
+    # Jacobians
+    # ------------------------------------------------------------------------------------------
+
     def _jac_plan(self, target: int) -> _JacPlan:
-        cached = self._jac_plans.get(target)
-        if cached is not None:
-            return cached
-        dev, dt = self.device, self.dtype
-        path: list[_Link] = []
-        i = target
-        while i > 0:
-            path.append(self._links[i])
-            i = self._links[i].parent
-
-        # Columns: a world direction u = R_parent @ v, v constant in the parent frame (or, for a
-        # floating joint's rotation, O_R Jl(r) e_k), rotational about the child's origin or
-        # translational, feeding DoF d with weight w.
-        rot: list[tuple[int, tuple[float, ...], int, int, float]] = []  # parent, v, child, d, w
-        tr: list[tuple[int, tuple[float, ...], int, float]] = []  # parent, v, d, w
-        floats: list[tuple[int, int, int, Tensor]] = []  # parent, child, rotvec DoF, O_R
-        for link in reversed(path):
-            for kind, v, d, w in link.cols:
-                if kind == "rot":
-                    rot.append((link.parent, v, link.index, d, w))
-                else:
-                    tr.append((link.parent, v, d, w))
-            if link.float_rot is not None:
-                d0, O_R = link.float_rot
-                floats.append(
-                    (link.parent, link.index, d0, torch.tensor(O_R, dtype=dt, device=dev))
-                )
-
-        # Columns in the order they are stacked: constant rotations, floating rotations,
-        # translations.
-        dofs = [d for *_, d, _ in rot]
-        dofs += [d0 + k for _, _, d0, _ in floats for k in range(3)]
-        dofs += [d for *_, d, _ in tr]
-        col_w = [w for *_, w in rot] + [1.0] * (3 * len(floats)) + [w for *_, w in tr]
-        vs = [list(v) for _, v, *_ in rot] + [list(v) for _, v, *_ in tr]
-        plan = _JacPlan(
-            parents=[p for p, *_ in rot] + [p for p, *_ in tr],
-            vs=torch.tensor(vs, dtype=dt, device=dev).view(len(vs), 1, 3) if vs else None,
-            n_rot_const=len(rot),
-            rot_children=[c for _, _, c, _, _ in rot],
-            floats=floats,
-            dof_index=torch.tensor(dofs, dtype=torch.long, device=dev),
-            in_dof_order=dofs == list(range(self.n_dof)),
-            dofs=tuple(sorted(set(dofs))),
-            col_dofs=tuple(dofs),
-            col_weight=(
-                None
-                if all(w == 1.0 for w in col_w)
-                else torch.tensor(col_w, dtype=dt, device=dev).view(len(col_w), 1, 1)
-            ),
+        return _cached(
+            self._jac_plans,
+            target,
+            lambda: _jacobian_plan(self._links, target, self.n_dof, self.dtype, self.device),
         )
-        if not torch.compiler.is_compiling():
-            self._jac_plans[target] = plan
-        return plan
 
     def _jacobian_columns(
         self,
@@ -988,51 +462,16 @@ class Chain:
         :meth:`jacobian`), or only the columns of ``dofs`` (sorted DoFs, ``(len(dofs), 6, B)``);
         ``pose(i)`` gives link ``i``'s internal ``(4, 4, B)`` pose."""
         B = q2.shape[0]
-        us: list[Tensor] = []
-        if jp.vs is not None:
-            Rs = torch.stack([pose(p)[:3, :3] for p in jp.parents])  # (n, c, r, B)
-            n = Rs.shape[0]
-            U = torch.matmul(jp.vs, Rs.reshape(n, 3, 3 * B)).view(n, 3, B)
-            us.append(U[: jp.n_rot_const])
-        origins = [pose(c)[3, :3] for c in jp.rot_children]
-        for parent, child, d0, O_R in jp.floats:
-            V = torch.matmul(O_R, _so3.jac_left(q2[:, d0 : d0 + 3]))  # (B, c, k)
-            Rp = pose(parent)[:3, :3]  # (c, r, B)
-            us.append((Rp.unsqueeze(0) * V.permute(2, 1, 0).unsqueeze(2)).sum(1))
-            origins += [pose(child)[3, :3]] * 3
-        cols: list[Tensor] = []
-        if origins:
-            Ur = torch.cat(us) if len(us) > 1 else us[0]
-            p = pose(target)[3, :3]
-            lin = torch.linalg.cross(Ur, p - torch.stack(origins), dim=1)
-            cols.append(torch.cat((lin, Ur), dim=1))
-        if jp.vs is not None and jp.n_rot_const < jp.vs.shape[0]:
-            Ut = U[jp.n_rot_const :]
-            cols.append(torch.cat((Ut, torch.zeros_like(Ut)), dim=1))
         n_out = self.n_dof if dofs is None else len(dofs)
-        if not cols:
+        C = _link_columns(jp, pose, q2, target)
+        if C is None:
             return q2.new_zeros(n_out, 6, B)
-        C = torch.cat(cols) if len(cols) > 1 else cols[0]  # (n_cols, 6, B)
-        if jp.col_weight is not None:
-            C = C * jp.col_weight
         if dofs is None:
-            if jp.in_dof_order:
-                return C
-            index = jp.dof_index
+            index = None if jp.in_dof_order else jp.dof_index
         else:
-            key = (target, dofs)
-            if key in self._dof_maps:
-                index = self._dof_maps[key]
-            else:
-                pos = {d: i for i, d in enumerate(dofs)}
-                where = [pos[d] for d in jp.col_dofs]
-                index = None
-                if where != list(range(n_out)):
-                    index = torch.tensor(where, dtype=torch.long, device=C.device)
-                if not torch.compiler.is_compiling():
-                    self._dof_maps[key] = index
-            if index is None:  # the link's columns are those DoFs, in order
-                return C
+            index = _cached(self._dof_maps, (target, dofs), lambda: _dof_index(jp, dofs, C.device))
+        if index is None:  # the link's columns are those DoFs, in order
+            return C
         # Each column into its DoF's column (summed where mimic joints share one).
         return C.new_zeros(n_out, 6, B).index_add(0, index, C)
 

@@ -73,7 +73,6 @@ import math
 import os
 import sys
 import time
-import xml.etree.ElementTree as ET
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
@@ -83,7 +82,10 @@ from torch import Tensor
 
 from .. import so3
 from . import SAMPLE_ROBOTS, sample_robot
-from .chain import Chain, _resolve_mimics
+from ._pin_reference import PIN_FRAMES, _Pin, _pin_setup
+from ._pk_reference import _PK, TOL_PK, _pk_setup
+from ._pk_reference import _pk_text as _pk_text  # imported from here by benchmarks/bench_ik.py
+from .chain import Chain
 from .reference import reference_forward_kinematics, reference_jacobians
 from .urdf import JointSpec, RobotSpec, URDFError, parse_urdf
 
@@ -109,7 +111,6 @@ class TextStream(Protocol):
 
 
 TOL_REFERENCE = {torch.float64: 1e-12, torch.float32: 1e-5}
-TOL_PK = 1e-5
 
 #: :attr:`ValidationReport.status` values.
 PASS, FAIL, NOTHING_TO_COMPARE = "pass", "fail", "nothing to compare"
@@ -170,218 +171,6 @@ class ValidationReport:
     pin_deviations: list[str] = field(default_factory=list)
     ok: bool = True
     status: str = PASS
-
-
-# ----------------------------------------------------------------------------------------------
-# pytorch-kinematics adapter
-# ----------------------------------------------------------------------------------------------
-
-
-def _import_pk():
-    try:
-        import pytorch_kinematics as pk
-    except ImportError:
-        return None
-    return pk
-
-
-def _pk_version() -> str:
-    try:
-        from importlib.metadata import version
-
-        return version("pytorch_kinematics")
-    except Exception:  # pragma: no cover - metadata missing
-        return "?"
-
-
-def _pk_text(text: bytes) -> str:
-    """URDF text for pytorch-kinematics: explicit axes, floating/planar joints made fixed."""
-    root = ET.fromstring(text)
-    for el in root:
-        if str(el.tag).rsplit("}", 1)[-1] != "joint":
-            continue
-        jtype = el.get("type")
-        if jtype in ("floating", "planar"):
-            el.set("type", "fixed")
-        elif jtype in ("revolute", "continuous", "prismatic"):
-            if not any(str(c.tag).rsplit("}", 1)[-1] == "axis" for c in el):
-                ET.SubElement(el, "axis", {"xyz": "1 0 0"})
-    return ET.tostring(root, encoding="unicode")
-
-
-class _PK:
-    """pytorch-kinematics' chain of the robot, fed expanded joint values."""
-
-    def __init__(self, pk, spec: RobotSpec, chain: Chain, text: bytes) -> None:
-        import contextlib
-        import io
-        import warnings
-
-        # Its URDF reader prints a line to stderr for every element it does not know.
-        with warnings.catch_warnings(), contextlib.redirect_stderr(io.StringIO()):
-            warnings.simplefilter("ignore")
-            self.chain = pk.build_chain_from_urdf(_pk_text(text))
-        self.pk = pk
-        self.names = list(self.chain.get_joint_parameter_names())
-        # q_pk = q @ E^T + b (mimic joints are independent joints for pk).
-        n = chain.n_dof
-        self.E = torch.zeros(len(self.names), n, dtype=torch.float64)
-        self.b = torch.zeros(len(self.names), dtype=torch.float64)
-        dof = {name: i for i, name in enumerate(chain.joint_names)}
-        mimic = _resolve_mimics(spec, dof)  # name -> (DoF, mult, off), chains composed
-        for k, name in enumerate(self.names):
-            d, mult, off = mimic[name] if name in mimic else (dof[name], 1.0, 0.0)
-            self.E[k, d] = mult
-            self.b[k] = off
-        self._serial: dict[str, tuple[object, Tensor]] = {}
-
-    def values(self, q64: Tensor) -> Tensor:
-        return (q64 @ self.E.T + self.b).to(torch.float32)
-
-    def fk(self, th: Tensor) -> dict[str, Tensor]:
-        return {k: v.get_matrix() for k, v in self.chain.forward_kinematics(th).items()}
-
-    def serial(self, link: str):
-        if link not in self._serial:
-            s = self.pk.SerialChain(self.chain, link)
-            idx = torch.tensor([self.names.index(n) for n in s.get_joint_parameter_names()])
-            self._serial[link] = (s, idx)
-        return self._serial[link]
-
-    def jacobian(self, th: Tensor, link: str) -> Tensor:
-        """``(B, 6, n_dof)`` in torchlie's DoFs (mimic columns folded in with ``E``)."""
-        s, idx = self.serial(link)
-        Js = s.jacobian(th[:, idx]).to(torch.float64)  # (B, 6, n_serial)
-        full = Js.new_zeros(th.shape[0], 6, len(self.names))
-        full[:, :, idx] = Js
-        return full @ self.E
-
-
-# ----------------------------------------------------------------------------------------------
-# Pinocchio adapter
-# ----------------------------------------------------------------------------------------------
-
-#: Pinocchio's reference frames for torchlie's Jacobian kinds (``Chain.jacobian(frame=...)``).
-PIN_FRAMES = {"world": "LOCAL_WORLD_ALIGNED", "link": "LOCAL", "spatial": "WORLD"}
-
-
-def _import_pin():
-    try:
-        import pinocchio as pin
-    except ImportError:
-        return None
-    return pin
-
-
-class _Pin:
-    """Pinocchio's model of the robot (float64, one configuration at a time), fed torchlie's
-    configurations: ``q`` converted to its layout and its Jacobian columns to torchlie's DoFs
-    (see the module docstring)."""
-
-    def __init__(self, pin, spec: RobotSpec, chain: Chain, text: bytes) -> None:
-        self.pin = pin
-        self.model = pin.buildModelFromXML(text.decode("utf-8"))
-        self.data = self.model.createData()
-        self.n = chain.n_dof
-        dof = {name: i for i, name in enumerate(chain.joint_names)}
-        mimic = _resolve_mimics(spec, dof)
-        by_name = {j.name: j for j in spec.joints}
-        # Per Pinocchio joint: (kind, idx_q, idx_v, first DoF, multiplier, offset).
-        self.joints: list[tuple[str, int, int, int, float, float]] = []
-        self.skipped: list[str] = []  # joints Pinocchio does not model as URDF says
-        for i in range(1, self.model.njoints):
-            name = self.model.names[i]
-            jm = self.model.joints[i]
-            j = by_name[name]
-            if j.type == "floating":
-                entry = ("free", dof[f"{name}:x"], 1.0, 0.0)
-            elif j.type == "planar":
-                entry = ("planar", dof[f"{name}:x"], 1.0, 0.0)
-                if tuple(_unit_axis(j.axis)) != (0.0, 0.0, 1.0):
-                    self.skipped.append(name)  # Pinocchio's planar joint is in its xy plane
-            else:
-                d, mult, off = mimic[name] if name in mimic else (dof[name], 1.0, 0.0)
-                entry = ("circle" if j.type == "continuous" else "scalar", d, mult, off)
-            kind, d, mult, off = entry
-            self.joints.append((kind, jm.idx_q, jm.idx_v, d, mult, off))
-        self.frames = {
-            link: self.model.getFrameId(link, pin.FrameType.BODY)
-            for link in spec.links
-            if self.model.existFrame(link, pin.FrameType.BODY)
-        }
-
-    def _q_and_map(self, q: Tensor):
-        """Pinocchio's ``q`` for torchlie's ``q (n_dof,)`` and ``D (nv, n_dof)`` with
-        ``v_pin = D dq``."""
-        import numpy as np
-
-        qp = np.zeros(self.model.nq)
-        D = np.zeros((self.model.nv, self.n))
-        x = q.tolist()
-        for kind, iq, iv, d, mult, off in self.joints:
-            if kind in ("scalar", "circle"):
-                v = mult * x[d] + off
-                if kind == "scalar":
-                    qp[iq] = v
-                else:  # a unit complex number (cos, sin)
-                    qp[iq : iq + 2] = (math.cos(v), math.sin(v))
-                D[iv, d] += mult
-            elif kind == "planar":  # (x, y, cos, sin); velocity in the moving frame
-                c, s = math.cos(x[d + 2]), math.sin(x[d + 2])
-                qp[iq : iq + 4] = (x[d], x[d + 1], c, s)
-                D[iv : iv + 2, d : d + 2] = ((c, s), (-s, c))
-                D[iv + 2, d + 2] = 1.0
-            else:  # free flyer: (t, quaternion xyzw); velocity (R^T dt, Jr(r) dr)
-                r = q[d + 3 : d + 6]
-                R = so3.exp(r)
-                qp[iq : iq + 3] = x[d : d + 3]
-                qp[iq + 3 : iq + 7] = self.pin.Quaternion(R.numpy()).coeffs()
-                D[iv : iv + 3, d : d + 3] = R.T.numpy()
-                D[iv + 3 : iv + 6, d + 3 : d + 6] = so3.jac_right(r).numpy()
-        return qp, D
-
-    def evaluate(
-        self, q64: Tensor, links: list[str], leaves: list[str]
-    ) -> tuple[dict[str, Tensor], dict[tuple[str, str], Tensor]]:
-        """Poses ``(B, 4, 4)`` of ``links`` and Jacobians ``(B, 6, n_dof)`` of ``leaves`` per
-        kind, in torchlie's conventions."""
-        import numpy as np
-
-        pin, model, data = self.pin, self.model, self.data
-        poses = {k: np.zeros((q64.shape[0], 4, 4)) for k in links if k in self.frames}
-        jacs = {
-            (k, kind): np.zeros((q64.shape[0], 6, self.n))
-            for k in leaves
-            if k in self.frames
-            for kind in PIN_FRAMES
-        }
-        for b in range(q64.shape[0]):
-            qp, D = self._q_and_map(q64[b])
-            pin.framesForwardKinematics(model, data, qp)
-            pin.computeJointJacobians(model, data, qp)
-            for k, P in poses.items():
-                P[b] = data.oMf[self.frames[k]].homogeneous
-            for (k, kind), J in jacs.items():
-                ref = getattr(pin.ReferenceFrame, PIN_FRAMES[kind])
-                J[b] = pin.getFrameJacobian(model, data, self.frames[k], ref) @ D
-        return (
-            {k: torch.from_numpy(v) for k, v in poses.items()},
-            {k: torch.from_numpy(v) for k, v in jacs.items()},
-        )
-
-
-def _unit_axis(axis) -> list[float]:
-    n = math.hypot(*axis)
-    return [x / n + 0.0 for x in axis]
-
-
-def _pin_version() -> str:
-    try:
-        from importlib.metadata import version
-
-        return version("pin")
-    except Exception:  # pragma: no cover - metadata missing
-        return "?"
 
 
 # ----------------------------------------------------------------------------------------------
@@ -577,59 +366,12 @@ def validate(
     q = chain.random_configuration(samples, generator=torch.Generator().manual_seed(seed))
     q64 = q.to(torch.float64)  # exactly the values torchlie sees
 
-    pk = _import_pk() if compare_pk else None
-    pkc: _PK | None = None
     free = _below(spec, ("floating", "planar"))
-    if pk is not None:
-        report.pk_version = _pk_version()
-        try:
-            pkc = _PK(pk, spec, chain, text)
-        except Exception as e:  # pk cannot load it: not torchlie's failure
-            report.deviations.append(
-                f"pytorch_kinematics could not load this URDF ({type(e).__name__}: {e}); "
-                "compared with the float64 reference only"
-            )
-    elif compare_pk:
-        report.deviations.append(
-            "pytorch_kinematics is not installed (pip install 'torchlie[validate]'): compared "
-            "with the float64 reference only"
-        )
-    if pkc is not None:
-        mimics = [j for j in spec.joints if j.mimic is not None]
-        if mimics:
-            desc = ", ".join(
-                f"{j.name} = {j.mimic.multiplier:g} * {j.mimic.joint} + {j.mimic.offset:g}"
-                for j in mimics
-                if j.mimic is not None
-            )
-            report.deviations.append(
-                f"pk ignores <mimic> (it makes them independent joints): it was given the "
-                f"expanded values {desc}, and its Jacobian columns were folded accordingly"
-            )
-        no_axis = [
-            j.name
-            for j in spec.joints
-            if not j.axis_given and j.type in ("revolute", "continuous", "prismatic")
-        ]
-        if no_axis:
-            report.deviations.append(
-                "pk reads an omitted <axis> as +Z (URDF: +X): its copy has axis '1 0 0' written "
-                f"out for {', '.join(no_axis)}"
-            )
-        free_joints = [j.name for j in spec.joints if j.type in ("floating", "planar")]
-        if free_joints:
-            report.deviations.append(
-                "pk cannot load floating or planar joints: they are fixed joints in its copy "
-                f"({', '.join(free_joints)}); the links below them ({', '.join(free)}) are "
-                "compared with the float64 reference only"
-            )
-        report.deviations.append(
-            "pk parses origins and computes in float32: compared at "
-            f"{TOL_PK:g} (x {scale:.2f} for positions and Jacobians), the float64 reference "
-            f"at {tol_ref:g}"
-        )
+    pkc, report.pk_version, report.deviations = _pk_setup(
+        spec, chain, text, compare_pk, free, tol_ref, scale
+    )
 
-    pinc = _pin_setup(report, spec, chain, text, compare_pin)
+    pinc, report.pin_version, report.pin_deviations = _pin_setup(spec, chain, text, compare_pin)
     pin_nc = _below(spec, (), tuple(pinc.skipped)) if pinc is not None else {}
 
     def pin_ok(n: str) -> bool:
@@ -721,43 +463,6 @@ def validate(
 
     _print_report(report, chain, tol_ref, scale, nb, out)
     return report
-
-
-def _pin_setup(
-    report: ValidationReport, spec: RobotSpec, chain: Chain, text: bytes, compare_pin: bool
-) -> _Pin | None:
-    """Pinocchio's model of the robot, or None (with the reason in ``report``)."""
-    pin = _import_pin() if compare_pin else None
-    if pin is None:
-        if compare_pin:
-            report.pin_deviations.append(
-                "Pinocchio is not installed (pip install 'torchlie[pinocchio]'): not compared"
-            )
-        return None
-    report.pin_version = _pin_version()
-    try:
-        pinc = _Pin(pin, spec, chain, text)
-    except Exception as e:  # Pinocchio cannot load it: not torchlie's failure
-        report.pin_deviations.append(
-            f"Pinocchio could not load this URDF ({type(e).__name__}: {e}); not compared"
-        )
-        report.pin_version = None
-        return None
-    if any(j.mimic is not None for j in spec.joints):
-        report.pin_deviations.append(
-            "Pinocchio's URDF reader (mimic=False) makes mimic joints independent: it was given "
-            "the expanded values, and its Jacobian columns were folded accordingly"
-        )
-    if pinc.skipped:
-        report.pin_deviations.append(
-            f"Pinocchio's planar joint moves in its xy plane only: {', '.join(pinc.skipped)} "
-            "(another axis) and the links below are not compared with it"
-        )
-    report.pin_deviations.append(
-        "Pinocchio computes in float64 from its own parse of the file; q and Jacobian columns "
-        "are mapped to torchlie's layout (see the module docstring)"
-    )
-    return pinc
 
 
 def _pin_compare(

@@ -1,0 +1,341 @@
+"""The chain's constants, built once from the parsed URDF in float64.
+
+Everything :class:`~torchlie.kinematics.Chain` derives from a :class:`RobotSpec` before it sees
+a ``q``: the degrees of freedom and their limits, the mimic joints resolved to the DoF they
+follow, each joint's origin and per-feature matrices ``C_f``, its Jacobian columns, the
+sampling ranges of :meth:`Chain.random_configuration`, and the tree of links in breadth-first
+order.  Apart from :mod:`torchlie.kinematics.chain` because it runs once per chain, on the
+parsed Python numbers: nothing here sees a batch.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from .. import so3 as _so3
+from .urdf import JointSpec, RobotSpec, URDFError, _describe
+
+_SUFFIXES = {"planar": ("x", "y", "theta"), "floating": ("x", "y", "z", "rx", "ry", "rz")}
+_NDOF = {"revolute": 1, "continuous": 1, "prismatic": 1, "fixed": 0, "planar": 3, "floating": 6}
+# Internal kinds (one GEMM per depth and kind).
+_KIND = {
+    "revolute": "rot",
+    "continuous": "rot",
+    "prismatic": "prism",
+    "fixed": "fixed",
+    "planar": "planar",
+    "floating": "float",
+}
+
+# Sampling ranges for coordinates without limits (random_configuration).
+_FREE_ANGLE = math.pi
+_FREE_TRANSLATION = 1.0
+_FREE_ROTVEC = math.pi / math.sqrt(3.0)
+
+
+# ----------------------------------------------------------------------------------------------
+# float64 constants (Python floats -> float64 tensors; no float32 on the way)
+# ----------------------------------------------------------------------------------------------
+
+
+def rpy_matrix(roll: float, pitch: float, yaw: float) -> Tensor:
+    """``Rz(yaw) @ Ry(pitch) @ Rx(roll)`` in float64 (URDF's fixed-axis roll, pitch, yaw).
+
+    Example:
+        >>> rpy_matrix(0.0, 0.0, math.pi / 2).round(decimals=12) + 0.0
+        tensor([[ 0., -1.,  0.],
+                [ 1.,  0.,  0.],
+                [ 0.,  0.,  1.]], dtype=torch.float64)
+    """
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    return torch.tensor(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ],
+        dtype=torch.float64,
+    )
+
+
+def _origin(j: JointSpec) -> Tensor:
+    T = torch.eye(4, dtype=torch.float64)
+    T[:3, :3] = rpy_matrix(*j.rpy)
+    T[:3, 3] = torch.tensor(j.xyz, dtype=torch.float64)
+    return T
+
+
+def _unit(v: Sequence[float]) -> Tensor:
+    n = math.hypot(*v)
+    return torch.tensor([x / n for x in v], dtype=torch.float64)
+
+
+def _block(R: Tensor | None = None, t: Tensor | None = None) -> Tensor:
+    """4x4 ``[[R, t], [0, 0]]`` (zeros where not given)."""
+    M = torch.zeros(4, 4, dtype=torch.float64)
+    if R is not None:
+        M[:3, :3] = R
+    if t is not None:
+        M[:3, 3] = t
+    return M
+
+
+def _plane_basis(n: Tensor) -> tuple[Tensor, Tensor]:
+    m = min(range(3), key=lambda i: abs(float(n[i])))
+    e = torch.zeros(3, dtype=torch.float64)
+    e[m] = 1.0
+    e1 = e - torch.dot(e, n) * n
+    e1 = e1 / torch.linalg.vector_norm(e1)
+    return e1, torch.linalg.cross(n, e1)
+
+
+def _constants(j: JointSpec) -> list[Tensor]:
+    """``[C_0, C_1, ...]`` with ``T_origin @ M(q) = C_0 + sum_f feat_f(q) C_f``."""
+    T = _origin(j)
+    kind = _KIND[j.type]
+    if kind == "fixed":
+        return [T]
+    if kind == "float":
+        # M = E33 + sum_rc R[r, c] E_rc + sum_r t[r] E_r3, E_rc the unit matrices.
+        out = []
+        units = [(3, 3)] + [(r, c) for r in range(3) for c in range(3)] + [(r, 3) for r in range(3)]
+        for r, c in units:
+            E = torch.zeros(4, 4, dtype=torch.float64)
+            E[r, c] = 1.0
+            out.append(T @ E)
+        return out
+    a = _unit(j.axis)
+    K = _so3.hat(a)
+    if kind == "rot":
+        return [T, T @ _block(K), T @ _block(K @ K)]
+    if kind == "prism":
+        return [T, T @ _block(t=a)]
+    e1, e2 = _plane_basis(a)  # planar
+    return [T, T @ _block(K), T @ _block(K @ K), T @ _block(t=e1), T @ _block(t=e2)]
+
+
+def _columns(
+    j: JointSpec, rows: tuple[int, ...], mimic: tuple[int, float] | None
+) -> tuple[tuple, tuple | None]:
+    """Jacobian columns of joint ``j`` (see ``_Link.cols``), from float64 values."""
+    kind = _KIND[j.type]
+    if kind == "fixed":
+        return (), None
+    O_R = _origin(j)[:3, :3]
+
+    def vec(v: Tensor) -> tuple[float, ...]:
+        return tuple(float(x) for x in v)
+
+    if kind == "float":
+        cols = tuple(("tr", vec(O_R[:, k]), rows[k], 1.0) for k in range(3))
+        return cols, (rows[3], tuple(vec(r) for r in O_R))
+    a = _unit(j.axis)
+    d, w = mimic if mimic is not None else (rows[0], 1.0)
+    if kind == "rot":
+        return (("rot", vec(O_R @ a), d, w),), None
+    if kind == "prism":
+        return (("tr", vec(O_R @ a), d, w),), None
+    e1, e2 = _plane_basis(a)  # planar
+    return (
+        ("tr", vec(O_R @ e1), rows[0], 1.0),
+        ("tr", vec(O_R @ e2), rows[1], 1.0),
+        ("rot", vec(O_R @ a), rows[2], 1.0),
+    ), None
+
+
+def _resolve_mimics(spec: RobotSpec, dof_of: dict[str, int]) -> dict[str, tuple[int, float, float]]:
+    """Mimic joint -> ``(DoF, mult, off)`` with value ``mult * q[DoF] + off``, chains composed.
+
+    Each joint is resolved once (memoised), so a chain of ``n`` mimics costs ``O(n)``.
+    """
+    by_name = {j.name: j for j in spec.joints}
+    resolved: dict[str, tuple[int, float, float]] = {}
+    for j in spec.joints:
+        if j.mimic is None or j.name in resolved:
+            continue
+        stack: list[JointSpec] = []  # mimic joints not yet resolved, j first
+        on_stack: set[str] = set()
+        cur = j
+        while cur.mimic is not None and cur.name not in resolved:
+            if cur.name in on_stack:  # parse_urdf rejects this; a hand-made RobotSpec may not
+                raise ValueError(
+                    f"torchlie.kinematics.Chain.__init__: mimic cycle through joint {cur.name!r}"
+                )
+            stack.append(cur)
+            on_stack.add(cur.name)
+            cur = by_name[cur.mimic.joint]
+        src, mult, off = (
+            resolved[cur.name] if cur.mimic is not None else (dof_of[cur.name], 1.0, 0.0)
+        )
+        for k in reversed(stack):  # value(k) = m * (mult * q + off) + c
+            spec_k = k.mimic
+            assert spec_k is not None
+            mult, off = spec_k.multiplier * mult, spec_k.multiplier * off + spec_k.offset
+            resolved[k.name] = (src, mult, off)
+    return {j.name: resolved[j.name] for j in spec.joints if j.mimic is not None}
+
+
+def _check_representable(
+    spec: RobotSpec, dtype: torch.dtype, mimic_mult: list[float], mimic_off: list[float]
+) -> None:
+    """Raise :class:`URDFError` where a constant of the chain overflows ``dtype``.
+
+    The origins' translations and the mimic joints' composed multipliers and offsets become
+    constants of the chain; one beyond the dtype's range (``3.4e38`` for float32; in float64
+    only a product of mimic multipliers can get there) would be ``inf`` and make every pose
+    below it ``nan``, so it is an error naming the joint and the value.  Rotations and axes are
+    bounded by construction; a limit beyond the range is ``inf`` (no limit).
+    """
+
+    def first_overflow(values: list[float]) -> int | None:
+        ok = torch.isfinite(torch.tensor(values, dtype=torch.float64).to(dtype))
+        return None if bool(ok.all()) else int((~ok).nonzero()[0, 0])
+
+    big = f"{dtype} (largest finite {torch.finfo(dtype).max:.6g})"
+    k = first_overflow([x for j in spec.joints for x in j.xyz])
+    if k is not None:
+        j = spec.joints[k // 3]
+        raise URDFError(
+            spec.source,
+            _describe("joint", j.name, 0, "origin"),
+            f"attribute 'xyz' value {j.xyz[k % 3]!r} overflows {big}; use dtype=torch.float64",
+        )
+    mimics = [j for j in spec.joints if j.mimic is not None]
+    for what, values in (("multiplier", mimic_mult), ("offset", mimic_off)):
+        k = first_overflow(values)
+        if k is not None:
+            raise URDFError(
+                spec.source,
+                _describe("joint", mimics[k].name, 0, "mimic"),
+                f"the {what} composed along its chain of mimic joints, {values[k]!r}, "
+                f"overflows {big}",
+            )
+
+
+def _sampling_ranges(names: Sequence[str], lower: Tensor, upper: Tensor) -> tuple[Tensor, Tensor]:
+    """The limits, with the free ranges of :meth:`Chain.random_configuration` where a
+    coordinate has none (by the suffix of its DoF name)."""
+    lo, hi = lower.clone(), upper.clone()
+    for i, name in enumerate(names):
+        if math.isfinite(lo[i]) and math.isfinite(hi[i]):
+            continue
+        suffix = name.rsplit(":", 1)[-1] if ":" in name else ""
+        if suffix in ("x", "y", "z"):
+            r = _FREE_TRANSLATION
+        elif suffix in ("rx", "ry", "rz"):
+            r = _FREE_ROTVEC
+        else:
+            r = _FREE_ANGLE
+        lo[i], hi[i] = -r, r
+    return lo, hi
+
+
+# ----------------------------------------------------------------------------------------------
+# Degrees of freedom, mimic joints and the tree of links
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Link:
+    name: str
+    index: int  # internal (breadth-first) index
+    depth: int
+    parent: int  # internal index of the parent link, -1 for the root
+    joint: JointSpec | None
+    kind: str  # internal kind, "root" for the root
+    rows: tuple[int, ...]  # rows of the value bank feeding this joint
+    consts: tuple[Tensor, ...]  # float64 C_f
+    # Jacobian columns of this joint: (rot|tr, direction in the parent frame, DoF, weight);
+    # for a floating joint also (first rotation-vector DoF, O_R as nested tuples).
+    cols: tuple[tuple[str, tuple[float, ...], int, float], ...] = ()
+    float_rot: tuple[int, tuple[tuple[float, ...], ...]] | None = None
+
+
+def _dof_layout(spec: RobotSpec) -> tuple[dict[str, int], list[str], list[float], list[float]]:
+    """Degrees of freedom in document order: joint -> its first DoF (for the joints that have
+    their own: not fixed, not mimic), and per DoF its name and limits (``-inf``/``inf`` where
+    there are none)."""
+    dof_of: dict[str, int] = {}
+    names: list[str] = []
+    lower: list[float] = []
+    upper: list[float] = []
+    for j in spec.joints:
+        n = _NDOF[j.type]
+        if n == 0 or j.mimic is not None:
+            continue
+        dof_of[j.name] = len(names)
+        if n == 1:
+            names.append(j.name)
+            lo, hi = (j.lower, j.upper) if j.type != "continuous" else (None, None)
+            lower.append(-math.inf if lo is None else lo)
+            upper.append(math.inf if hi is None else hi)
+        else:
+            names.extend(f"{j.name}:{s}" for s in _SUFFIXES[j.type])
+            lower.extend([-math.inf] * n)
+            upper.extend([math.inf] * n)
+    return dof_of, names, lower, upper
+
+
+def _mimic_rows(
+    spec: RobotSpec, dof_of: dict[str, int], n_dof: int
+) -> tuple[dict[str, int], tuple[list[int], list[float], list[float]]]:
+    """Mimic joint -> its row of the value bank (``n_dof + k``), and per row ``k`` the DoF it
+    follows, the multiplier and the offset (chains resolved): ``q[src] * mult + off``."""
+    mimic_src: list[int] = []
+    mimic_mult: list[float] = []
+    mimic_off: list[float] = []
+    row_of: dict[str, int] = {}
+    for name, (src, mult, off) in _resolve_mimics(spec, dof_of).items():
+        row_of[name] = n_dof + len(mimic_src)
+        mimic_src.append(src)
+        mimic_mult.append(mult)
+        mimic_off.append(off)
+    return row_of, (mimic_src, mimic_mult, mimic_off)
+
+
+def _tree_links(
+    spec: RobotSpec,
+    dof_of: dict[str, int],
+    row_of: dict[str, int],
+    mimic_of: dict[str, tuple[int, float]],
+) -> list[_Link]:
+    """The links in breadth-first internal order (children in document order of their
+    joints), the root first, each with its joint's value rows, constants and Jacobian columns
+    (``mimic_of``: mimic joint -> the DoF it feeds and its multiplier)."""
+    children: dict[str, list[JointSpec]] = {}
+    for j in spec.joints:
+        children.setdefault(j.parent, []).append(j)
+    links: list[_Link] = [_Link(spec.root, 0, 0, -1, None, "root", (), ())]
+    frontier = [0]
+    while frontier:
+        nxt = []
+        for p in frontier:
+            for j in children.get(links[p].name, []):
+                if j.name in row_of:
+                    rows: tuple[int, ...] = (row_of[j.name],)
+                elif _NDOF[j.type]:
+                    rows = tuple(range(dof_of[j.name], dof_of[j.name] + _NDOF[j.type]))
+                else:
+                    rows = ()
+                link = _Link(
+                    j.child,
+                    len(links),
+                    links[p].depth + 1,
+                    p,
+                    j,
+                    _KIND[j.type],
+                    rows,
+                    tuple(_constants(j)),
+                    *_columns(j, rows, mimic_of.get(j.name)),
+                )
+                links.append(link)
+                nxt.append(link.index)
+        frontier = nxt
+    return links
