@@ -10,9 +10,7 @@ Quaternions, rotation vectors and twists are swept over magnitudes from ``1e-45`
   is reduced modulo ``2 pi`` (:func:`torchlie._coeffs.reduction`);
 * gradients are finite (where the true gradient is representable).
 
-Not swept: the inverse Jacobians (meant for angles below ``2 pi``) and the Jacobians of SE(3),
-whose ``Q`` block is formed from powers of the rotation vector up to the fifth (finite up to
-about ``1e19`` in float32 and ``1e102`` in float64).
+Not swept: the inverse Jacobians (meant for angles below ``2 pi``).
 """
 
 from __future__ import annotations
@@ -248,6 +246,44 @@ def test_left_and_right_jacobians(dtype):
 
 
 @pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+def test_se3_jacobians(dtype):
+    """Finite at every magnitude of ``phi``: the diagonal blocks are so3's ``Jl(phi)``, ``Jr`` is
+    ``Jl(-xi)``, and ``Q`` tends to ``rho^/2 - K rho^ K/2 + (K^2 rho^ + rho^ K^2)/2`` (``K = u^``)
+    with an error of order ``|rho| / |phi|``."""
+    s, phi = _sweep(3, dtype)
+    g = torch.Generator().manual_seed(4)
+    rho = torch.randn(phi.shape, generator=g, dtype=dtype)
+    xi = torch.cat((rho, phi), -1)
+    J = se3.jac_left(xi)
+    assert torch.isfinite(J).all()
+    assert torch.equal(J[..., :3, :3], so3.jac_left(phi))
+    assert torch.equal(J[..., 3:, 3:], so3.jac_left(phi))
+    assert torch.equal(se3.jac_right(xi), se3.jac_left(-xi))
+    K, P = so3.hat(_unit_of(phi)), so3.hat(rho.double())
+    limit = 0.5 * (P - K @ P @ K + K @ K @ P + P @ K @ K)
+    err = (J[..., :3, 3:].double() - limit).abs().amax((-1, -2))
+    size = rho.double().abs().amax(-1)
+    big = s.double() > 1e3
+    assert (err[big] <= size[big] * (10.0 / s.double()[big] + _tol(dtype))).all()
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+def test_se3_jacobian_q_is_linear_in_rho(dtype):
+    """``Q(rho, phi)`` is linear in ``rho``: finite and scaled for every magnitude of ``rho``."""
+    s, rho = _sweep(3, dtype, top=2.0**-6)
+    phi = torch.tensor([0.3, -2.0, 1.1], dtype=dtype).expand_as(rho)
+    Q = se3.jac_left(torch.cat((rho, phi), -1))[..., :3, 3:]
+    assert torch.isfinite(Q).all()
+    unit = se3.jac_left(torch.cat((_unit_of(rho).to(dtype), phi), -1))[..., :3, 3:]
+    want = unit.double() * _norm_of(rho).unsqueeze(-1)
+    scale = want.abs().amax((-1, -2), keepdim=True)
+    keep = s > 1e3 * torch.finfo(dtype).tiny  # Q's entries of subnormal rho lose digits
+    torch.testing.assert_close(
+        (Q.double() / scale)[keep], (want / scale)[keep], rtol=0, atol=_tol(dtype) * 4
+    )
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
 def test_gradients_are_finite(dtype):
     s, w = _sweep(3, dtype)
     g = torch.Generator().manual_seed(3)
@@ -260,6 +296,8 @@ def test_gradients_are_finite(dtype):
         (quaternion.from_rotvec, w),
         (quaternion.exp, q),
         (se3.exp, xi),
+        (se3.jac_left, xi),
+        (se3.jac_right, xi),
         # d (v / |v|) / dv ~ 1 / |v|: representable from |v| ~ 1 / max
         (lambda v: conversions.axis_angle_to_matrix(v, 1.0), w[s > 64 / torch.finfo(dtype).max]),
     ]

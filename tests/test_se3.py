@@ -214,7 +214,9 @@ def _mp_q(xi) -> list[list[float]]:
 def test_jac_left_q_block_matches_high_precision(dtype):
     # the sweep plus angles around the series/exact switch points of the coefficients
     extra = [1e-3, 0.03, 0.1, 0.3, 0.5, 0.8, 1.2, 1.5, 2.0]
-    xi, _ = twists(ANGLES + extra, n_random=6)
+    # beyond pi: around q3's series switch, the large-angle form's switch (|phi| = 8), and far
+    large = [4.0, 4.5, 7.9, 8.0, 8.1, 10.0, 30.0, 1e2, 1e4, 1e8, 1e12, 1e16]
+    xi, _ = twists(ANGLES + extra + large, n_random=6)
     xi = xi.to(dtype)
     J = se3.jac_left(xi).double()
     ref = torch.tensor([_mp_q(x) for x in xi.double().tolist()], dtype=F64)
@@ -272,14 +274,14 @@ def test_q_values_match_the_series_coefficients():
     k = _coeffs.Q_VALUES_T2
     t = torch.tensor(
         [0.0, 1e-30, 1e-12, 1e-6, 1e-4, 2.5e-3, math.nextafter(k, 0), k, math.nextafter(k, 1)]
-        + [0.02, 0.1, 0.5, 1.0, 4.0, PI**2, 20.0, 100.0],
+        + [0.02, 0.1, 0.5, 1.0, 4.0, PI**2, 20.0, 100.0, 1e4, 1e10, 1e20],
         dtype=F64,
     ).sqrt()
     w = torch.stack((t, torch.zeros_like(t), torch.zeros_like(t)), -1)
     half = _coeffs.half_angle(w)
     t2 = half[0]
     got = _coeffs.q_values(t2, *_coeffs.rodrigues_values(None, "bc", half))
-    want = se3._q_of_t2(t2, F64)
+    want = _coeffs.q_series(t2)
     for a, b in zip(got, want, strict=True):
         torch.testing.assert_close(a, b, rtol=1e-9, atol=0)
 

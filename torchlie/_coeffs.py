@@ -16,7 +16,7 @@ name               value                                            series at 0
 ``cosc``           (1 - cos t) / t2                                 1/2 - t2/24 + ...
 ``sinc3``          (t - sin t) / t**3                               1/6 - t2/120 + ...
 ``cosc4``          (t2/2 + cos t - 1) / t2**2                       1/24 - t2/720 + ...
-``sinc5``          (t**3/6 - t + sin t) / t**5                      1/120 - t2/5040 + ...
+``q3``             (2t - 3 sin t + t cos t) / (2 t**5)              1/120 - 2 t2/7! + ...
 ``jinv``           (1 - (t/2) cot(t/2)) / t2                        1/12 + t2/720 + ...
 ``atan_ratio``     atan2(n, w) / n  (for n >= 0)                    (1/w)(1 - (n/w)**2/3 + ...)
 =================  ==============================================  =========================
@@ -52,11 +52,12 @@ _SINC = _alt_factorial_series(1, _N_MAX)
 _COSC = _alt_factorial_series(2, _N_MAX)
 _SINC3 = _alt_factorial_series(3, _N_MAX)
 _COSC4 = _alt_factorial_series(4, _N_MAX)
-_SINC5 = _alt_factorial_series(5, _N_MAX)
+#: (2t - 3 sin t + t cos t)/(2 t^5) = sum_k (-1)^k (k + 1) t2^k / (2k + 5)!
+_Q3 = [(-1) ** k * (k + 1) / math.factorial(2 * k + 5) for k in range(_N_MAX)]
 _ATAN = [(-1) ** k / (2 * k + 1) for k in range(_N_MAX)]
 
 # Number of series terms per function: (float32, float64).  Functions whose exact formula is
-# free of cancellation need few terms; those whose exact formula cancels (sinc3, cosc4, sinc5)
+# free of cancellation need few terms; those whose exact formula cancels (sinc3, cosc4, q3)
 # use more terms, so that the series reaches angles where the exact formula is accurate again.
 _TERMS = {
     "sinc": (2, 3),
@@ -64,7 +65,7 @@ _TERMS = {
     "atan": (2, 3),
     "sinc3": (4, 8),
     "cosc4": (5, 10),
-    "sinc5": (5, 10),
+    "q3": (5, 10),
 }
 _SERIES = {
     "sinc": _SINC,
@@ -72,7 +73,7 @@ _SERIES = {
     "atan": _ATAN,
     "sinc3": _SINC3,
     "cosc4": _COSC4,
-    "sinc5": _SINC5,
+    "q3": _Q3,
 }
 
 
@@ -166,14 +167,16 @@ def cosc4(t2: Tensor) -> Tensor:
     return _series_where("cosc4", t2, exact)
 
 
-def sinc5(t2: Tensor) -> Tensor:
-    """(theta**3/6 - theta + sin(theta))/theta**5  ( = (1/6 - sinc3)/theta**2 )."""
+def q3(t2: Tensor, c1: Tensor | None = None) -> Tensor:
+    """(2 theta - 3 sin(theta) + theta cos(theta))/(2 theta**5), the third coefficient of the
+    SE(3) Jacobian's ``Q`` block, as ``(3 sinc3 - cosc)/(2 theta**2)``: above the series the
+    difference loses at most a factor 2 (``3 sinc3 >= 2 cosc`` there), at every angle.
+    ``c1``: ``sinc3(t2)`` if the caller has it (the branch not taken reads it, finite)."""
 
     def exact(s: Tensor) -> Tensor:
-        t = s.sqrt()
-        return (t * s / 6.0 - t + torch.sin(t)) / (s * s * t)
+        return (3.0 * (sinc3(s) if c1 is None else c1) - cosc(s)) / (2.0 * s)
 
-    return _series_where("sinc5", t2, exact)
+    return _series_where("q3", t2, exact)
 
 
 def jinv(t2: Tensor) -> Tensor:
@@ -260,7 +263,7 @@ def sum_squares(v: Tensor, keepdim: bool = False) -> Tensor:
     """``sum_i v_i^2`` over the last dimension, component by component from the first (the
     same bits whatever the layout of ``v``; torch's reductions sum in an order that depends
     on it)."""
-    acc = _dot(v, v)
+    acc = dot(v, v)
     return acc.unsqueeze(-1) if keepdim else acc
 
 
@@ -333,7 +336,7 @@ def _reduce(w: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     if torch.is_grad_enabled() and w.requires_grad:
         # radial derivative 1 (that of the angle), not lam: add (1 - lam) u (u . dw), an exact 0
         u = _axis(w.detach(), big, m)
-        radial = _dot(u, w - w.detach()).unsqueeze(-1)
+        radial = dot(u, w - w.detach()).unsqueeze(-1)
         reduced_w = reduced_w + torch.where(big, (1.0 - lam) * radial, 0.0) * u
     return reduced_w, lam, big, m
 
@@ -344,7 +347,7 @@ def _axis(w: Tensor, big: Tensor, m: Tensor) -> Tensor:
     return v * torch.where(big, sum_squares(v, keepdim=True), 1.0).rsqrt()
 
 
-def _dot(a: Tensor, b: Tensor) -> Tensor:
+def dot(a: Tensor, b: Tensor) -> Tensor:
     """``sum_i a_i b_i`` over the last dimension, component by component from the first."""
     x, y = a.unbind(-1), b.unbind(-1)
     acc = x[0] * y[0]
@@ -431,60 +434,75 @@ def step(x: Tensor) -> Tensor:
     return torch.sign(x).clamp_min_(0.0)
 
 
-def q_series(t2: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """``(c1, c2, c3) = (sinc3, cosc4, (cosc4 - 3 sinc5)/2)`` of ``t2``, each to a few ulp of
-    ``t2``'s dtype: the coefficients of the top-right block ``Q`` of the SE(3) Jacobian."""
-    c2 = cosc4(t2)
-    return sinc3(t2), c2, 0.5 * (c2 - 3.0 * sinc5(t2))
+def q_series(t2: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """``(k1, k2, k3, k4) = (c1, c1 - 3 c2, c2, c3)`` of ``t2``, each to a few ulp of ``t2``'s
+    dtype, with ``c1 = sinc3``, ``c2 = cosc4``, ``c3 = q3``: the coefficients of the top-right
+    block ``Q`` of the SE(3) Jacobian (``torchlie.se3._q_components``)."""
+    c1, c2 = sinc3(t2), cosc4(t2)
+    return c1, c1 - 3.0 * c2, c2, q3(t2, c1)
 
 
 #: ``t2`` below which :func:`q_values` takes its series.
 Q_VALUES_T2 = 1e-2
-#: Three terms of each series of :func:`q_values`: ``sinc3``, ``cosc4`` and ``c3`` (whose
-#: coefficients are ``(cosc4_k - 3 sinc5_k) / 2``); the first omitted term is below 2e-11 of
-#: the value for ``t2 < Q_VALUES_T2``.
-_Q_SERIES = (
-    tuple(_SINC3[:3]),
-    tuple(_COSC4[:3]),
-    tuple(0.5 * (a - 3.0 * b) for a, b in zip(_COSC4[:3], _SINC5[:3], strict=True)),
-)
+#: Three terms of each series of :func:`q_values`: ``sinc3``, ``cosc4`` and ``q3``; the first
+#: omitted term is below 2e-11 of the value for ``t2 < Q_VALUES_T2``.
+_Q_SERIES = (tuple(_SINC3[:3]), tuple(_COSC4[:3]), tuple(_Q3[:3]))
 
 
-def q_values(t2: Tensor, b: Tensor, c: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """``(c1, c2, c3) = (sinc3, cosc4, (cosc4 - 3 sinc5)/2)`` of ``t2`` in float64, to well
-    within float32's precision: the coefficients of the top-right block of the SE(3) Jacobian
-    in the plain backward passes of float32 input.
+def q_values(t2: Tensor, b: Tensor, c: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """:func:`q_series` of ``t2`` in float64, to well within float32's precision: the
+    coefficients of ``Q`` in the plain backward passes of float32 input.
 
     Forward-only (module docstring).  From ``b = (1 - cos t)/t^2`` and ``c = (t - sin t)/t^3`` of
     the same angle (:func:`rodrigues_values`, whose ``sin`` and ``cos`` they share; no
     trigonometric function of its own): ``c1 = c``, ``c2 = (1/2 - b)/t2`` and
-    ``sinc5 = (1/6 - c)/t2``, whose cancellations leave relative errors of about ``12 eps/t2``,
-    ``12 eps/t2`` and ``180 eps/t2^2`` (float64 ``eps``: below 2e-10 for ``t2 >= Q_VALUES_T2``),
-    and three terms of each series below that, selected with :func:`step` (the closed forms
-    divide by ``t2`` clamped at the switch, one reciprocal for both, so the branch not taken is
-    finite).
+    ``c3 = (3 c - b)/(2 t2)``, whose cancellations leave relative errors of about ``12 eps/t2``
+    and ``30 eps/t2`` (float64 ``eps``: below 1e-12 for ``t2 >= Q_VALUES_T2``; none at large
+    angles), and three terms of each series below that, selected with :func:`step` (the closed
+    forms divide by ``t2`` clamped at the switch, one reciprocal for both, so the branch not
+    taken is finite).
     """
     small = step(Q_VALUES_T2 - t2)
     ts, tl = t2.clamp_min(Q_VALUES_T2), t2.clamp_max(Q_VALUES_T2)
     r = ts.reciprocal_()
     c2 = torch.rsub(b, 0.5).mul_(r)
-    s5 = torch.rsub(c, 1.0 / 6.0).mul_(r)
-    c3 = (c2 - 3.0 * s5).mul_(0.5)
+    c3 = (3.0 * c - b).mul_(r).mul_(0.5)
     large = 1.0 - small
-    return tuple(
+    c1, c2, c3 = (
         fma(exact * large, (tl * k2).add_(k1).mul_(tl).add_(k0), small)
         for (k0, k1, k2), exact in zip(_Q_SERIES, (c, c2, c3), strict=True)
     )
+    return c1, c1 - 3.0 * c2, c2, c3
 
 
 def q_plain(
     dtype: torch.dtype, t2: Tensor, b: Tensor | None, c: Tensor | None
-) -> tuple[Tensor, Tensor, Tensor]:
-    """Forward-only ``(c1, c2, c3)`` of ``t2`` for input of ``dtype`` (the plain backward
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Forward-only ``(k1, k2, k3, k4)`` of ``t2`` for input of ``dtype`` (the plain backward
     passes): :func:`q_values` from Rodrigues' ``b`` and ``c`` for float32 (a few operations
     and no trigonometric function, to well within float32's precision), :func:`q_series`
     otherwise (``b`` and ``c`` not read); in ``t2``'s dtype."""
     return q_values(t2, b, c) if dtype == torch.float32 else q_series(t2)
+
+
+#: ``t2`` above which the Jacobians take ``Q`` in its form of large angles (:func:`q_far`).
+Q_FAR_T2 = 64.0
+
+
+def q_far(t: Tensor, s: Tensor, c: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """``(k1, k2, k3, k4)`` of ``Q`` in terms of the unit axis ``u = phi / t`` instead of
+    ``phi``: ``(c1 t, (c1 - 3 c2) t^2, c2 t^2, c3 t^3)``, bounded at every angle::
+
+        (t - s)/t^2,  3 (1 - c)/t^2 - s/t - 1/2,  1/2 - (1 - c)/t^2,  (2 + c)/(2 t) - 3 s/(2 t^2)
+
+    with ``s = sin t`` and ``c = cos t`` (of the reduced angle beyond the range of the formulas,
+    :func:`reduction`).  Free of cancellation for ``t^2 > Q_FAR_T2``, and of powers of ``t``
+    (which overflow, in float32 from about ``t = 1e9`` in the derivatives).
+    """
+    it = t.reciprocal()
+    v = (1.0 - c) * it * it
+    k4 = (0.5 * (2.0 + c) - 1.5 * s * it) * it
+    return (1.0 - s * it) * it, 3.0 * v - s * it - 0.5, 0.5 - v, k4
 
 
 def theta2(w: Tensor | Sequence[Tensor], keepdim: bool = False) -> Tensor:

@@ -116,71 +116,100 @@ def _hat(xi: Tensor) -> Tensor:
     return torch.cat((top, torch.zeros_like(top[..., :1, :])), dim=-2)
 
 
-def _q_coeffs(phi: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """``(c1, c2, c3)`` of :func:`_q_components`: ``(t - sin t)/t^3``, ``(t^2/2 + cos t - 1)/t^4``
-    and ``(c2 - 3 (t - sin t - t^3/6)/t^5)/2`` (series near 0), in ``phi``'s dtype."""
-    return _q_of_t2(_coeffs.theta2(phi), phi.dtype)
+def _q_coeffs(phi: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """``(k1, k2, k3, k4)`` of :func:`_q_components` for ``phi`` itself
+    (:func:`torchlie._coeffs.q_series`), in ``phi``'s dtype."""
+    return _in_dtype(_coeffs.q_series(_coeffs.theta2(phi)), phi.dtype)
 
 
-def _q_of_t2(t2: Tensor, dtype: torch.dtype) -> tuple[Tensor, Tensor, Tensor]:
-    c1, c2, c3 = _coeffs.q_series(t2)
-    return c1.to(dtype), c2.to(dtype), c3.to(dtype)
+def _in_dtype(ks: tuple[Tensor, ...], dtype: torch.dtype) -> tuple[Tensor, ...]:
+    return tuple(k.to(dtype) for k in ks)
 
 
 def _q_values(
     dtype: torch.dtype, half: tuple[Tensor, ...], bc: tuple[Tensor, Tensor] | None = None
-) -> tuple[Tensor, Tensor, Tensor]:
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """:func:`_q_coeffs` of ``phi`` for input of ``dtype``, forward-only (the plain backward
     passes), from its :func:`_coeffs.half_angle`: for float32, :func:`_coeffs.q_values` from
     Rodrigues' ``b`` and ``c`` (``bc``, or evaluated from ``half``; no trigonometric function
     of its own), :func:`_coeffs.q_series` otherwise; in ``dtype``."""
     if bc is None and dtype == torch.float32:
         bc = _coeffs.rodrigues_values(None, "bc", half)
-    c1, c2, c3 = _coeffs.q_plain(dtype, half[0], *(bc or (None, None)))
-    return c1.to(dtype), c2.to(dtype), c3.to(dtype)
+    return _in_dtype(_coeffs.q_plain(dtype, half[0], *(bc or (None, None))), dtype)
 
 
 def _q_components(
     rho: Sequence[Tensor],
-    phi: Sequence[Tensor],
+    x: Sequence[Tensor],
     v: Sequence[Tensor],
-    c1: Tensor,
-    c2: Tensor,
-    c3: Tensor,
+    k1: Tensor,
+    k2: Tensor,
+    k3: Tensor,
+    k4: Tensor,
 ) -> list[Tensor]:
     """Components of ``Q(rho, phi) v`` (the top-right block of the left Jacobian), from
-    components, with cross products only.
+    components, with cross products only::
 
-    With ``a = phi^ v``, ``b = phi^ a`` and ``r(x) = rho^ x``, the eight terms of ``Q v`` group as
-    ``r(v)/2 + c1 r(a) + c2 r(b) + phi^ (c1 r(v) + (c1 - 3 c2) r(a) + c3 r(b)
-    + phi^ (c2 r(v) + c3 r(a)))``.
+        Q v = rho^ v / 2 + k1 (x^ rho^ + rho^ x^) v + k2 x^ rho^ x^ v
+              + k3 (x^ x^ rho^ + rho^ x^ x^) v + k4 (x^ rho^ x^ x^ + x^ x^ rho^ x^) v
+
+    with ``x = phi`` and the coefficients of :func:`_q_coeffs`, or ``x`` the unit axis and
+    those of :func:`torchlie._coeffs.q_far`.  With ``a = x^ v``, ``b = x^ a`` and
+    ``r(y) = rho^ y``, the terms group as ``r(v)/2 + k1 r(a) + k3 r(b) + x^ (k1 r(v) + k2 r(a)
+    + k4 r(b) + x^ (k3 r(v) + k4 r(a)))``.
     """
-    a = so3._cross(phi, v)
-    b = so3._cross(phi, a)
+    a = so3._cross(x, v)
+    b = so3._cross(x, a)
     rv, ra, rb = so3._cross(rho, v), so3._cross(rho, a), so3._cross(rho, b)
-    c13 = c1 - 3.0 * c2
-    inner = so3._cross(phi, [fma(c2 * x, c3, y) for x, y in zip(rv, ra, strict=True)])
+    inner = so3._cross(x, [fma(k3 * p, k4, q) for p, q in zip(rv, ra, strict=True)])
     mid = [
-        fma(fma(fma(i, c1, x), c13, y), c3, z) for x, y, z, i in zip(rv, ra, rb, inner, strict=True)
+        fma(fma(fma(i, k1, p), k2, q), k4, r) for p, q, r, i in zip(rv, ra, rb, inner, strict=True)
     ]
-    outer = so3._cross(phi, mid)
+    outer = so3._cross(x, mid)
     return [
-        fma(fma(o.add(x, alpha=0.5), c1, y), c2, z)
-        for x, y, z, o in zip(rv, ra, rb, outer, strict=True)
+        fma(fma(o.add(p, alpha=0.5), k1, q), k3, r)
+        for p, q, r, o in zip(rv, ra, rb, outer, strict=True)
     ]
 
 
-def _q_apply(rho: Tensor, phi: Tensor, v: Tensor) -> Tensor:
-    """``Q(rho, phi) v`` (batch shapes broadcast): :func:`_q_components` on planar copies."""
+def _q_apply(
+    rho: Tensor, phi: Tensor, v: Tensor, form: tuple[Tensor, tuple[Tensor, ...]] | None = None
+) -> Tensor:
+    """``Q(rho, phi) v`` (batch shapes broadcast): :func:`_q_components` on planar copies, with
+    ``phi`` and its :func:`_q_coeffs`, or ``form = (x, (k1, k2, k3, k4))``."""
     P = _quat._planes
-    return _layout.interleave(_q_components(P(rho, 3), P(phi, 3), P(v, 3), *_q_coeffs(phi)))
+    x, ks = (phi, _q_coeffs(phi)) if form is None else form
+    return _layout.interleave(_q_components(P(rho, 3), P(x, 3), P(v, 3), *ks))
 
 
 def _q_matrix(rho: Tensor, phi: Tensor) -> Tensor:
-    """``Q(rho, phi)`` as a matrix: :func:`_q_apply` on the three unit vectors."""
+    """``Q(rho, phi)`` as a matrix at every angle (:func:`_q_form`): :func:`_q_apply` on the
+    three unit vectors."""
     eye = torch.eye(3, dtype=rho.dtype, device=rho.device).expand(*rho.shape[:-1], 3, 3)
-    cols = _q_apply(rho.unsqueeze(-2), phi.unsqueeze(-2), eye)  # row j = Q e_j
+    cols = _q_apply(rho.unsqueeze(-2), phi, eye, _q_form(phi.unsqueeze(-2)))  # row j = Q e_j
     return cols.transpose(-1, -2)
+
+
+def _q_form(phi: Tensor) -> tuple[Tensor, tuple[Tensor, Tensor, Tensor, Tensor]]:
+    """``(x, (k1, k2, k3, k4))`` of :func:`_q_components` for ``Q(., phi)`` at every magnitude
+    of ``phi``: ``phi`` and :func:`_q_coeffs` up to ``|phi|^2 = Q_FAR_T2``, the unit axis and
+    :func:`torchlie._coeffs.q_far` above it (no powers of the angle, which overflow in the
+    derivatives), with the angle reduced modulo ``2 pi`` for ``sin`` and ``cos`` beyond the
+    range of the formulas (:func:`torchlie._coeffs.reduction`, as so3's Jacobians).  Double
+    where: each form sees only its own elements.  Derivatives are those of ``Q`` at the angle
+    (``d t / d phi = u``, as the reduced angle's).
+    """
+    r, lam, u = _coeffs.reduction(phi)
+    t2 = _coeffs.theta2(r)  # the reduced angle's (|phi|^2 where not reduced)
+    reduced = lam[..., 0] < 1.0
+    far = (t2 > _coeffs.Q_FAR_T2) | reduced
+    ang = torch.where(far, t2, 1.0).sqrt()
+    t = torch.where(reduced, _coeffs.dot(u.to(t2.dtype), phi.to(t2.dtype)), ang)
+    axis = torch.where(reduced.unsqueeze(-1), u, phi / t.to(phi.dtype).unsqueeze(-1))
+    far_ks = _coeffs.q_far(t, torch.sin(ang), torch.cos(ang))
+    near_ks = _coeffs.q_series(torch.where(far, 0.0, t2))
+    ks = tuple(torch.where(far, a, b) for a, b in zip(far_ks, near_ks, strict=True))
+    return torch.where(far.unsqueeze(-1), axis, phi), _in_dtype(ks, phi.dtype)
 
 
 def _jac_left(xi: Tensor) -> Tensor:

@@ -294,7 +294,7 @@ def _jr_inv_rt(r: Tensor, Rt: Tensor) -> tuple[Tensor, Tensor]:
     phi = r[3:].unbind(0)
     t2 = _coeffs.theta2(phi)
     d = _coeffs.jinv(t2).to(r.dtype)
-    c1, c2, c3 = (c.to(r.dtype) for c in _coeffs.q_series(t2))
+    ks = (c.to(r.dtype) for c in _coeffs.q_series(t2))
     H = _hat_entries(phi)
     one = torch.ones_like(phi[0])
     # phi^ phi^ = phi phi^T - |phi|^2 I
@@ -312,7 +312,7 @@ def _jr_inv_rt(r: Tensor, Rt: Tensor) -> tuple[Tensor, Tensor]:
     )
     neg_phi = tuple(-x for x in phi)
     eye = torch.eye(3, dtype=r.dtype, device=r.device).unsqueeze(-1)  # e_j along dim 0
-    Qcols = _se3._q_components(rho, neg_phi, eye.unbind(1), c1, c2, c3)  # Q e_j: (3, N) each
+    Qcols = _se3._q_components(rho, neg_phi, eye.unbind(1), *ks)  # Q e_j: (3, N) each
     Q = torch.stack(Qcols)  # (row i, column j, N)
     C = -_matmul3(_matmul3(B, Q), B)
     return _matmul3(B, Rt), _matmul3(C, Rt)
