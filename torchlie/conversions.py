@@ -50,7 +50,7 @@ import math
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, _layout
+from . import _checks, _coeffs, _layout, _rotation_matrix
 from . import quaternion as _quat
 from . import so3 as _so3
 from ._typing import Float
@@ -242,7 +242,7 @@ def euler_to_matrix(angles: Float[Tensor, "*b 3"], seq: str) -> Float[Tensor, "*
     fn = _NAME + "euler_to_matrix"
     plan = _euler_plan(fn, seq)
     x, dtype = _checks.tensor(angles, fn, "angles", (3,))
-    return _checks.out(_quat._to_matrix(_euler_to_quaternion(x, plan)), dtype)
+    return _checks.out(_rotation_matrix.from_quaternion(_euler_to_quaternion(x, plan)), dtype)
 
 
 def matrix_to_euler(R: Float[Tensor, "*b 3 3"], seq: str) -> Float[Tensor, "*b 3"]:
@@ -266,7 +266,7 @@ def matrix_to_euler(R: Float[Tensor, "*b 3 3"], seq: str) -> Float[Tensor, "*b 3
     fn = _NAME + "matrix_to_euler"
     plan = _euler_plan(fn, seq)
     x, dtype = _checks.tensor(R, fn, "R", (3, 3))
-    return _checks.out(_quaternion_to_euler(_quat._from_matrix(x), plan), dtype)
+    return _checks.out(_quaternion_to_euler(_rotation_matrix.to_quaternion(x), plan), dtype)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -18,12 +18,10 @@ silent identity).  Other layouts and conventions convert at the boundary: :func:
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, _layout
+from . import _checks, _coeffs, _components, _hamilton, _layout, _rotation_matrix
 from ._autograd import blocked, custom_function, fma
 from ._typing import Bool, Float, Shaped
 
@@ -57,15 +55,6 @@ __all__ = [
 ]
 
 
-def _planes(M: Tensor | Sequence[Tensor], n: int) -> tuple[Tensor, ...]:
-    """The ``n`` trailing entries of ``M`` as contiguous planes (see :func:`_layout.planes`);
-    ``n = 9``: a 3x3 matrix read row by row.  ``M`` given as its planes already: those (the
-    callers that read several blocks of one matrix transpose it once)."""
-    if not isinstance(M, Tensor):
-        return tuple(M)
-    return _layout.planes(M, (3, 3) if n == 9 else n)
-
-
 def multiply(q1: Float[Tensor, "*b1 4"], q2: Float[Tensor, "*b2 4"]) -> Float[Tensor, "*b 4"]:
     """Hamilton product ``q1 * q2`` (batch shapes broadcast).
 
@@ -79,92 +68,7 @@ def multiply(q1: Float[Tensor, "*b1 4"], q2: Float[Tensor, "*b2 4"]) -> Float[Te
     b, _ = _checks.tensor(q2, fn, "q2", (4,))
     _checks.same_dtype(fn, q1=q1, q2=q2)
     _checks.batch_broadcast(fn, (a.shape[:-1], "q1"), (b.shape[:-1], "q2"))
-    return _checks.out(_multiply(a, b), dtype)
-
-
-#: The Hamilton product: component ``i`` of ``a b`` is the sum of ``sign a_j b_k`` over row ``i``.
-_HAMILTON = (
-    ((0, 0, 1), (1, 1, -1), (2, 2, -1), (3, 3, -1)),
-    ((0, 1, 1), (1, 0, 1), (2, 3, 1), (3, 2, -1)),
-    ((0, 2, 1), (1, 3, -1), (2, 0, 1), (3, 1, 1)),
-    ((0, 3, 1), (1, 2, 1), (2, 1, -1), (3, 0, 1)),
-)
-
-
-def _signed_terms(conj_a: bool, conj_b: bool) -> tuple[tuple[tuple[int, int, float], ...], ...]:
-    """:data:`_HAMILTON` for ``conj(a)`` and/or ``conj(b)``, a positive term first in each row."""
-    rows = []
-    for row in _HAMILTON:
-        terms = [
-            (j, k, float(s * (-1 if conj_a and j else 1) * (-1 if conj_b and k else 1)))
-            for j, k, s in row
-        ]
-        terms.sort(key=lambda term: -term[2])  # there always is a positive one
-        rows.append(tuple(terms))
-    return tuple(rows)
-
-
-_SIGNED_TERMS = {(ca, cb): _signed_terms(ca, cb) for ca in (False, True) for cb in (False, True)}
-
-
-def _hamilton(
-    a: Sequence[Tensor],
-    b: Sequence[Tensor],
-    conj_a: bool = False,
-    conj_b: bool = False,
-    out: Sequence[Tensor | None] = (None,) * 4,
-) -> list[Tensor]:
-    """Components of ``a b`` (``conj(a)``, ``conj(b)`` if asked) from the components of each:
-    one product and three multiply-adds per component (the last written to ``out``)."""
-    result = []
-    for ((j, k, _), *rest), o in zip(_SIGNED_TERMS[(conj_a, conj_b)], out, strict=True):
-        acc = a[j] * b[k]
-        (j1, k1, s1), (j2, k2, s2), (j3, k3, s3) = rest
-        acc = fma(fma(acc, a[j1], b[k1], value=s1), a[j2], b[k2], value=s2)
-        result.append(fma(acc, a[j3], b[k3], value=s3, out=o))
-    return result
-
-
-def _product(a: Sequence[Tensor], b: Sequence[Tensor], **conj: bool) -> Tensor:
-    """:func:`_hamilton`, interleaved."""
-    o = _layout.outputs((a[0], b[0]), 4)  # batches may broadcast
-    return _layout.interleave(_hamilton(a, b, out=o, **conj), o)
-
-
-def _multiply_values(a: Tensor, b: Tensor) -> Tensor:
-    """``a b`` component by component."""
-    return _product(_planes(a, 4), _planes(b, 4))
-
-
-def _multiply_grads(a: Tensor, b: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
-    """``(g conj(b), conj(a) g)``: the backward of ``a b``."""
-    ap, bp, gp = _planes(a, 4), _planes(b, 4), _planes(g, 4)
-    return _product(gp, bp, conj_b=True), _product(ap, gp, conj_a=True)
-
-
-_multiply_grads_blocked = blocked(_multiply_grads, (1, 1, 1))
-
-
-def _multiply_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]:
-    # d(a b) = da b + a db: dL/da = g conj(b), dL/db = conj(a) g (two products instead of
-    # autograd's graph of 16 multiply-adds, each with two products in its backward).
-    a, b = saved
-    da, db = _multiply_grads_blocked(a, b, g)
-    return da.sum_to_size(a.shape), db.sum_to_size(b.shape)
-
-
-_MultiplyFn = custom_function(
-    "QuaternionMultiply",
-    forward=_multiply_values,
-    save=lambda inputs, out: (inputs[0], inputs[1]),
-    backward=_multiply_backward,
-    jvp=lambda saved, da, db: _multiply_values(da, saved[1]) + _multiply_values(saved[0], db),
-    event_dims=(1, 1),
-)
-
-
-def _multiply(a: Tensor, b: Tensor) -> Tensor:
-    return _MultiplyFn(a, b)
+    return _checks.out(_hamilton.multiply(a, b), dtype)
 
 
 def conjugate(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
@@ -196,7 +100,7 @@ def normalize(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
 def _normalize(q: Tensor) -> Tensor:
     # |q| = 0 -> 0/0 = NaN for that element only (documented), never identity.
     q = _coeffs.rescaled(q)[0]
-    return q * torch.rsqrt(_norm2(*q.unbind(-1)).unsqueeze(-1))
+    return q * torch.rsqrt(_components.norm2(*q.unbind(-1)).unsqueeze(-1))
 
 
 def canonicalize(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
@@ -243,122 +147,7 @@ def to_matrix(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 3 3"]:
                 [ 0.,  0.,  1.]])
     """
     x, dtype = _checks.tensor(q, "torchlie.quaternion.to_matrix", "q", (4,))
-    return _checks.out(_to_matrix(x), dtype)
-
-
-def _to_matrix_forward(q: Tensor) -> Tensor:
-    """:func:`to_matrix` entry by entry."""
-    w, x, y, z = _planes(q, 4)
-    ww, yy = w * w, y * y
-    # Diagonal as (w^2 + x^2 - y^2 - z^2) / |q|^2: two terms bounded by |q|^2, where
-    # 1 - (yy + zz) s rounds a sum near 2 close to pi (3.1e-16 instead of 5.0e-16 in float64).
-    # The last two share their halves: (ww - xx) +- (yy - zz).  Squares and products enter
-    # by multiply-adds (one rounding each, where the CPU fuses them).
-    a, b = fma(ww, x, x), fma(yy, z, z)
-    hs = torch.reciprocal(a + b)  # 1 / |q|^2
-    s = hs + hs
-    u, v = fma(ww, x, x, value=-1.0), fma(yy, z, z, value=-1.0)
-    xs, ys, zs = x * s, y * s, z * s
-    xy, xz, yz = x * ys, x * zs, y * zs
-    o = _layout.outputs(w, 9)
-    mul = torch.mul
-    entries = (
-        mul(a - b, hs, out=o[0]), fma(xy, w, zs, value=-1.0, out=o[1]), fma(xz, w, ys, out=o[2]),
-        fma(xy, w, zs, out=o[3]), mul(u + v, hs, out=o[4]), fma(yz, w, xs, value=-1.0, out=o[5]),
-        fma(xz, w, ys, value=-1.0, out=o[6]), fma(yz, w, xs, out=o[7]), mul(u - v, hs, out=o[8]),
-    )  # fmt: skip
-    return _layout.interleave(entries, o).unflatten(-1, (3, 3))
-
-
-def _norm2(w: Tensor, x: Tensor, y: Tensor, z: Tensor) -> Tensor:
-    """``w^2 + x^2 + y^2 + z^2`` from components (multiply-adds, left to right)."""
-    return fma(fma(fma(w * w, x, x), y, y), z, z)
-
-
-def _skew_vee(M: Tensor) -> Tensor:
-    """``vee(M - M^T)`` (twice the vee of the skew part of ``M``), differentiable."""
-    return _layout.interleave(
-        (M[..., 2, 1] - M[..., 1, 2], M[..., 0, 2] - M[..., 2, 0], M[..., 1, 0] - M[..., 0, 1]),
-    )
-
-
-def _conj_product_vec(q: Tensor, p: Tensor) -> Tensor:
-    """Vector part of ``conj(q) p``: ``w p_v - p_w v - v x p_v`` (differentiable)."""
-    w, v = q[..., :1], q[..., 1:]
-    u = fma(w * p[..., 1:], p[..., :1], v, value=-1.0)
-    return u - torch.linalg.cross(v, p[..., 1:], dim=-1)
-
-
-def _rt_g_vee(
-    R: Tensor | Sequence[Tensor], G: Tensor | Sequence[Tensor]
-) -> tuple[Tensor, Tensor, Tensor]:
-    """Components of ``vee(R^T G - G^T R)`` (the full vee: twice that of the skew part; each
-    matrix as a tensor or its 9 planes).
-
-    ``= sum_k cross(G_k, R_k)`` over the rows, from components (no batched 3x3 product).
-    """
-    r = _planes(R, 9)
-    g = _planes(G, 9)
-    out = []
-    for i, j in ((1, 2), (2, 0), (0, 1)):
-        acc = g[i] * r[j]
-        for k in (3, 6):
-            acc = fma(acc, g[k + i], r[k + j])
-        for k in (0, 3, 6):
-            acc = fma(acc, g[k + j], r[k + i], value=-1.0)
-        out.append(acc)
-    return out[0], out[1], out[2]
-
-
-def _to_matrix_backward(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor]:
-    # With u = q/|q|, a change dq turns R into R Exp(d), d = 2 vec(conj(q) dq) / |q|^2, so
-    # <G, R hat(d)> = a . d with a = vee(R^T G - G^T R), and dL/dq = 2 (q (0, a)) / |q|^2
-    # (orthogonal to q: to_matrix does not see the scale of q).
-    q, R = saved
-    if torch.is_grad_enabled():  # create_graph: differentiable ops
-        a = _skew_vee(R.transpose(-1, -2) @ G)
-        k = 2.0 / (q * q).sum(-1, keepdim=True)
-        return (k * _multiply(q, torch.nn.functional.pad(a, (1, 0))),)
-    return (_to_matrix_grad_values(q, R, G),)
-
-
-def _to_matrix_grad_values_block(q: Tensor, R: Tensor, G: Tensor) -> Tensor:
-    """The plain backward of :func:`to_matrix` from components."""
-    w, x, y, z = _planes(q, 4)
-    a1, a2, a3 = _rt_g_vee(R, G)
-    k = 2.0 / _norm2(w, x, y, z)
-    o = _layout.outputs(w, 4)
-    gw = torch.mul(fma(fma(x * a1, y, a2), z, a3), k, out=o[0]).neg_()
-    c = _cross_planes((x, y, z), (a1, a2, a3))
-    gv = [
-        torch.mul(fma(ci, w, ai), k, out=oi)
-        for ai, ci, oi in zip((a1, a2, a3), c, o[1:], strict=True)
-    ]
-    return _layout.interleave((gw, *gv), o)
-
-
-_to_matrix_grad_values = blocked(_to_matrix_grad_values_block, (1, 2, 2))
-
-
-def _to_matrix_jvp(saved: tuple[Tensor, ...], dq: Tensor) -> Tensor:
-    # dR = R hat(d), d = 2 vec(conj(q) dq) / |q|^2 (row i of R hat(d) is R_i x d).
-    q, R = saved
-    d = _conj_product_vec(q, dq) * (2.0 / (q * q).sum(-1, keepdim=True))
-    return torch.linalg.cross(R, d.unsqueeze(-2).expand_as(R), dim=-1)
-
-
-_ToMatrixFn = custom_function(
-    "QuaternionToMatrix",
-    forward=_to_matrix_forward,
-    save=lambda inputs, out: (inputs[0], out),
-    backward=_to_matrix_backward,
-    jvp=_to_matrix_jvp,
-    event_dims=(1,),
-)
-
-
-def _to_matrix(q: Tensor) -> Tensor:
-    return _ToMatrixFn(_coeffs.rescaled(q)[0])
+    return _checks.out(_rotation_matrix.from_quaternion(x), dtype)
 
 
 def from_matrix(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 4"]:
@@ -379,175 +168,7 @@ def from_matrix(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 4"]:
         tensor([0., 1., 0., 0.])
     """
     x, dtype = _checks.tensor(R, "torchlie.quaternion.from_matrix", "R", (3, 3))
-    return _checks.out(_from_matrix(x), dtype)
-
-
-def _orthogonalize_step(R: Tensor | Sequence[Tensor]) -> tuple[Tensor, ...]:
-    """One Newton step of the polar decomposition, ``R - R (R^T R - I) / 2``, from components.
-
-    Returns the 9 entries row by row (no batched 3x3 matmul: those cost more than the rest).
-    """
-    m00, m01, m02, m10, m11, m12, m20, m21, m22 = _planes(R, 9)
-
-    def dot3(a: Tensor, b: Tensor, c: Tensor, d: Tensor, e: Tensor, f: Tensor) -> Tensor:
-        return fma(fma(a * d, b, e), c, f)
-
-    e00 = dot3(m00, m10, m20, m00, m10, m20) - 1.0
-    e11 = dot3(m01, m11, m21, m01, m11, m21) - 1.0
-    e22 = dot3(m02, m12, m22, m02, m12, m22) - 1.0
-    e01 = dot3(m00, m10, m20, m01, m11, m21)
-    e02 = dot3(m00, m10, m20, m02, m12, m22)
-    e12 = dot3(m01, m11, m21, m02, m12, m22)
-    out = []
-    for a, b, c in ((m00, m01, m02), (m10, m11, m12), (m20, m21, m22)):
-        out.append(torch.add(a, dot3(a, b, c, e00, e01, e02), alpha=-0.5))
-        out.append(torch.add(b, dot3(a, b, c, e01, e11, e12), alpha=-0.5))
-        out.append(torch.add(c, dot3(a, b, c, e02, e12, e22), alpha=-0.5))
-    return tuple(out)
-
-
-def _from_matrix_parts(
-    R: Tensor | Sequence[Tensor],
-) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
-    """``(cw, cx, cy, cz, sign)``: ``c`` is proportional to the quaternion of ``R``, with
-    ``|c| >= 2`` for a rotation; ``sign * c / |c|`` is the canonical unit quaternion."""
-    m00, m01, m02, m10, m11, m12, m20, m21, m22 = _orthogonalize_step(R)
-    # 4 q_i^2 for i = w, x, y, z, as (1 +- m22) +- (m00 +- m11)
-    p22, n22, p01, n01 = 1.0 + m22, 1.0 - m22, m00 + m11, m00 - m11
-    d0, d1, d2, d3 = p22 + p01, n22 + n01, n22 - n01, p22 - p01
-    s21, s02, s10 = m21 - m12, m02 - m20, m10 - m01  # 4 w (x, y, z)
-    a01, a02, a12 = m01 + m10, m02 + m20, m12 + m21  # 4 (xy, xz, yz)
-    # Pivot: the largest d_i (the first on ties).  Candidate i holds 4 q_i q: proportional to q
-    # with a positive i-th entry.  The selection is a one-hot sum: f_i in {0, 1} with exactly
-    # one 1, so sum_i f_i c_i is exactly the selected candidate (and so is its gradient); the
-    # f_i from float steps, not comparisons (see _coeffs.step).
-    g1 = _coeffs.step(d1 - d0)  # d1 > d0
-    dmax = torch.maximum(d0, d1)
-    g2 = _coeffs.step(d2 - dmax)
-    f3 = _coeffs.step(d3 - torch.maximum(dmax, d2))
-    rest = 1.0 - f3  # not 3
-    f2 = g2 * rest
-    rest = rest.sub_(f2)  # neither 3 nor 2
-    f1 = g1 * rest
-    f0 = rest.sub_(f1)
-
-    def pick(c0: Tensor, c1: Tensor, c2: Tensor, c3: Tensor) -> Tensor:
-        return fma(fma(fma(c0 * f0, c1, f1), c2, f2), c3, f3)
-
-    cw = pick(d0, s21, s02, s10)
-    # Canonical sign: the pivot entry is positive, so flipping on w < 0 gives the canonical
-    # representative (at w = 0 the pivot is the largest-magnitude vector component).
-    # cw + 0.0 turns -0.0 into +0.0: no flip at w = 0.
-    sign = torch.copysign(torch.ones_like(cw), cw + 0.0)
-    return cw, pick(s21, d1, a01, a02), pick(s02, a01, d2, a12), pick(s10, a02, a12, d3), sign
-
-
-def _from_matrix_forward(R: Tensor) -> Tensor:
-    cw, cx, cy, cz, sign = _from_matrix_parts(R)
-    # |c| = 4 q_p >= 2 for a rotation: the division is safe, and a NaN element stays in its row.
-    n2 = _norm2(cw, cx, cy, cz)
-    scale = torch.rsqrt(n2) * sign
-    o = _layout.outputs(cw, 4)
-    parts = [torch.mul(c, scale, out=oi) for c, oi in zip((cw, cx, cy, cz), o, strict=True)]
-    return _layout.interleave(parts, o)
-
-
-def _cross_planes(
-    a: Sequence[Tensor], b: Sequence[Tensor], out: Sequence[Tensor | None] = (None,) * 3
-) -> tuple[Tensor, Tensor, Tensor]:
-    """``a x b`` from components (planes, written to ``out``; :func:`_cross` takes ``(..., 3)``
-    tensors)."""
-    ax, ay, az = a
-    bx, by, bz = b
-    return (
-        fma(ay * bz, az, by, value=-1.0, out=out[0]),
-        fma(az * bx, ax, bz, value=-1.0, out=out[1]),
-        fma(ax * by, ay, bx, value=-1.0, out=out[2]),
-    )
-
-
-def _r_hat_values(R: Tensor, u: Sequence[Tensor]) -> Tensor:
-    """``R hat(u)`` from components: row ``i`` is ``cross(R_i, u)``."""
-    r = _planes(R, 9)
-    o = _layout.outputs(r[0], 9)
-    out = [c for i in (0, 3, 6) for c in _cross_planes(r[i : i + 3], u, o[i : i + 3])]
-    return _layout.interleave(out, o).unflatten(-1, (3, 3))
-
-
-def _from_matrix_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:
-    # Along a tangent direction R hat(d) the canonical quaternion moves by dq = q (0, d) / 2;
-    # along the normal directions R S (S symmetric) it does not move (the orthogonalisation
-    # step).  So dL/dd = u = vec(conj(q) g) / 2 and G = R hat(u) / 2, the gradient that
-    # autograd gives through the step and Shepperd's formula at a rotation.
-    R, q = saved
-    if torch.is_grad_enabled():  # create_graph: differentiable ops
-        u = 0.25 * _conj_product_vec(q, g)
-        return (torch.linalg.cross(R, u.unsqueeze(-2).expand_as(R), dim=-1),)
-    w, x, y, z = _planes(q, 4)
-    gw, gx, gy, gz = _planes(g, 4)
-    c = _cross_planes((x, y, z), (gx, gy, gz))
-    u = [
-        fma(w * gi, gw, vi, value=-1.0).sub_(ci).mul_(0.25)
-        for gi, vi, ci in zip((gx, gy, gz), (x, y, z), c, strict=True)
-    ]
-    return (_r_hat_values(R, u),)
-
-
-def _from_matrix_jvp(saved: tuple[Tensor, ...], dR: Tensor) -> Tensor:
-    # dq = q (0, d) / 2 with d = vee of the skew part of R^T dR (its symmetric part: no effect).
-    R, q = saved
-    d = _skew_vee(R.transpose(-1, -2) @ dR)
-    return _multiply(q, torch.nn.functional.pad(0.25 * d, (1, 0)))
-
-
-_FromMatrixFn = custom_function(
-    "QuaternionFromMatrix",
-    forward=_from_matrix_forward,
-    save=lambda inputs, out: (inputs[0], out),
-    backward=_from_matrix_backward,
-    jvp=_from_matrix_jvp,
-    event_dims=(2,),
-)
-
-
-def _from_matrix(R: Tensor) -> Tensor:
-    return _FromMatrixFn(R)
-
-
-def _log_of_matrix(R: Tensor) -> Tensor:
-    """Rotation vector of ``R`` (forward of :func:`torchlie.so3.log`; runs without autograd).
-
-    ``2 atan2(|c_v|, |c_w|) c_v / |c_v|`` with the sign of the canonical quaternion, straight
-    from the unnormalised Shepperd candidate ``c`` (atan2 is scale-invariant).  At ``c_v = 0``
-    (the identity) the quotient's denominator is clamped, which gives exactly 0.
-    """
-    return _layout.interleave(_log_of_matrix_components(R))
-
-
-def _log_of_matrix_components(R: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
-    """The three components of :func:`_log_of_matrix` (not stacked; ``R`` as a tensor or its
-    9 planes, row by row)."""
-    return _log_and_cot(R)[0]
-
-
-def _log_and_cot(
-    R: Tensor | Sequence[Tensor], cot: bool = False
-) -> tuple[tuple[Tensor, Tensor, Tensor], Tensor | None, Tensor | None]:
-    """:func:`_log_of_matrix_components`, and with ``cot`` the angle ``theta`` and
-    ``(theta/2) cot(theta/2)`` (the coefficients of ``Jl^-1``).  The rotation vector is
-    ``sign 2 atan2(|c_v|, |c_w|) c_v / |c_v|``, ``|c_v|`` clamped at ``_coeffs.H_MIN`` before
-    the angle and the quotient (which tends to ``2 / |c_w|``; ``phi`` is exactly 0 at
-    ``c_v = 0``) and ``cot(theta/2) = |c_w| / |c_v|``."""
-    cw, cx, cy, cz, sign = _from_matrix_parts(R)
-    nv = fma(fma(cx * cx, cy, cy), cz, cz).sqrt_()
-    nv = nv.clamp_min_(_coeffs.H_MIN[nv.dtype])
-    a = cw.abs()
-    theta = _coeffs.atan2_nonneg(nv, a).mul_(2.0)
-    f = torch.div(theta, nv).mul_(sign)
-    phi = (f * cx, f * cy, f * cz)
-    if not cot:
-        return phi, None, None
-    return phi, theta, a.div_(nv).mul_(theta).mul_(0.5)
+    return _checks.out(_rotation_matrix.to_quaternion(x), dtype)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -602,7 +223,7 @@ def _to_rotvec(q: Tensor) -> Tensor:
 
 
 def _rotvec_of_canonical(q: Tensor) -> Tensor:
-    """:func:`to_rotvec` of a quaternion already in canonical sign (as ``_from_matrix`` returns)."""
+    """:func:`to_rotvec` of a quaternion already in canonical sign (as from_matrix returns it)."""
     w = q[..., :1]
     v = q[..., 1:]
     n = _coeffs.norm(v, keepdim=True)
@@ -616,13 +237,6 @@ def _rotvec_of_canonical(q: Tensor) -> Tensor:
 # ----------------------------------------------------------------------------------------------
 # Shared private helpers
 # ----------------------------------------------------------------------------------------------
-
-
-def _cross(a: Tensor, b: Tensor) -> Tensor:
-    """``a x b`` from components (batch shapes broadcast)."""
-    ax, ay, az = a.unbind(-1)
-    bx, by, bz = b.unbind(-1)
-    return _layout.interleave((ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx))
 
 
 def _pure(v: Tensor) -> Tensor:
@@ -659,7 +273,7 @@ def inverse(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
 
 def _inverse(q: Tensor) -> Tensor:
     u, k = _coeffs.rescaled(q)  # q = k u: q^-1 = conj(u) / |u|^2 / k
-    return _conjugate(u) / _norm2(*u.unbind(-1)).unsqueeze(-1) / k
+    return _conjugate(u) / _components.norm2(*u.unbind(-1)).unsqueeze(-1) / k
 
 
 def apply(q: Float[Tensor, "*b1 4"], points: Float[Tensor, "*b2 3"]) -> Float[Tensor, "*b 3"]:
@@ -685,11 +299,11 @@ def apply(q: Float[Tensor, "*b1 4"], points: Float[Tensor, "*b2 3"]) -> Float[Te
 
 def _apply_values(q: Tensor, p: Tensor) -> Tensor:
     """:func:`apply` from components: ``p + s (w (v x p) + v x (v x p))``, ``s = 2 / |q|^2``."""
-    w, *v = _planes(q, 4)
-    pc = _planes(p, 3)
-    s = 2.0 / _norm2(w, *v)
-    c = _cross_planes(v, pc)
-    vc = _cross_planes(v, c)
+    w, *v = _components.planes(q, 4)
+    pc = _components.planes(p, 3)
+    s = 2.0 / _components.norm2(w, *v)
+    c = _components.cross_planes(v, pc)
+    vc = _components.cross_planes(v, c)
     o = _layout.outputs((w, pc[0]), 3)  # batches may broadcast
     parts = [
         fma(pi, s, fma(vci, w, ci), out=oi) for pi, ci, vci, oi in zip(pc, c, vc, o, strict=True)
@@ -705,7 +319,7 @@ def _apply_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tenso
     if torch.is_grad_enabled():  # create_graph: differentiable ops
         dp = _apply(_conjugate(q), g)
         a = torch.linalg.cross(p.expand_as(dp), dp, dim=-1)
-        # q (0, a) spelled out, not _multiply: its complex form on large batches rounds
+        # q (0, a) spelled out, not _hamilton.multiply: its complex form on large batches rounds
         # differently from its component form on small blocks (ulps, amplified in second order)
         w, v = q[..., :1], q[..., 1:].expand_as(a)
         u = torch.cat(((v * a).sum(-1, keepdim=True).neg(), w * a + torch.linalg.cross(v, a)), -1)
@@ -717,25 +331,25 @@ def _apply_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tenso
 
 def _apply_grads_block(q: Tensor, p: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
     """The plain backward of :func:`apply` from components."""
-    w, *v = _planes(q, 4)
-    pc, gc = _planes(p, 3), _planes(g, 3)
-    s = 2.0 / _norm2(w, *v)
+    w, *v = _components.planes(q, 4)
+    pc, gc = _components.planes(p, 3), _components.planes(g, 3)
+    s = 2.0 / _components.norm2(w, *v)
     like = gc[0]  # the batch shape of the result: q's and p's broadcast
     oq = _layout.outputs(like, 4)
     op = _layout.outputs(like, 3)
     # R^T g = g + s (v x (v x g) - w (v x g))
-    c = _cross_planes(v, gc)
+    c = _components.cross_planes(v, gc)
     dp = [
         fma(gi, s, fma(vci, w, ci, value=-1.0), out=oi)
-        for gi, ci, vci, oi in zip(gc, c, _cross_planes(v, c), op, strict=True)
+        for gi, ci, vci, oi in zip(gc, c, _components.cross_planes(v, c), op, strict=True)
     ]
     # q (0, a) = (-v . a, w a + v x a), times s, with a = p x R^T g
-    a = _cross_planes(pc, dp)
+    a = _components.cross_planes(pc, dp)
     va = fma(fma(v[0] * a[0], v[1], a[1]), v[2], a[2])
     dq = [torch.mul(va, s, out=oq[0]).neg_()]
     dq += [
         torch.mul(fma(ci, w, ai), s, out=oi)
-        for ai, ci, oi in zip(a, _cross_planes(v, a), oq[1:], strict=True)
+        for ai, ci, oi in zip(a, _components.cross_planes(v, a), oq[1:], strict=True)
     ]
     return _layout.interleave(dq, oq), _layout.interleave(dp, op)
 
@@ -748,7 +362,7 @@ def _apply_jvp(saved: tuple[Tensor, ...], dq: Tensor | None, dp: Tensor | None) 
     q, p = saved
     u = torch.zeros_like(p) if dp is None else dp
     if dq is not None:
-        d = _multiply(_conjugate(q), dq)[..., 1:] * (2.0 / (q * q).sum(-1, keepdim=True))
+        d = _hamilton.multiply(_conjugate(q), dq)[..., 1:] * (2.0 / (q * q).sum(-1, keepdim=True))
         d, pb = torch.broadcast_tensors(d, p)
         u = u + torch.linalg.cross(d, pb, dim=-1)
     return _apply_values(q, u)
@@ -862,13 +476,13 @@ def slerp(
 
 def _slerp(q0: Tensor, q1: Tensor, t: Tensor) -> Tensor:
     q0 = _normalize(q0)
-    r = _multiply(_conjugate(q0), _normalize(q1))
+    r = _hamilton.multiply(_conjugate(q0), _normalize(q1))
     rw = r[..., :1]
     r = torch.where(rw < 0, -r, r)
     rw = r[..., :1]
     rv = r[..., 1:]
     half = _coeffs.atan_ratio(_coeffs.norm(rv, keepdim=True), rw) * rv
-    return _multiply(q0, _exp_pure(t.unsqueeze(-1) * half))
+    return _hamilton.multiply(q0, _exp_pure(t.unsqueeze(-1) * half))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1042,7 +656,6 @@ def right_matrix(p: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4 4"]:
     return _checks.out(m, dtype)
 
 
-_COMPLEX = {torch.float32: torch.complex64, torch.float64: torch.complex128}
 _REAL = {torch.complex64: torch.float32, torch.complex128: torch.float64}
 
 
@@ -1134,7 +747,7 @@ def derivative(
     _checks.same_dtype(fn, q=q, omega=omega)
     _checks.batch_broadcast(fn, (a.shape[:-1], "q"), (w.shape[:-1], "omega"))
     p = _pure(0.5 * w)
-    out = _multiply(a, p) if frame == "body" else _multiply(p, a)
+    out = _hamilton.multiply(a, p) if frame == "body" else _hamilton.multiply(p, a)
     return _checks.out(out, dtype)
 
 
@@ -1169,5 +782,5 @@ def integrate(
     h = _checks.real(dt, fn, "dt", a, ("q", q))
     _checks.batch_broadcast(fn, (a.shape[:-1], "q"), (w.shape[:-1], "omega"), (h.shape, "dt"))
     e = _exp_pure((0.5 * h).unsqueeze(-1) * w)
-    out = _multiply(a, e) if frame == "body" else _multiply(e, a)
+    out = _hamilton.multiply(a, e) if frame == "body" else _hamilton.multiply(e, a)
     return _checks.out(out, dtype)

@@ -33,8 +33,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, _layout, so3
-from . import quaternion as _quat
+from . import _checks, _coeffs, _components, _layout, _rotation_matrix, so3
 from ._autograd import blocked, custom_function, fma
 from ._typing import Bool, Float
 
@@ -177,7 +176,7 @@ def _q_apply(
 ) -> Tensor:
     """``Q(rho, phi) v`` (batch shapes broadcast): :func:`_q_components` on planar copies, with
     ``phi`` and its :func:`_q_coeffs`, or ``form = (x, (k1, k2, k3, k4))``."""
-    P = _quat._planes
+    P = _components.planes
     x, ks = (phi, _q_coeffs(phi)) if form is None else form
     return _layout.interleave(_q_components(P(rho, 3), P(x, 3), P(v, 3), *ks))
 
@@ -502,7 +501,7 @@ def _exp_forward(xi: Tensor) -> Tensor:
     xyz, (a, b, c, d) = so3._rodrigues(xi[..., 3:], "abcd")
     o, top = _top_outputs(xyz[0])
     R = so3._exp_entries(xyz, a, b, d, [e for row in top for e in row[:3]])
-    t = so3._jl_components(xyz, _quat._planes(xi[..., :3], 3), a, b, c, [r[3] for r in top])
+    t = so3._jl_components(xyz, _components.planes(xi[..., :3], 3), a, b, c, [r[3] for r in top])
     return _stack_top([(*R[0:3], t[0]), (*R[3:6], t[1]), (*R[6:9], t[2])], out=o)
 
 
@@ -525,7 +524,7 @@ def _exp_backward(saved, G: Tensor):
 
 def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor) -> Tensor:
     """:func:`_exp_backward` from components, forward-only coefficients (plain backward)."""
-    x = _quat._planes(xi, 6)
+    x = _components.planes(xi, 6)
     xyz = x[3:]
     half = _coeffs.half_angle(xyz)
     a, b, c = _coeffs.rodrigues_values(None, "abc", half)
@@ -599,9 +598,9 @@ def _reduced(xi: Tensor) -> Tensor:
 def _log_forward(T: Tensor) -> Tensor:
     """From components, stacked once.  ``Jl(phi)^-1 t`` with the coefficients
     ``e = (theta/2) cot(theta/2)`` and ``D = (1 - e) / theta^2`` from the log's own angle and
-    cotangent (:func:`torchlie.quaternion._log_and_cot`)."""
+    cotangent (:func:`torchlie._rotation_matrix.log_and_cot`)."""
     R, t = _rotation_and_translation(T)  # one transposition of the top block
-    phi, theta, e = _quat._log_and_cot(R, cot=True)
+    phi, theta, e = _rotation_matrix.log_and_cot(R, cot=True)
     d = torch.rsub(e, 1.0).div_(theta.mul_(theta).clamp_min_(_coeffs.H_MIN[T.dtype]))
     rho = so3._jl_components(phi, t, e, e.new_full((), -0.5), d)
     return _layout.interleave((*rho, *phi))
@@ -626,8 +625,8 @@ def _log_backward(saved, g: Tensor):
 
 def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
     """:func:`_log_backward` from components, forward-only coefficients (plain backward)."""
-    x = _quat._planes(xi, 6)
-    gs = _quat._planes(g, 6)
+    x = _components.planes(xi, 6)
+    gs = _components.planes(g, 6)
     half = _coeffs.half_angle(x[3:])  # one sin and cos for the coefficients of Jl^-1 and Q
     qc = _q_values(xi.dtype, half)
     e, d = (v.to(xi.dtype) for v in _coeffs.jl_inv_values(None, half))
@@ -636,7 +635,7 @@ def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
     q = _q_components(x[:3], x[3:], h_rho, *qc)
     v = [(gi - qi).mul_(0.5) for gi, qi in zip(gs[3:], q, strict=True)]
     u = so3._jl_components(x[3:], v, e, minus_half, d)  # h_phi / 2
-    r = _quat._planes(_rot(T), 9)
+    r = _components.planes(_rot(T), 9)
     o, top = _top_outputs(r[0])
     G_R = [so3._cross(r[3 * i : 3 * i + 3], u, top[i][:3]) for i in range(3)]  # rows of R hat(u)
     G_t = [
@@ -976,7 +975,7 @@ def from_pos_quat(x: Float[Tensor, "*b 7"]) -> Float[Tensor, "*b 4 4"]:
                 [ 0.,  0.,  0.,  1.]])
     """
     v, dtype = _checks.tensor(x, _NAME + "from_pos_quat", "x", (7,))
-    return _checks.out(_assemble(_quat._to_matrix(v[..., 3:]), v[..., :3]), dtype)
+    return _checks.out(_assemble(_rotation_matrix.from_quaternion(v[..., 3:]), v[..., :3]), dtype)
 
 
 def to_pos_quat(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 7"]:
@@ -989,7 +988,8 @@ def to_pos_quat(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 7"]:
         tensor([1., 2., 3., 0., 1., 0., 0.])
     """
     x, dtype = _checks.tensor(T, _NAME + "to_pos_quat", "T", (4, 4))
-    return _checks.out(torch.cat((_trans(x), _quat._from_matrix(_rot(x))), dim=-1), dtype)
+    q = _rotation_matrix.to_quaternion(_rot(x))
+    return _checks.out(torch.cat((_trans(x), q), dim=-1), dtype)
 
 
 # ----------------------------------------------------------------------------------------------

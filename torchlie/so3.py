@@ -31,8 +31,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, _layout
-from . import quaternion as _quat
+from . import _checks, _coeffs, _components, _layout, _rotation_matrix
 from ._autograd import blocked, custom_function, fma
 from ._typing import Bool, Float
 
@@ -86,7 +85,7 @@ def _hat(w: Tensor) -> Tensor:
 
 def _vee(M: Tensor) -> Tensor:
     """vee of the skew-symmetric part, ``((M - M^T)/2)^v``."""
-    return 0.5 * _quat._skew_vee(M)
+    return 0.5 * _components.skew_vee(M)
 
 
 def _abc_matrix(a: Tensor, b: Tensor, c: Tensor, w: Tensor) -> Tensor:
@@ -126,7 +125,7 @@ def _rodrigues(w: Tensor, parts: str = "abcd") -> tuple[tuple[Tensor, ...], tupl
     """Planes ``(x, y, z)`` of ``w`` and the coefficients ``parts`` of
     :func:`_coeffs.rodrigues_values` in ``w``'s dtype (forward-only)."""
     values = _coeffs.rodrigues_values(w, parts)
-    return _quat._planes(w, 3), tuple(v.to(w.dtype) for v in values)
+    return _components.planes(w, 3), tuple(v.to(w.dtype) for v in values)
 
 
 def _exp_entries(
@@ -159,7 +158,7 @@ def _exp(w: Tensor) -> Tensor:
 
 def _log(R: Tensor) -> Tensor:
     """Forward of :func:`log` (runs without autograd)."""
-    return _quat._log_of_matrix(R)
+    return _rotation_matrix.log(R)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -167,7 +166,7 @@ def _log(R: Tensor) -> Tensor:
 # ----------------------------------------------------------------------------------------------
 
 
-_rt_g_vee = _quat._rt_g_vee
+_rt_g_vee = _components.rt_g_vee
 
 
 def _jl_components(
@@ -248,14 +247,14 @@ def _jl_inv_apply_values(
     """Components of ``Jl(w)^-1 v = e v - (w x v)/2 + D (w . v) w`` for ``w`` of angle at most
     pi (a log's); forward-only.  ``w`` and ``v`` as ``(..., 3)`` tensors or as their three
     components."""
-    wc = _quat._planes(w, 3)
+    wc = _components.planes(w, 3)
     e, d = (t.to(wc[0].dtype) for t in _coeffs.jl_inv_values(wc))
-    out = _jl_components(wc, _quat._planes(v, 3), e, e.new_full((), -0.5), d)
+    out = _jl_components(wc, _components.planes(v, 3), e, e.new_full((), -0.5), d)
     return out[0], out[1], out[2]
 
 
-_cross = _quat._cross_planes
-_r_hat_values = _quat._r_hat_values
+_cross = _components.cross_planes
+_r_hat_values = _components.r_hat_values
 
 
 def _log_backward(saved, g: Tensor):
@@ -567,7 +566,7 @@ def random(
     """
     compute, dtype = _checks.factory(_NAME + "random", batch, dtype)
     q = torch.randn(*batch, 4, generator=generator, dtype=compute, device=device)
-    return _checks.out(_quat._to_matrix(q), dtype)
+    return _checks.out(_rotation_matrix.from_quaternion(q), dtype)
 
 
 def is_valid(R: Float[Tensor, "*b 3 3"], atol: float | None = None) -> Bool[Tensor, "*b"]:

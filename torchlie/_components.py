@@ -1,0 +1,81 @@
+"""Small vector and matrix algebra written component by component, shared by the kernels of
+:mod:`torchlie.quaternion`, :mod:`torchlie.so3` and :mod:`torchlie.se3`.
+
+The kernels read their inputs as planes (one tensor per component, :func:`planes`) and spell
+out cross products, matrix-vector products and the like from those planes, in multiply-adds:
+an element's result rounds alike whatever the batch around it (see :mod:`torchlie._layout`).
+These helpers are the pieces every module needs; they live here, below all of them, so that no
+module reaches into another's privates for them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from torch import Tensor
+
+from . import _layout
+from ._autograd import fma
+
+
+def planes(M: Tensor | Sequence[Tensor], n: int) -> tuple[Tensor, ...]:
+    """The ``n`` trailing entries of ``M`` as contiguous planes (see :func:`_layout.planes`);
+    ``n = 9``: a 3x3 matrix read row by row.  ``M`` given as its planes already: those (the
+    callers that read several blocks of one matrix transpose it once)."""
+    if not isinstance(M, Tensor):
+        return tuple(M)
+    return _layout.planes(M, (3, 3) if n == 9 else n)
+
+
+def norm2(w: Tensor, x: Tensor, y: Tensor, z: Tensor) -> Tensor:
+    """``w^2 + x^2 + y^2 + z^2`` from components (multiply-adds, left to right)."""
+    return fma(fma(fma(w * w, x, x), y, y), z, z)
+
+
+def cross_planes(
+    a: Sequence[Tensor], b: Sequence[Tensor], out: Sequence[Tensor | None] = (None,) * 3
+) -> tuple[Tensor, Tensor, Tensor]:
+    """``a x b`` from components (planes, written to ``out``)."""
+    ax, ay, az = a
+    bx, by, bz = b
+    return (
+        fma(ay * bz, az, by, value=-1.0, out=out[0]),
+        fma(az * bx, ax, bz, value=-1.0, out=out[1]),
+        fma(ax * by, ay, bx, value=-1.0, out=out[2]),
+    )
+
+
+def skew_vee(M: Tensor) -> Tensor:
+    """``vee(M - M^T)`` (twice the vee of the skew part of ``M``), differentiable."""
+    return _layout.interleave(
+        (M[..., 2, 1] - M[..., 1, 2], M[..., 0, 2] - M[..., 2, 0], M[..., 1, 0] - M[..., 0, 1]),
+    )
+
+
+def rt_g_vee(
+    R: Tensor | Sequence[Tensor], G: Tensor | Sequence[Tensor]
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Components of ``vee(R^T G - G^T R)`` (the full vee: twice that of the skew part; each
+    matrix as a tensor or its 9 planes).
+
+    ``= sum_k cross(G_k, R_k)`` over the rows, from components (no batched 3x3 product).
+    """
+    r = planes(R, 9)
+    g = planes(G, 9)
+    out = []
+    for i, j in ((1, 2), (2, 0), (0, 1)):
+        acc = g[i] * r[j]
+        for k in (3, 6):
+            acc = fma(acc, g[k + i], r[k + j])
+        for k in (0, 3, 6):
+            acc = fma(acc, g[k + j], r[k + i], value=-1.0)
+        out.append(acc)
+    return out[0], out[1], out[2]
+
+
+def r_hat_values(R: Tensor, u: Sequence[Tensor]) -> Tensor:
+    """``R hat(u)`` from components: row ``i`` is ``cross(R_i, u)``."""
+    r = planes(R, 9)
+    o = _layout.outputs(r[0], 9)
+    out = [c for i in (0, 3, 6) for c in cross_planes(r[i : i + 3], u, o[i : i + 3])]
+    return _layout.interleave(out, o).unflatten(-1, (3, 3))
