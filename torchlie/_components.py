@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import torch
 from torch import Tensor
 
 from . import _layout
@@ -43,6 +44,26 @@ def cross_planes(
         fma(az * bx, ax, bz, value=-1.0, out=out[1]),
         fma(ax * by, ay, bx, value=-1.0, out=out[2]),
     )
+
+
+def mv(M: Tensor, v: Tensor) -> Tensor:
+    """``M @ v`` for a batch of matrices and vectors (batch shapes broadcast), column by
+    column: each element's result is summed alike whatever the batch around it."""
+    out = M[..., 0] * v[..., :1]
+    out = fma(out, M[..., 1], v[..., 1:2])
+    return fma(out, M[..., 2], v[..., 2:3])
+
+
+def hat(w: Tensor) -> Tensor:
+    """The skew-symmetric matrix of ``w`` (``hat(w) @ v == cross(w, v)``)."""
+    x, y, z = w.unbind(-1)
+    o = torch.zeros_like(x)
+    return _layout.interleave((o, -z, y, z, o, -x, -y, x, o)).unflatten(-1, (3, 3))
+
+
+def vee(M: Tensor) -> Tensor:
+    """vee of the skew-symmetric part, ``((M - M^T)/2)^v``."""
+    return 0.5 * skew_vee(M)
 
 
 def skew_vee(M: Tensor) -> Tensor:

@@ -1,5 +1,5 @@
-"""Rotation matrices and unit quaternions, each from the other, and the rotation vector of a
-matrix: the kernels that :mod:`torchlie.quaternion`, :mod:`torchlie.so3` and
+"""Rotation matrices and unit quaternions, each from the other, and the rotation vector and
+angle of a matrix: the kernels that :mod:`torchlie.quaternion`, :mod:`torchlie.so3` and
 :mod:`torchlie.se3` share.
 
 :func:`from_quaternion` and :func:`to_quaternion` (Shepperd's method after one
@@ -18,7 +18,7 @@ from torch import Tensor
 
 from . import _coeffs, _layout
 from ._autograd import blocked, custom_function, fma
-from ._components import cross_planes, norm2, planes, r_hat_values, rt_g_vee, skew_vee
+from ._components import cross_planes, norm2, planes, r_hat_values, rt_g_vee, skew_vee, vee
 from ._hamilton import conj_product_vec, multiply
 
 # ----------------------------------------------------------------------------------------------
@@ -253,3 +253,10 @@ def log_and_cot(
     if not cot:
         return phi, None, None
     return phi, theta, a.div_(nv).mul_(theta).mul_(0.5)
+
+
+def angle(M: Tensor) -> Tensor:
+    """Rotation angle of ``M`` as ``atan2(|skew|, (tr - 1)/2)``: accurate at 0 and at pi."""
+    s = _coeffs.norm(vee(M))
+    c = 0.5 * (M[..., 0, 0] + M[..., 1, 1] + M[..., 2, 2] - 1.0)
+    return _coeffs.atan2(s, c)

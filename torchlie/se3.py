@@ -33,7 +33,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, _components, _layout, _rotation_matrix, so3
+from . import _checks, _coeffs, _components, _layout, _rodrigues, _rotation_matrix, so3
 from ._autograd import blocked, custom_function, fma
 from ._typing import Bool, Float
 
@@ -89,7 +89,7 @@ def _trans(T: Tensor) -> Tensor:
     return T[..., :3, 3]
 
 
-_mv = so3._mv
+_mv = _components.mv
 
 
 def _assemble(R: Tensor, t: Tensor) -> Tensor:
@@ -111,7 +111,7 @@ def _blocks(A: Tensor, B: Tensor, C: Tensor, D: Tensor) -> Tensor:
 
 def _hat(xi: Tensor) -> Tensor:
     rho, phi = xi[..., :3], xi[..., 3:]
-    top = torch.cat((so3._hat(phi), rho.unsqueeze(-1)), dim=-1)
+    top = torch.cat((_components.hat(phi), rho.unsqueeze(-1)), dim=-1)
     return torch.cat((top, torch.zeros_like(top[..., :1, :])), dim=-2)
 
 
@@ -157,14 +157,18 @@ def _q_components(
     ``r(y) = rho^ y``, the terms group as ``r(v)/2 + k1 r(a) + k3 r(b) + x^ (k1 r(v) + k2 r(a)
     + k4 r(b) + x^ (k3 r(v) + k4 r(a)))``.
     """
-    a = so3._cross(x, v)
-    b = so3._cross(x, a)
-    rv, ra, rb = so3._cross(rho, v), so3._cross(rho, a), so3._cross(rho, b)
-    inner = so3._cross(x, [fma(k3 * p, k4, q) for p, q in zip(rv, ra, strict=True)])
+    a = _components.cross_planes(x, v)
+    b = _components.cross_planes(x, a)
+    rv, ra, rb = (
+        _components.cross_planes(rho, v),
+        _components.cross_planes(rho, a),
+        _components.cross_planes(rho, b),
+    )
+    inner = _components.cross_planes(x, [fma(k3 * p, k4, q) for p, q in zip(rv, ra, strict=True)])
     mid = [
         fma(fma(fma(i, k1, p), k2, q), k4, r) for p, q, r, i in zip(rv, ra, rb, inner, strict=True)
     ]
-    outer = so3._cross(x, mid)
+    outer = _components.cross_planes(x, mid)
     return [
         fma(fma(o.add(p, alpha=0.5), k1, q), k3, r)
         for p, q, r, o in zip(rv, ra, rb, outer, strict=True)
@@ -213,13 +217,13 @@ def _q_form(phi: Tensor) -> tuple[Tensor, tuple[Tensor, Tensor, Tensor, Tensor]]
 
 def _jac_left(xi: Tensor) -> Tensor:
     rho, phi = xi[..., :3], xi[..., 3:]
-    A = so3._jac_matrix(phi, "left")
+    A = _rodrigues.jac_matrix(phi, "left")
     return _blocks(A, _q_matrix(rho, phi), torch.zeros_like(A), A)
 
 
 def _jac_left_inv(xi: Tensor) -> Tensor:
     rho, phi = xi[..., :3], xi[..., 3:]
-    Ai = so3._jac_matrix(phi, "left_inv")
+    Ai = _rodrigues.jac_matrix(phi, "left_inv")
     B = -(Ai @ _q_matrix(rho, phi) @ Ai)
     return _blocks(Ai, B, torch.zeros_like(Ai), Ai)
 
@@ -227,19 +231,19 @@ def _jac_left_inv(xi: Tensor) -> Tensor:
 def _jl_inv_apply(xi: Tensor, v: Tensor) -> Tensor:
     """``Jl(xi)^-1 v`` without a matrix."""
     rho, phi = xi[..., :3], xi[..., 3:]
-    u_phi = so3._jl_inv_apply(phi, v[..., 3:])
-    u_rho = so3._jl_inv_apply(phi, v[..., :3] - _q_apply(rho, phi, u_phi))
+    u_phi = _rodrigues.jl_inv_apply(phi, v[..., 3:])
+    u_rho = _rodrigues.jl_inv_apply(phi, v[..., :3] - _q_apply(rho, phi, u_phi))
     return torch.cat((u_rho, u_phi), dim=-1)
 
 
 def _adjoint(T: Tensor) -> Tensor:
     R, t = _rot(T), _trans(T)
-    return _blocks(R, so3._hat(t) @ R, torch.zeros_like(R), R)
+    return _blocks(R, _components.hat(t) @ R, torch.zeros_like(R), R)
 
 
 def _ad(xi: Tensor) -> Tensor:
-    P = so3._hat(xi[..., 3:])
-    return _blocks(P, so3._hat(xi[..., :3]), torch.zeros_like(P), P)
+    P = _components.hat(xi[..., 3:])
+    return _blocks(P, _components.hat(xi[..., :3]), torch.zeros_like(P), P)
 
 
 def _between(A: Tensor, B: Tensor) -> Tensor:
@@ -498,10 +502,12 @@ def _exp_forward(xi: Tensor) -> Tensor:
     """``[[Exp(phi), Jl(phi) rho], [0, 1]]`` from components, one set of coefficients for both
     blocks (runs without autograd: forward-only coefficients); the rotation block is
     :func:`torchlie.so3.exp`'s, bit for bit."""
-    xyz, (a, b, c, d) = so3._rodrigues(xi[..., 3:], "abcd")
+    xyz, (a, b, c, d) = _rodrigues.coefficients(xi[..., 3:], "abcd")
     o, top = _top_outputs(xyz[0])
-    R = so3._exp_entries(xyz, a, b, d, [e for row in top for e in row[:3]])
-    t = so3._jl_components(xyz, _components.planes(xi[..., :3], 3), a, b, c, [r[3] for r in top])
+    R = _rodrigues.exp_entries(xyz, a, b, d, [e for row in top for e in row[:3]])
+    t = _rodrigues.jl_components(
+        xyz, _components.planes(xi[..., :3], 3), a, b, c, [r[3] for r in top]
+    )
     return _stack_top([(*R[0:3], t[0]), (*R[3:6], t[1]), (*R[6:9], t[2])], out=o)
 
 
@@ -516,9 +522,9 @@ def _exp_backward(saved, G: Tensor):
     rho, phi = xi[..., :3], xi[..., 3:]  # create_graph: differentiable ops
     R, t = _rot(T), _trans(T)
     g_R, g_t = _rot(G), _trans(G)
-    g_rho = so3._jl_apply(phi, g_t, sign=-1.0)
-    g_phi = so3._jl_apply(phi, 2.0 * so3._vee(R.transpose(-1, -2) @ g_R))
-    g_phi = g_phi + so3._jl_apply(phi, torch.linalg.cross(t, g_t, dim=-1), sign=-1.0)
+    g_rho = _rodrigues.jl_apply(phi, g_t, sign=-1.0)
+    g_phi = _rodrigues.jl_apply(phi, 2.0 * _components.vee(R.transpose(-1, -2) @ g_R))
+    g_phi = g_phi + _rodrigues.jl_apply(phi, torch.linalg.cross(t, g_t, dim=-1), sign=-1.0)
     return (torch.cat((g_rho, g_phi + _q_apply(-rho, -phi, g_t)), dim=-1),)
 
 
@@ -533,10 +539,10 @@ def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor) -> Tensor:
     R, t = _rotation_and_translation(T)
     G_R, g_t = _rotation_and_translation(G)
     o = _layout.outputs(x[0], 6)
-    g_rho = so3._jl_components(xyz, g_t, a, -b, c, o[:3])
-    u = so3._rt_g_vee(R, G_R)
-    g_phi = so3._jl_components(xyz, u, a, b, c)
-    g_tx = so3._jl_components(xyz, so3._cross(t, g_t), a, -b, c)
+    g_rho = _rodrigues.jl_components(xyz, g_t, a, -b, c, o[:3])
+    u = _components.rt_g_vee(R, G_R)
+    g_phi = _rodrigues.jl_components(xyz, u, a, b, c)
+    g_tx = _rodrigues.jl_components(xyz, _components.cross_planes(t, g_t), a, -b, c)
     neg = [-v for v in x]
     q = _q_components(neg[:3], neg[3:], g_t, *qc)
     g_phi = [
@@ -552,9 +558,9 @@ def _exp_jvp(saved, dxi: Tensor) -> Tensor:
     # dT = [[e_phi^ R, e_phi^ t + e_rho], [0, 0]] with (e_rho, e_phi) = J_left(xi) dxi.
     xi, T = saved
     rho, phi = xi[..., :3], xi[..., 3:]
-    e_phi = so3._jl_apply(phi, dxi[..., 3:])
-    e_rho = so3._jl_apply(phi, dxi[..., :3]) + _q_apply(rho, phi, dxi[..., 3:])
-    dR = so3._hat(e_phi) @ _rot(T)
+    e_phi = _rodrigues.jl_apply(phi, dxi[..., 3:])
+    e_rho = _rodrigues.jl_apply(phi, dxi[..., :3]) + _q_apply(rho, phi, dxi[..., 3:])
+    dR = _components.hat(e_phi) @ _rot(T)
     dt = torch.linalg.cross(e_phi, _trans(T), dim=-1) + e_rho
     return _pad_row(torch.cat((dR, dt.unsqueeze(-1)), dim=-1))
 
@@ -602,7 +608,7 @@ def _log_forward(T: Tensor) -> Tensor:
     R, t = _rotation_and_translation(T)  # one transposition of the top block
     phi, theta, e = _rotation_matrix.log_and_cot(R, cot=True)
     d = torch.rsub(e, 1.0).div_(theta.mul_(theta).clamp_min_(_coeffs.H_MIN[T.dtype]))
-    rho = so3._jl_components(phi, t, e, e.new_full((), -0.5), d)
+    rho = _rodrigues.jl_components(phi, t, e, e.new_full((), -0.5), d)
     return _layout.interleave((*rho, *phi))
 
 
@@ -616,9 +622,9 @@ def _log_backward(saved, g: Tensor):
         return (_log_grad_values(T, xi, g),)
     R = _rot(T)  # create_graph: differentiable ops
     rho, phi = xi[..., :3], xi[..., 3:]
-    h_rho = so3._jl_inv_apply(phi, g[..., :3])
-    h_phi = so3._jl_inv_apply(phi, g[..., 3:] - _q_apply(rho, phi, h_rho))
-    G_R = 0.5 * (R @ so3._hat(h_phi))
+    h_rho = _rodrigues.jl_inv_apply(phi, g[..., :3])
+    h_phi = _rodrigues.jl_inv_apply(phi, g[..., 3:] - _q_apply(rho, phi, h_rho))
+    G_R = 0.5 * (R @ _components.hat(h_phi))
     top = torch.cat((G_R, _mv(R, h_rho).unsqueeze(-1)), dim=-1)
     return (torch.cat((top, torch.zeros_like(top[..., :1, :])), dim=-2),)
 
@@ -631,13 +637,15 @@ def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
     qc = _q_values(xi.dtype, half)
     e, d = (v.to(xi.dtype) for v in _coeffs.jl_inv_values(None, half))
     minus_half = e.new_full((), -0.5)
-    h_rho = so3._jl_components(x[3:], gs[:3], e, minus_half, d)
+    h_rho = _rodrigues.jl_components(x[3:], gs[:3], e, minus_half, d)
     q = _q_components(x[:3], x[3:], h_rho, *qc)
     v = [(gi - qi).mul_(0.5) for gi, qi in zip(gs[3:], q, strict=True)]
-    u = so3._jl_components(x[3:], v, e, minus_half, d)  # h_phi / 2
+    u = _rodrigues.jl_components(x[3:], v, e, minus_half, d)  # h_phi / 2
     r = _components.planes(_rot(T), 9)
     o, top = _top_outputs(r[0])
-    G_R = [so3._cross(r[3 * i : 3 * i + 3], u, top[i][:3]) for i in range(3)]  # rows of R hat(u)
+    G_R = [
+        _components.cross_planes(r[3 * i : 3 * i + 3], u, top[i][:3]) for i in range(3)
+    ]  # rows of R hat(u)
     G_t = [
         fma(fma(r[i] * h_rho[0], r[i + 1], h_rho[1]), r[i + 2], h_rho[2], out=oi[3])
         for i, oi in zip((0, 3, 6), top, strict=True)
@@ -651,7 +659,7 @@ _log_grad_values = blocked(_log_backward_values, (2, 1, 1))
 def _log_jvp(saved, dT: Tensor) -> Tensor:
     T, xi = saved
     Rt = _rot(T).transpose(-1, -2)
-    v = torch.cat((_mv(Rt, _trans(dT)), so3._vee(Rt @ _rot(dT))), dim=-1)
+    v = torch.cat((_mv(Rt, _trans(dT)), _components.vee(Rt @ _rot(dT))), dim=-1)
     return _jl_inv_apply(-xi, v)  # Jr(xi)^-1 v
 
 
@@ -689,7 +697,7 @@ def vee(Xi: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 6"]:
         tensor([1., 2., 3., 4., 5., 6.])
     """
     x, dtype = _checks.tensor(Xi, _NAME + "vee", "Xi", (4, 4))
-    return _checks.out(torch.cat((_trans(x), so3._vee(_rot(x))), dim=-1), dtype)
+    return _checks.out(torch.cat((_trans(x), _components.vee(_rot(x))), dim=-1), dtype)
 
 
 def exp(xi: Float[Tensor, "*b 6"]) -> Float[Tensor, "*b 4 4"]:
@@ -1037,7 +1045,7 @@ def distance(
         (tensor(0.3000), tensor(5.))
     """
     a, b, dtype, _ = _pair("distance", T1, T2, "T1", "T2")
-    angle = so3._angle(_rot(a).transpose(-1, -2) @ _rot(b))
+    angle = _rotation_matrix.angle(_rot(a).transpose(-1, -2) @ _rot(b))
     trans = _coeffs.norm(_trans(b) - _trans(a))
     trans = trans.expand(angle.shape)
     return _checks.out(angle, dtype), _checks.out(trans, dtype)
@@ -1160,7 +1168,7 @@ def jac_act(
     """
     x, p, dtype, batch = _pair("jac_act", T, points, "T", "points", tb=(3,))
     R = _rot(x).expand(*batch, 3, 3)
-    JT = torch.cat((R, -(R @ so3._hat(p))), dim=-1)
+    JT = torch.cat((R, -(R @ _components.hat(p))), dim=-1)
     return _checks.out(JT, dtype), _checks.out(R.clone(), dtype)
 
 

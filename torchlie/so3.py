@@ -26,13 +26,11 @@ matrices through :func:`project` first.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, _components, _layout, _rotation_matrix
-from ._autograd import blocked, custom_function, fma
+from . import _checks, _coeffs, _components, _layout, _rodrigues, _rotation_matrix
+from ._autograd import blocked, custom_function
 from ._typing import Bool, Float
 
 __all__ = [
@@ -73,135 +71,15 @@ _NAME = "torchlie.so3."
 
 
 # ----------------------------------------------------------------------------------------------
-# Component helpers (private; shared with se3)
-# ----------------------------------------------------------------------------------------------
-
-
-def _hat(w: Tensor) -> Tensor:
-    x, y, z = w.unbind(-1)
-    o = torch.zeros_like(x)
-    return _layout.interleave((o, -z, y, z, o, -x, -y, x, o)).unflatten(-1, (3, 3))
-
-
-def _vee(M: Tensor) -> Tensor:
-    """vee of the skew-symmetric part, ``((M - M^T)/2)^v``."""
-    return 0.5 * _components.skew_vee(M)
-
-
-def _abc_matrix(a: Tensor, b: Tensor, c: Tensor, w: Tensor) -> Tensor:
-    """``a I + b hat(w) + c w w^T`` from components (``a, b, c`` of shape ``w.shape[:-1]``)."""
-    x, y, z = w.unbind(-1)
-    cx, cy, cz = c * x, c * y, c * z
-    bx, by, bz = b * x, b * y, b * z
-    cxy, cxz, cyz = cx * y, cx * z, cy * z
-    return _layout.interleave(
-        (
-            a + cx * x, cxy - bz, cxz + by,
-            cxy + bz, a + cy * y, cyz - bx,
-            cxz - by, cyz + bx, a + cz * z,
-        ),
-    ).unflatten(-1, (3, 3))  # fmt: skip
-
-
-def _jl_apply(w: Tensor, v: Tensor, sign: float = 1.0) -> Tensor:
-    """``Jl(w) v`` (``sign=1``) or ``Jr(w) v = Jl(-w) v`` (``sign=-1``), without a matrix."""
-    t2 = _coeffs.theta2(w, keepdim=True)
-    b, c = _coeffs.cosc(t2).to(w.dtype), _coeffs.sinc3(t2).to(w.dtype)
-    wxv = torch.linalg.cross(w, v, dim=-1)
-    wxwxv = torch.linalg.cross(w, wxv, dim=-1)
-    return v + sign * b * wxv + c * wxwxv
-
-
-def _jl_inv_apply(w: Tensor, v: Tensor, sign: float = 1.0) -> Tensor:
-    """``Jl(w)^-1 v`` (``sign=1``) or ``Jr(w)^-1 v`` (``sign=-1``), without a matrix."""
-    t2 = _coeffs.theta2(w, keepdim=True)
-    d = _coeffs.jinv(t2).to(w.dtype)
-    wxv = torch.linalg.cross(w, v, dim=-1)
-    wxwxv = torch.linalg.cross(w, wxv, dim=-1)
-    return v - sign * 0.5 * wxv + d * wxwxv
-
-
-def _rodrigues(w: Tensor, parts: str = "abcd") -> tuple[tuple[Tensor, ...], tuple[Tensor, ...]]:
-    """Planes ``(x, y, z)`` of ``w`` and the coefficients ``parts`` of
-    :func:`_coeffs.rodrigues_values` in ``w``'s dtype (forward-only)."""
-    values = _coeffs.rodrigues_values(w, parts)
-    return _components.planes(w, 3), tuple(v.to(w.dtype) for v in values)
-
-
-def _exp_entries(
-    xyz: Sequence[Tensor],
-    a: Tensor,
-    b: Tensor,
-    d: Tensor,
-    out: Sequence[Tensor | None] = (None,) * 9,
-) -> list[Tensor]:
-    """The 9 entries (row by row) of ``d I + a hat(w) + b w w^T`` from components (written to
-    ``out``)."""
-    x, y, z = xyz
-    bx, by, bz = b * x, b * y, b * z
-    ax, ay, az = a * x, a * y, a * z
-    bxy, bxz, byz = bx * y, bx * z, by * z
-    o, add, sub = out, torch.add, torch.sub
-    return [
-        fma(d, bx, x, out=o[0]), sub(bxy, az, out=o[1]), add(bxz, ay, out=o[2]),
-        add(bxy, az, out=o[3]), fma(d, by, y, out=o[4]), sub(byz, ax, out=o[5]),
-        sub(bxz, ay, out=o[6]), add(byz, ax, out=o[7]), fma(d, bz, z, out=o[8]),
-    ]  # fmt: skip
-
-
-def _exp(w: Tensor) -> Tensor:
-    """Forward of :func:`exp` (runs without autograd: forward-only coefficients)."""
-    xyz, (a, b, d) = _rodrigues(w, "abd")
-    o = _layout.outputs(xyz[0], 9)
-    return _layout.interleave(_exp_entries(xyz, a, b, d, o), o).unflatten(-1, (3, 3))
-
-
-def _log(R: Tensor) -> Tensor:
-    """Forward of :func:`log` (runs without autograd)."""
-    return _rotation_matrix.log(R)
-
-
-# ----------------------------------------------------------------------------------------------
 # exp / log with closed-form derivatives
 # ----------------------------------------------------------------------------------------------
 
 
-_rt_g_vee = _components.rt_g_vee
-
-
-def _jl_components(
-    xyz: Sequence[Tensor],
-    v: Sequence[Tensor],
-    a: Tensor,
-    b: Tensor,
-    c: Tensor,
-    out: Sequence[Tensor | None] = (None,) * 3,
-) -> list[Tensor]:
-    """Components of ``a v + b (w x v) + c (w . v) w`` (``w = xyz``, ``v`` by components;
-    written to ``out``)."""
-    x, y, z = xyz
-    p, q, r = v
-    cwv = c * fma(fma(x * p, y, q), z, r)
-    result = []
-    for vi, wi, (w1, v2), (w2, v1), o in (
-        (p, x, (y, r), (z, q), out[0]),
-        (q, y, (z, p), (x, r), out[1]),
-        (r, z, (x, q), (y, p), out[2]),
-    ):
-        cross = fma(w1 * v2, w2, v1, value=-1.0)
-        result.append(fma(fma(a * vi, b, cross), cwv, wi, out=o))
-    return result
-
-
-def _jl_apply_values(w: Tensor, v: tuple[Tensor, ...], sign: float = 1.0) -> Tensor:
-    """``Jl(w) v`` (``sign=1``) or ``Jr(w) v`` (``sign=-1``) from components; forward-only.
-
-    ``Jl(w) v = a v + b (w x v) + c (w . v) w`` with :func:`torchlie._coeffs.rodrigues_values`
-    (not differentiable: backward passes without ``create_graph`` only).
-    """
-    xyz, (a, b, c) = _rodrigues(w, "abc")
-    o = _layout.outputs(xyz[0], 3)
-    return _layout.interleave(_jl_components(xyz, v, a, b if sign > 0 else -b, c, o), o)
+def _exp(w: Tensor) -> Tensor:
+    """Forward of :func:`exp` (runs without autograd: forward-only coefficients)."""
+    xyz, (a, b, d) = _rodrigues.coefficients(w, "abd")
+    o = _layout.outputs(xyz[0], 9)
+    return _layout.interleave(_rodrigues.exp_entries(xyz, a, b, d, o), o).unflatten(-1, (3, 3))
 
 
 def _exp_backward(saved, g: Tensor):
@@ -209,12 +87,12 @@ def _exp_backward(saved, g: Tensor):
     # dL/dw = Jl(w) vee(R^T G - G^T R) (full vee, i.e. twice the skew part's)
     if torch.is_grad_enabled():  # create_graph: differentiable ops
         M = R.transpose(-1, -2) @ g
-        return (_jl_apply(w, 2.0 * _vee(M)),)
+        return (_rodrigues.jl_apply(w, 2.0 * _components.vee(M)),)
     return (_exp_grad_values(w, R, g),)
 
 
 def _exp_grad_values_block(w: Tensor, R: Tensor, g: Tensor) -> Tensor:
-    return _jl_apply_values(w, _rt_g_vee(R, g))
+    return _rodrigues.jl_apply_values(w, _components.rt_g_vee(R, g))
 
 
 _exp_grad_values = blocked(_exp_grad_values_block, (1, 2, 2))
@@ -222,7 +100,7 @@ _exp_grad_values = blocked(_exp_grad_values_block, (1, 2, 2))
 
 def _exp_jvp(saved, dw: Tensor) -> Tensor:
     w, R = saved
-    return R @ _hat(_jl_apply(w, dw, sign=-1.0))
+    return R @ _components.hat(_rodrigues.jl_apply(w, dw, sign=-1.0))
 
 
 _ExpMapFn = custom_function(
@@ -241,32 +119,21 @@ def _ExpFn(w: Tensor) -> Tensor:
     return _ExpMapFn(_coeffs.reduced(w))
 
 
-def _jl_inv_apply_values(
-    w: Tensor | Sequence[Tensor], v: Tensor | Sequence[Tensor]
-) -> tuple[Tensor, Tensor, Tensor]:
-    """Components of ``Jl(w)^-1 v = e v - (w x v)/2 + D (w . v) w`` for ``w`` of angle at most
-    pi (a log's); forward-only.  ``w`` and ``v`` as ``(..., 3)`` tensors or as their three
-    components."""
-    wc = _components.planes(w, 3)
-    e, d = (t.to(wc[0].dtype) for t in _coeffs.jl_inv_values(wc))
-    out = _jl_components(wc, _components.planes(v, 3), e, e.new_full((), -0.5), d)
-    return out[0], out[1], out[2]
-
-
-_cross = _components.cross_planes
-_r_hat_values = _components.r_hat_values
+def _log(R: Tensor) -> Tensor:
+    """Forward of :func:`log` (runs without autograd)."""
+    return _rotation_matrix.log(R)
 
 
 def _log_backward(saved, g: Tensor):
     R, w = saved
     # Gradient of log o polar: G = R hat(Jl^-1(w) g) / 2 (tangent part only).
     if torch.is_grad_enabled():  # create_graph: differentiable ops
-        return (0.5 * (R @ _hat(_jl_inv_apply(w, g))),)
+        return (0.5 * (R @ _components.hat(_rodrigues.jl_inv_apply(w, g))),)
     return (_log_grad_values(R, w, g),)
 
 
 def _log_grad_values_block(R: Tensor, w: Tensor, g: Tensor) -> Tensor:
-    return _r_hat_values(R, _jl_inv_apply_values(w, 0.5 * g))
+    return _components.r_hat_values(R, _rodrigues.jl_inv_apply_values(w, 0.5 * g))
 
 
 _log_grad_values = blocked(_log_grad_values_block, (2, 1, 1))
@@ -274,7 +141,7 @@ _log_grad_values = blocked(_log_grad_values_block, (2, 1, 1))
 
 def _log_jvp(saved, dR: Tensor) -> Tensor:
     R, w = saved
-    return _jl_inv_apply(w, _vee(R.transpose(-1, -2) @ dR), sign=-1.0)
+    return _rodrigues.jl_inv_apply(w, _components.vee(R.transpose(-1, -2) @ dR), sign=-1.0)
 
 
 _LogFn = custom_function(
@@ -297,7 +164,7 @@ def hat(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
                 [-2.,  1.,  0.]])
     """
     x, dtype = _checks.tensor(omega, _NAME + "hat", "omega", (3,))
-    return _checks.out(_hat(x), dtype)
+    return _checks.out(_components.hat(x), dtype)
 
 
 def vee(Omega: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3"]:
@@ -308,7 +175,7 @@ def vee(Omega: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3"]:
         tensor([1., 2., 3.])
     """
     x, dtype = _checks.tensor(Omega, _NAME + "vee", "Omega", (3, 3))
-    return _checks.out(_vee(x), dtype)
+    return _checks.out(_components.vee(x), dtype)
 
 
 def exp(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
@@ -406,17 +273,9 @@ def act(R: Float[Tensor, "*b1 3 3"], points: Float[Tensor, "*b2 3"]) -> Float[Te
     return _checks.out(_ActFn(a, p), dtype)
 
 
-def _mv(M: Tensor, v: Tensor) -> Tensor:
-    """``M @ v`` for a batch of matrices and vectors (batch shapes broadcast), column by
-    column: each element's result is summed alike whatever the batch around it."""
-    out = M[..., 0] * v[..., :1]
-    out = fma(out, M[..., 1], v[..., 1:2])
-    return fma(out, M[..., 2], v[..., 2:3])
-
-
 def _act_grads(R: Tensor, p: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
     """``dR = g p^T``, ``dp = R^T g``."""
-    return g.unsqueeze(-1) * p.unsqueeze(-2), _mv(R.transpose(-1, -2), g)
+    return g.unsqueeze(-1) * p.unsqueeze(-2), _components.mv(R.transpose(-1, -2), g)
 
 
 _act_grads_blocked = blocked(_act_grads, (2, 1, 1))
@@ -430,10 +289,10 @@ def _act_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]
 
 _ActFn = custom_function(
     "So3Act",
-    forward=_mv,
+    forward=_components.mv,
     save=lambda inputs, out: (inputs[0], inputs[1]),
     backward=_act_backward,
-    jvp=lambda saved, dR, dp: _mv(dR, saved[1]) + _mv(saved[0], dp),
+    jvp=lambda saved, dR, dp: _components.mv(dR, saved[1]) + _components.mv(saved[0], dp),
     event_dims=(2, 1),
 )
 
@@ -449,40 +308,9 @@ def adjoint(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3 3"]:
     return _checks.out(x.clone(), dtype)
 
 
-def _jac_matrix(w: Tensor, kind: str) -> Tensor:
-    """``Jl``, ``Jr``, ``Jl^-1`` or ``Jr^-1`` of ``w`` (``kind`` = ``"left"``, ``"right"``,
-    ``"left_inv"``, ``"right_inv"``) as a matrix, from components (no input checks).
-
-    ``Jl`` and ``Jr`` of angles beyond the range of the formulas from those of the reduced
-    angle, ``Jl(w) = lam Jl(w') + (1 - lam) u u^T`` (:func:`torchlie._coeffs.reduction`);
-    the inverses are meant for angles below ``2 pi``.
-    """
-    if kind in ("left", "right"):
-        r, lam, u = _coeffs.reduction(w)
-        J = _jac_formula(r, kind)
-        lam = lam.unsqueeze(-1)
-        huge = lam * J + (1.0 - lam) * (u.unsqueeze(-1) * u.unsqueeze(-2))
-        return torch.where(lam < 1.0, huge, J)
-    return _jac_formula(w, kind)
-
-
-def _jac_formula(w: Tensor, kind: str) -> Tensor:
-    """:func:`_jac_matrix` by the formula of each kind."""
-    # I + b hat + c hat^2 = (1 - c t2) I + b hat + c w w^T
-    t2 = _coeffs.theta2(w)
-    if kind in ("left", "right"):
-        b = _coeffs.cosc(t2) * (1.0 if kind == "left" else -1.0)
-        c = _coeffs.sinc3(t2)
-    else:
-        b = torch.full_like(t2, -0.5 if kind == "left_inv" else 0.5)
-        c = _coeffs.jinv(t2)
-    a = (1.0 - c * t2).to(w.dtype)
-    return _abc_matrix(a, b.to(w.dtype), c.to(w.dtype), w)
-
-
 def _jac(fn: str, omega: Tensor, kind: str) -> Tensor:
     w, dtype = _checks.tensor(omega, _NAME + fn, "omega", (3,))
-    return _checks.out(_jac_matrix(w, kind), dtype)
+    return _checks.out(_rodrigues.jac_matrix(w, kind), dtype)
 
 
 def jac_left(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
@@ -671,13 +499,6 @@ def project(M: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3 3"]:
 # ----------------------------------------------------------------------------------------------
 
 
-def _angle(M: Tensor) -> Tensor:
-    """Rotation angle of ``M`` as ``atan2(|skew|, (tr - 1)/2)``: accurate at 0 and at pi."""
-    s = _coeffs.norm(_vee(M))
-    c = 0.5 * (M[..., 0, 0] + M[..., 1, 1] + M[..., 2, 2] - 1.0)
-    return _coeffs.atan2(s, c)
-
-
 def distance(R1: Float[Tensor, "*b1 3 3"], R2: Float[Tensor, "*b2 3 3"]) -> Float[Tensor, "*b"]:
     """Geodesic distance: the angle of ``R1^T R2`` in ``[0, pi]``.
 
@@ -694,7 +515,7 @@ def distance(R1: Float[Tensor, "*b1 3 3"], R2: Float[Tensor, "*b2 3 3"]) -> Floa
     b, _ = _checks.tensor(R2, fn, "R2", (3, 3))
     _checks.same_dtype(fn, R1=R1, R2=R2)
     _checks.batch_broadcast(fn, (a.shape[:-2], "R1"), (b.shape[:-2], "R2"))
-    return _checks.out(_angle(a.transpose(-1, -2) @ b), dtype)
+    return _checks.out(_rotation_matrix.angle(a.transpose(-1, -2) @ b), dtype)
 
 
 def interpolate(
@@ -759,7 +580,7 @@ def ad(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
         tensor([0., 1., 0.])
     """
     x, dtype = _checks.tensor(omega, _NAME + "ad", "omega", (3,))
-    return _checks.out(_hat(x), dtype)
+    return _checks.out(_components.hat(x), dtype)
 
 
 def rplus(R: Float[Tensor, "*b1 3 3"], tau: Float[Tensor, "*b2 3"]) -> Float[Tensor, "*b 3 3"]:
@@ -871,7 +692,7 @@ def jac_act(
     """
     x, p, dtype, batch = _pair("jac_act", R, points, "R", "points", tb=(3,))
     x = x.expand(*batch, 3, 3)
-    return _checks.out(-(x @ _hat(p)), dtype), _checks.out(x.clone(), dtype)
+    return _checks.out(-(x @ _components.hat(p)), dtype), _checks.out(x.clone(), dtype)
 
 
 def jac_rplus(
@@ -887,7 +708,7 @@ def jac_rplus(
     x, v, dtype, batch = _pair("jac_rplus", R, tau, "R", "tau", tb=(3,))
     v = v.expand(*batch, 3)
     JR = _ExpFn(v).transpose(-1, -2)
-    return _checks.out(JR, dtype), _checks.out(_jac_matrix(v, "right"), dtype)
+    return _checks.out(JR, dtype), _checks.out(_rodrigues.jac_matrix(v, "right"), dtype)
 
 
 def jac_rminus(
@@ -902,7 +723,7 @@ def jac_rminus(
     """
     a, b, dtype, _ = _pair("jac_rminus", R1, R0, "R1", "R0")
     tau = _LogFn(b.transpose(-1, -2) @ a)
-    J1, J0 = _jac_matrix(tau, "right_inv"), -_jac_matrix(tau, "left_inv")
+    J1, J0 = _rodrigues.jac_matrix(tau, "right_inv"), -_rodrigues.jac_matrix(tau, "left_inv")
     return _checks.out(J1, dtype), _checks.out(J0, dtype)
 
 
