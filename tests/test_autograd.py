@@ -15,7 +15,16 @@ import pytest
 import torch
 from torch.autograd import forward_ad as fwAD
 
-from torchlie import _autograd, _checks, _hamilton, _rotation_matrix, quaternion, se3, so3
+from torchlie import (
+    _autograd,
+    _checks,
+    _hamilton,
+    _rotation_matrix,
+    _se3_kernels,
+    quaternion,
+    se3,
+    so3,
+)
 
 F64 = torch.float64
 
@@ -55,7 +64,7 @@ def case(request, gen):
 
 def _custom_functions() -> list[_autograd.CustomFunction]:
     found = []
-    for module in (so3, se3, quaternion, _hamilton, _rotation_matrix):
+    for module in (so3, quaternion, _hamilton, _rotation_matrix, _se3_kernels):
         found += [v for v in vars(module).values() if isinstance(v, _autograd.CustomFunction)]
     return found
 

@@ -100,3 +100,8 @@ def r_hat_values(R: Tensor, u: Sequence[Tensor]) -> Tensor:
     o = _layout.outputs(r[0], 9)
     out = [c for i in (0, 3, 6) for c in cross_planes(r[i : i + 3], u, o[i : i + 3])]
     return _layout.interleave(out, o).unflatten(-1, (3, 3))
+
+
+def blocks(A: Tensor, B: Tensor, C: Tensor, D: Tensor) -> Tensor:
+    """The 6x6 matrix ``[[A, B], [C, D]]`` from four 3x3 blocks of one batch shape."""
+    return torch.cat((torch.cat((A, B), dim=-1), torch.cat((C, D), dim=-1)), dim=-2)

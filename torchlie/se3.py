@@ -28,13 +28,19 @@ argument or result (a point, a twist) is perturbed by plain addition.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, _components, _layout, _rodrigues, _rotation_matrix, so3
-from ._autograd import blocked, custom_function, fma
+from . import (
+    _checks,
+    _coeffs,
+    _components,
+    _layout,
+    _rotation_matrix,
+    _se3_jacobian,
+    _se3_kernels,
+    so3,
+)
 from ._typing import Bool, Float
 
 __all__ = [
@@ -75,6 +81,10 @@ __all__ = [
 
 _NAME = "torchlie.se3."
 
+#: ``Q(rho, phi) v`` from components (:func:`torchlie._se3_jacobian.q_components`), which
+#: :mod:`torchlie.kinematics.ik` reads here.
+_q_components = _se3_jacobian.q_components
+
 
 # ----------------------------------------------------------------------------------------------
 # Component helpers (private)
@@ -89,9 +99,6 @@ def _trans(T: Tensor) -> Tensor:
     return T[..., :3, 3]
 
 
-_mv = _components.mv
-
-
 def _assemble(R: Tensor, t: Tensor) -> Tensor:
     """``[[R, t], [0, 1]]`` (``R`` and ``t`` share their batch shape)."""
     top = torch.cat((R, t.unsqueeze(-1)), dim=-1)
@@ -104,573 +111,33 @@ def _broadcast_rt(R: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
     return R.expand(*batch, 3, 3), t.expand(*batch, 3)
 
 
-def _blocks(A: Tensor, B: Tensor, C: Tensor, D: Tensor) -> Tensor:
-    """The 6x6 matrix ``[[A, B], [C, D]]`` from four 3x3 blocks of one batch shape."""
-    return torch.cat((torch.cat((A, B), dim=-1), torch.cat((C, D), dim=-1)), dim=-2)
-
-
 def _hat(xi: Tensor) -> Tensor:
     rho, phi = xi[..., :3], xi[..., 3:]
     top = torch.cat((_components.hat(phi), rho.unsqueeze(-1)), dim=-1)
     return torch.cat((top, torch.zeros_like(top[..., :1, :])), dim=-2)
 
 
-def _q_coeffs(phi: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """``(k1, k2, k3, k4)`` of :func:`_q_components` for ``phi`` itself
-    (:func:`torchlie._coeffs.q_series`), in ``phi``'s dtype."""
-    return _in_dtype(_coeffs.q_series(_coeffs.theta2(phi)), phi.dtype)
-
-
-def _in_dtype(ks: tuple[Tensor, ...], dtype: torch.dtype) -> tuple[Tensor, ...]:
-    return tuple(k.to(dtype) for k in ks)
-
-
-def _q_values(
-    dtype: torch.dtype, half: tuple[Tensor, ...], bc: tuple[Tensor, Tensor] | None = None
-) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """:func:`_q_coeffs` of ``phi`` for input of ``dtype``, forward-only (the plain backward
-    passes), from its :func:`_coeffs.half_angle`: for float32, :func:`_coeffs.q_values` from
-    Rodrigues' ``b`` and ``c`` (``bc``, or evaluated from ``half``; no trigonometric function
-    of its own), :func:`_coeffs.q_series` otherwise; in ``dtype``."""
-    if bc is None and dtype == torch.float32:
-        bc = _coeffs.rodrigues_values(None, "bc", half)
-    return _in_dtype(_coeffs.q_plain(dtype, half[0], *(bc or (None, None))), dtype)
-
-
-def _q_components(
-    rho: Sequence[Tensor],
-    x: Sequence[Tensor],
-    v: Sequence[Tensor],
-    k1: Tensor,
-    k2: Tensor,
-    k3: Tensor,
-    k4: Tensor,
-) -> list[Tensor]:
-    """Components of ``Q(rho, phi) v`` (the top-right block of the left Jacobian), from
-    components, with cross products only::
-
-        Q v = rho^ v / 2 + k1 (x^ rho^ + rho^ x^) v + k2 x^ rho^ x^ v
-              + k3 (x^ x^ rho^ + rho^ x^ x^) v + k4 (x^ rho^ x^ x^ + x^ x^ rho^ x^) v
-
-    with ``x = phi`` and the coefficients of :func:`_q_coeffs`, or ``x`` the unit axis and
-    those of :func:`torchlie._coeffs.q_far`.  With ``a = x^ v``, ``b = x^ a`` and
-    ``r(y) = rho^ y``, the terms group as ``r(v)/2 + k1 r(a) + k3 r(b) + x^ (k1 r(v) + k2 r(a)
-    + k4 r(b) + x^ (k3 r(v) + k4 r(a)))``.
-    """
-    a = _components.cross_planes(x, v)
-    b = _components.cross_planes(x, a)
-    rv, ra, rb = (
-        _components.cross_planes(rho, v),
-        _components.cross_planes(rho, a),
-        _components.cross_planes(rho, b),
-    )
-    inner = _components.cross_planes(x, [fma(k3 * p, k4, q) for p, q in zip(rv, ra, strict=True)])
-    mid = [
-        fma(fma(fma(i, k1, p), k2, q), k4, r) for p, q, r, i in zip(rv, ra, rb, inner, strict=True)
-    ]
-    outer = _components.cross_planes(x, mid)
-    return [
-        fma(fma(o.add(p, alpha=0.5), k1, q), k3, r)
-        for p, q, r, o in zip(rv, ra, rb, outer, strict=True)
-    ]
-
-
-def _q_apply(
-    rho: Tensor, phi: Tensor, v: Tensor, form: tuple[Tensor, tuple[Tensor, ...]] | None = None
-) -> Tensor:
-    """``Q(rho, phi) v`` (batch shapes broadcast): :func:`_q_components` on planar copies, with
-    ``phi`` and its :func:`_q_coeffs`, or ``form = (x, (k1, k2, k3, k4))``."""
-    P = _components.planes
-    x, ks = (phi, _q_coeffs(phi)) if form is None else form
-    return _layout.interleave(_q_components(P(rho, 3), P(x, 3), P(v, 3), *ks))
-
-
-def _q_matrix(rho: Tensor, phi: Tensor) -> Tensor:
-    """``Q(rho, phi)`` as a matrix at every angle (:func:`_q_form`): :func:`_q_apply` on the
-    three unit vectors."""
-    eye = torch.eye(3, dtype=rho.dtype, device=rho.device).expand(*rho.shape[:-1], 3, 3)
-    cols = _q_apply(rho.unsqueeze(-2), phi, eye, _q_form(phi.unsqueeze(-2)))  # row j = Q e_j
-    return cols.transpose(-1, -2)
-
-
-def _q_form(phi: Tensor) -> tuple[Tensor, tuple[Tensor, Tensor, Tensor, Tensor]]:
-    """``(x, (k1, k2, k3, k4))`` of :func:`_q_components` for ``Q(., phi)`` at every magnitude
-    of ``phi``: ``phi`` and :func:`_q_coeffs` up to ``|phi|^2 = Q_FAR_T2``, the unit axis and
-    :func:`torchlie._coeffs.q_far` above it (no powers of the angle, which overflow in the
-    derivatives), with the angle reduced modulo ``2 pi`` for ``sin`` and ``cos`` beyond the
-    range of the formulas (:func:`torchlie._coeffs.reduction`, as so3's Jacobians).  Double
-    where: each form sees only its own elements.  Derivatives are those of ``Q`` at the angle
-    (``d t / d phi = u``, as the reduced angle's).
-    """
-    r, lam, u = _coeffs.reduction(phi)
-    t2 = _coeffs.theta2(r)  # the reduced angle's (|phi|^2 where not reduced)
-    reduced = lam[..., 0] < 1.0
-    far = (t2 > _coeffs.Q_FAR_T2) | reduced
-    ang = torch.where(far, t2, 1.0).sqrt()
-    t = torch.where(reduced, _coeffs.dot(u.to(t2.dtype), phi.to(t2.dtype)), ang)
-    axis = torch.where(reduced.unsqueeze(-1), u, phi / t.to(phi.dtype).unsqueeze(-1))
-    far_ks = _coeffs.q_far(t, torch.sin(ang), torch.cos(ang))
-    near_ks = _coeffs.q_series(torch.where(far, 0.0, t2))
-    ks = tuple(torch.where(far, a, b) for a, b in zip(far_ks, near_ks, strict=True))
-    return torch.where(far.unsqueeze(-1), axis, phi), _in_dtype(ks, phi.dtype)
-
-
-def _jac_left(xi: Tensor) -> Tensor:
-    rho, phi = xi[..., :3], xi[..., 3:]
-    A = _rodrigues.jac_matrix(phi, "left")
-    return _blocks(A, _q_matrix(rho, phi), torch.zeros_like(A), A)
-
-
-def _jac_left_inv(xi: Tensor) -> Tensor:
-    rho, phi = xi[..., :3], xi[..., 3:]
-    Ai = _rodrigues.jac_matrix(phi, "left_inv")
-    B = -(Ai @ _q_matrix(rho, phi) @ Ai)
-    return _blocks(Ai, B, torch.zeros_like(Ai), Ai)
-
-
-def _jl_inv_apply(xi: Tensor, v: Tensor) -> Tensor:
-    """``Jl(xi)^-1 v`` without a matrix."""
-    rho, phi = xi[..., :3], xi[..., 3:]
-    u_phi = _rodrigues.jl_inv_apply(phi, v[..., 3:])
-    u_rho = _rodrigues.jl_inv_apply(phi, v[..., :3] - _q_apply(rho, phi, u_phi))
-    return torch.cat((u_rho, u_phi), dim=-1)
-
-
 def _adjoint(T: Tensor) -> Tensor:
     R, t = _rot(T), _trans(T)
-    return _blocks(R, _components.hat(t) @ R, torch.zeros_like(R), R)
+    return _components.blocks(R, _components.hat(t) @ R, torch.zeros_like(R), R)
 
 
 def _ad(xi: Tensor) -> Tensor:
     P = _components.hat(xi[..., 3:])
-    return _blocks(P, _components.hat(xi[..., :3]), torch.zeros_like(P), P)
+    return _components.blocks(P, _components.hat(xi[..., :3]), torch.zeros_like(P), P)
 
 
 def _between(A: Tensor, B: Tensor) -> Tensor:
     """``A^-1 B`` from components."""
     Rt = _rot(A).transpose(-1, -2)
     R = Rt @ _rot(B)
-    t = _mv(Rt, _trans(B) - _trans(A))
+    t = _components.mv(Rt, _trans(B) - _trans(A))
     return _assemble(R, t.expand(*R.shape[:-2], 3))
 
 
 # ----------------------------------------------------------------------------------------------
-# compose / inverse / act kernels (private)
-#
-# Each op is one forward entry by entry over the 12 entries of the top block, and a closed-form
-# backward in the same style (autograd's own graph of the slices and concatenations costs
-# about twice as many passes over memory).
+# hat / vee, exp / log
 # ----------------------------------------------------------------------------------------------
-
-
-def _pad_row(top: Tensor) -> Tensor:
-    """``(..., 3, 4) -> (..., 4, 4)`` with a zero last row."""
-    return torch.nn.functional.pad(top, (0, 0, 0, 1))
-
-
-def _with_last_row(top: Tensor) -> Tensor:
-    """``(..., 3, 4) -> (..., 4, 4)`` with the last row ``(0, 0, 0, 1)``."""
-    out = _pad_row(top)
-    out.select(-2, 3).select(-1, 3).fill_(1.0)
-    return out
-
-
-def _top_entries(T: Tensor) -> list[list[Tensor]]:
-    """The entries of the top 3x4 block of ``T``, row by row (contiguous planes; strided views
-    while compiling)."""
-    e = _layout.planes(T[..., :3, :], (3, 4))
-    return [list(e[4 * i : 4 * i + 4]) for i in range(3)]
-
-
-def _rotation_and_translation(T: Tensor) -> tuple[list[Tensor], list[Tensor]]:
-    """:func:`_top_entries` as the 9 entries of the rotation (row by row) and the 3 of the
-    translation."""
-    e = _top_entries(T)
-    return [x for row in e for x in row[:3]], [row[3] for row in e]
-
-
-def _top_outputs(
-    like: Tensor | Sequence[Tensor],
-) -> tuple[tuple[Tensor | None, ...], list[list[Tensor | None]]]:
-    """The 16 columns of :func:`_layout.outputs` for a 4x4 result, and the 12 of its top block
-    row by row (where the entries are to be written)."""
-    o = _layout.outputs(like, 16)
-    return o, [list(o[4 * i : 4 * i + 4]) for i in range(3)]
-
-
-def _stack_top(
-    rows: Sequence[Sequence[Tensor]],
-    corner: float = 1.0,
-    out: Sequence[Tensor | None] | None = None,
-) -> Tensor:
-    """``[[rows], [0, 0, 0, corner]]``: a 4x4 matrix from the 12 entries of its top block (row by
-    row, all of one shape; written to the columns ``out`` of :func:`_top_outputs` or not)."""
-    if isinstance(out, _layout.Columns):
-        bottom = out.result[..., 12:]
-        bottom[..., :3].zero_()
-        bottom[..., 3].fill_(corner)
-        zero, last = out[12:15], out[15]
-    else:
-        zero = (torch.zeros_like(rows[0][0]),) * 3
-        last = zero[0] if corner == 0.0 else torch.full_like(zero[0], corner)
-    entries = (*rows[0], *rows[1], *rows[2], *zero, last)
-    return _layout.interleave(entries, out).unflatten(-1, (4, 4))
-
-
-def _stack_rows(
-    rows: Sequence[Sequence[Tensor]], out: Sequence[Tensor | None] | None = None
-) -> Tensor:
-    """:func:`_stack_top` with a zero last row (a gradient: the bottom row is not read)."""
-    return _stack_top(rows, 0.0, out)
-
-
-def _compose_entries(A: Tensor, B: Tensor) -> Tensor:
-    """``A B`` entry by entry."""
-    a, b = _top_entries(A), _top_entries(B)
-    o, top = _top_outputs((a[0][0], b[0][0]))  # batches may broadcast
-    rows = []
-    for ai, oi in zip(a, top, strict=True):
-        row = [
-            fma(fma(ai[0] * b[0][j], ai[1], b[1][j]), ai[2], b[2][j], out=oi[j]) for j in range(3)
-        ]
-        t = fma(fma(ai[0] * b[0][3], ai[1], b[1][3]), ai[2], b[2][3])
-        rows.append([*row, torch.add(t, ai[3], out=oi[3])])
-    return _stack_top(rows, out=o)
-
-
-def _inverse_entries(T: Tensor) -> Tensor:
-    """``T^-1 = [[R^T, -R^T t], [0, 1]]`` entry by entry."""
-    r = _top_entries(T)
-    o, top = _top_outputs(r[0][0])
-    rows = []
-    for i in range(3):
-        col = [r[0][i], r[1][i], r[2][i]]
-        t = fma(fma(col[0] * r[0][3], col[1], r[1][3]), col[2], r[2][3])
-        rows.append([*col, torch.neg(t, out=top[i][3])])
-    return _stack_top(rows, out=o)
-
-
-def _compose_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor, Tensor]:
-    A, B = saved
-    dA, dB = _compose_grads(A, B, G)
-    return dA.sum_to_size(A.shape), dB.sum_to_size(B.shape)
-
-
-def _compose_bwd_entries(A: Tensor, B: Tensor, G: Tensor) -> tuple[Tensor, Tensor]:
-    """The backward of ``A B`` entry by entry: ``dA_ij = sum_k G_ik B_jk`` (``j < 3``),
-    ``dA_i3 = G_i3``, ``dB_kj = sum_i A_ik G_ij``."""
-    a, b, g = _top_entries(A), _top_entries(B), _top_entries(G)
-    oa, top_a = _top_outputs(g[0][0])
-    ob, top_b = _top_outputs(g[0][0])
-    da = [
-        [
-            fma(
-                fma(fma(gi[0] * b[j][0], gi[1], b[j][1]), gi[2], b[j][2]),
-                gi[3],
-                b[j][3],
-                out=oi[j],
-            )
-            for j in range(3)
-        ]
-        + [gi[3]]
-        for gi, oi in zip(g, top_a, strict=True)
-    ]
-    db = [
-        [
-            fma(fma(a[0][k] * g[0][j], a[1][k], g[1][j]), a[2][k], g[2][j], out=ok[j])
-            for j in range(4)
-        ]
-        for k, ok in zip(range(3), top_b, strict=True)
-    ]
-    return _stack_rows(da, oa), _stack_rows(db, ob)
-
-
-_compose_grads = blocked(_compose_bwd_entries, (2, 2, 2))
-
-
-def _compose_jvp(saved: tuple[Tensor, ...], dA: Tensor, dB: Tensor) -> Tensor:
-    A, B = saved
-    top = torch.matmul(dA[..., :3, :3], B[..., :3, :])
-    top = top + torch.matmul(A[..., :3, :3], dB[..., :3, :])
-    top.select(-1, 3).add_(dA[..., :3, 3])
-    return _pad_row(top)
-
-
-_ComposeFn = custom_function(
-    "Se3Compose",
-    forward=_compose_entries,
-    save=lambda inputs, out: (inputs[0], inputs[1]),
-    backward=_compose_bwd,
-    jvp=_compose_jvp,
-    event_dims=(2, 2),
-)
-
-
-def _inverse_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor]:
-    (T,) = saved
-    return (_inverse_grads(T, G),)
-
-
-def _inverse_bwd_entries(T: Tensor, G: Tensor) -> Tensor:
-    """The backward of ``T^-1`` entry by entry (``out = [R^T, -R^T t]``):
-    ``dR_ij = G_ji - t_i G_j3``, ``dt_i = -sum_j R_ij G_j3``."""
-    r, g = _top_entries(T), _top_entries(G)
-    o, top = _top_outputs(g[0][0])
-    rows = []
-    for i, oi in zip(range(3), top, strict=True):
-        dR = [fma(g[j][i], r[i][3], g[j][3], value=-1.0, out=oi[j]) for j in range(3)]
-        dt = fma(fma(r[i][0] * g[0][3], r[i][1], g[1][3]), r[i][2], g[2][3])
-        rows.append([*dR, torch.neg(dt, out=oi[3])])
-    return _stack_rows(rows, o)
-
-
-_inverse_grads = blocked(_inverse_bwd_entries, (2, 2))
-
-
-def _inverse_jvp(saved: tuple[Tensor, ...], dT: Tensor) -> Tensor:
-    (T,) = saved
-    dRt = dT[..., :3, :3].transpose(-1, -2)
-    Rt = T[..., :3, :3].transpose(-1, -2)
-    dt = torch.matmul(dRt, T[..., :3, 3:]) + torch.matmul(Rt, dT[..., :3, 3:])
-    return _pad_row(torch.cat((dRt, -dt), dim=-1))
-
-
-_InverseFn = custom_function(
-    "Se3Inverse",
-    forward=_inverse_entries,
-    save=lambda inputs, out: (inputs[0],),
-    backward=_inverse_bwd,
-    jvp=_inverse_jvp,
-    event_dims=(2,),
-)
-
-
-def _homogeneous(p: Tensor) -> Tensor:
-    return torch.nn.functional.pad(p, (0, 1), value=1.0)
-
-
-def _act_fwd(T: Tensor, p: Tensor) -> Tensor:
-    """``R p + t``, column by column (as :func:`torchlie.so3.act`)."""
-    return torch.add(_mv(T[..., :3, :3], p), T[..., :3, 3])
-
-
-def _act_grads(T: Tensor, p: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
-    # out = [R, t] (p, 1): d[R, t] = g (p, 1)^T and dp = R^T g.
-    dT = _pad_row(g.unsqueeze(-1) * _homogeneous(p).unsqueeze(-2))
-    return dT, _mv(T[..., :3, :3].transpose(-1, -2), g)
-
-
-_act_grads_blocked = blocked(_act_grads, (2, 1, 1))
-
-
-def _act_bwd(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]:
-    T, p = saved
-    dT, dp = _act_grads_blocked(T, p, g)
-    return dT.sum_to_size(T.shape), dp.sum_to_size(p.shape)
-
-
-def _act_jvp(saved: tuple[Tensor, ...], dT: Tensor, dp: Tensor) -> Tensor:
-    T, p = saved
-    out = torch.matmul(dT[..., :3, :], _homogeneous(p).unsqueeze(-1))
-    return (out + torch.matmul(T[..., :3, :3], dp.unsqueeze(-1))).squeeze(-1)
-
-
-def _compose(A: Tensor, B: Tensor) -> Tensor:
-    return _ComposeFn(A, B)
-
-
-def _inverse(T: Tensor) -> Tensor:
-    return _InverseFn(T)
-
-
-_ActFn = custom_function(
-    "Se3Act",
-    forward=_act_fwd,
-    save=lambda inputs, out: (inputs[0], inputs[1]),
-    backward=_act_bwd,
-    jvp=_act_jvp,
-    event_dims=(2, 1),
-)
-
-
-# ----------------------------------------------------------------------------------------------
-# exp / log
-# ----------------------------------------------------------------------------------------------
-
-
-def _exp_forward(xi: Tensor) -> Tensor:
-    """``[[Exp(phi), Jl(phi) rho], [0, 1]]`` from components, one set of coefficients for both
-    blocks (runs without autograd: forward-only coefficients); the rotation block is
-    :func:`torchlie.so3.exp`'s, bit for bit."""
-    xyz, (a, b, c, d) = _rodrigues.coefficients(xi[..., 3:], "abcd")
-    o, top = _top_outputs(xyz[0])
-    R = _rodrigues.exp_entries(xyz, a, b, d, [e for row in top for e in row[:3]])
-    t = _rodrigues.jl_components(
-        xyz, _components.planes(xi[..., :3], 3), a, b, c, [r[3] for r in top]
-    )
-    return _stack_top([(*R[0:3], t[0]), (*R[3:6], t[1]), (*R[6:9], t[2])], out=o)
-
-
-def _exp_backward(saved, G: Tensor):
-    # T = [[R, t], [0, 1]], R = Exp(phi), t = Jl(phi) rho.  With a left perturbation,
-    # dt = (Q(rho, phi) - t^ Jl(phi)) dphi + Jl(phi) drho, so
-    #     g_rho = Jr(phi) g_t,
-    #     g_phi = Jl(phi) vee(R^T G_R - G_R^T R) + Jr(phi) (t x g_t) + Q(-rho, -phi) g_t.
-    xi, T = saved
-    if not torch.is_grad_enabled():
-        return (_exp_grad_values(xi, T, G),)
-    rho, phi = xi[..., :3], xi[..., 3:]  # create_graph: differentiable ops
-    R, t = _rot(T), _trans(T)
-    g_R, g_t = _rot(G), _trans(G)
-    g_rho = _rodrigues.jl_apply(phi, g_t, sign=-1.0)
-    g_phi = _rodrigues.jl_apply(phi, 2.0 * _components.vee(R.transpose(-1, -2) @ g_R))
-    g_phi = g_phi + _rodrigues.jl_apply(phi, torch.linalg.cross(t, g_t, dim=-1), sign=-1.0)
-    return (torch.cat((g_rho, g_phi + _q_apply(-rho, -phi, g_t)), dim=-1),)
-
-
-def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor) -> Tensor:
-    """:func:`_exp_backward` from components, forward-only coefficients (plain backward)."""
-    x = _components.planes(xi, 6)
-    xyz = x[3:]
-    half = _coeffs.half_angle(xyz)
-    a, b, c = _coeffs.rodrigues_values(None, "abc", half)
-    qc = _q_values(xi.dtype, half, (b, c))
-    a, b, c = (v.to(xi.dtype) for v in (a, b, c))
-    R, t = _rotation_and_translation(T)
-    G_R, g_t = _rotation_and_translation(G)
-    o = _layout.outputs(x[0], 6)
-    g_rho = _rodrigues.jl_components(xyz, g_t, a, -b, c, o[:3])
-    u = _components.rt_g_vee(R, G_R)
-    g_phi = _rodrigues.jl_components(xyz, u, a, b, c)
-    g_tx = _rodrigues.jl_components(xyz, _components.cross_planes(t, g_t), a, -b, c)
-    neg = [-v for v in x]
-    q = _q_components(neg[:3], neg[3:], g_t, *qc)
-    g_phi = [
-        torch.add(p, r, out=oi).add_(s) for p, r, s, oi in zip(g_phi, g_tx, q, o[3:], strict=True)
-    ]
-    return _layout.interleave((*g_rho, *g_phi), o)
-
-
-_exp_grad_values = blocked(_exp_backward_values, (1, 2, 2))
-
-
-def _exp_jvp(saved, dxi: Tensor) -> Tensor:
-    # dT = [[e_phi^ R, e_phi^ t + e_rho], [0, 0]] with (e_rho, e_phi) = J_left(xi) dxi.
-    xi, T = saved
-    rho, phi = xi[..., :3], xi[..., 3:]
-    e_phi = _rodrigues.jl_apply(phi, dxi[..., 3:])
-    e_rho = _rodrigues.jl_apply(phi, dxi[..., :3]) + _q_apply(rho, phi, dxi[..., 3:])
-    dR = _components.hat(e_phi) @ _rot(T)
-    dt = torch.linalg.cross(e_phi, _trans(T), dim=-1) + e_rho
-    return _pad_row(torch.cat((dR, dt.unsqueeze(-1)), dim=-1))
-
-
-_ExpMapFn = custom_function(
-    "Se3Exp",
-    forward=_exp_forward,
-    save=lambda inputs, out: (inputs[0], out),
-    backward=_exp_backward,
-    jvp=_exp_jvp,
-    event_dims=(1,),
-)
-
-
-def _exp(xi: Tensor) -> Tensor:
-    return _ExpMapFn(_reduced(xi))
-
-
-def _reduced(xi: Tensor) -> Tensor:
-    """A twist with the same ``Exp`` as ``xi`` (and the same derivatives), the angle reduced
-    modulo ``2 pi`` where it is too large for the formulas, ``xi`` itself elsewhere.
-
-    With ``phi'``, ``lam`` and ``u`` of :func:`torchlie._coeffs.reduction`,
-    ``Jl(phi) = lam Jl(phi') + (1 - lam) u u^T`` and ``Jl(phi') u = u``, so
-    ``Jl(phi) rho = Jl(phi') rho'`` with ``rho' = lam rho + (1 - lam) (u . rho) u``.
-    ``xi`` itself while compiling (:func:`torchlie._coeffs.reduction`).
-    """
-    if torch.compiler.is_compiling():
-        return xi
-    phi, lam, u = _coeffs.reduction(xi[..., 3:])
-    lam, u = lam[..., 0], u.unbind(-1)
-    rho = xi[..., :3].unbind(-1)
-    along = fma(fma(u[0] * rho[0], u[1], rho[1]), u[2], rho[2])
-    big = lam < 1.0
-    rho = [
-        torch.where(big, torch.lerp(along * ui, ri, lam), ri) for ui, ri in zip(u, rho, strict=True)
-    ]
-    return torch.stack((*rho, *phi.unbind(-1)), dim=-1)
-
-
-def _log_forward(T: Tensor) -> Tensor:
-    """From components, stacked once.  ``Jl(phi)^-1 t`` with the coefficients
-    ``e = (theta/2) cot(theta/2)`` and ``D = (1 - e) / theta^2`` from the log's own angle and
-    cotangent (:func:`torchlie._rotation_matrix.log_and_cot`)."""
-    R, t = _rotation_and_translation(T)  # one transposition of the top block
-    phi, theta, e = _rotation_matrix.log_and_cot(R, cot=True)
-    d = torch.rsub(e, 1.0).div_(theta.mul_(theta).clamp_min_(_coeffs.H_MIN[T.dtype]))
-    rho = _rodrigues.jl_components(phi, t, e, e.new_full((), -0.5), d)
-    return _layout.interleave((*rho, *phi))
-
-
-def _log_backward(saved, g: Tensor):
-    # d xi = Jr(xi)^-1 (R^T dt, vee(R^T dR)) along the tangent directions (zero along the
-    # normal ones).  With h = Jr(xi)^-T g and A = so3 Jl(phi):
-    #     Jr(xi)^-T = [[A^-1, 0], [-A^-1 Q A^-1, A^-1]]   (Q = Q(rho, phi) = Q(-rho, -phi)^T),
-    # so G_t = R h_rho and G_R = R hat(h_phi) / 2.
-    T, xi = saved
-    if not torch.is_grad_enabled():
-        return (_log_grad_values(T, xi, g),)
-    R = _rot(T)  # create_graph: differentiable ops
-    rho, phi = xi[..., :3], xi[..., 3:]
-    h_rho = _rodrigues.jl_inv_apply(phi, g[..., :3])
-    h_phi = _rodrigues.jl_inv_apply(phi, g[..., 3:] - _q_apply(rho, phi, h_rho))
-    G_R = 0.5 * (R @ _components.hat(h_phi))
-    top = torch.cat((G_R, _mv(R, h_rho).unsqueeze(-1)), dim=-1)
-    return (torch.cat((top, torch.zeros_like(top[..., :1, :])), dim=-2),)
-
-
-def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
-    """:func:`_log_backward` from components, forward-only coefficients (plain backward)."""
-    x = _components.planes(xi, 6)
-    gs = _components.planes(g, 6)
-    half = _coeffs.half_angle(x[3:])  # one sin and cos for the coefficients of Jl^-1 and Q
-    qc = _q_values(xi.dtype, half)
-    e, d = (v.to(xi.dtype) for v in _coeffs.jl_inv_values(None, half))
-    minus_half = e.new_full((), -0.5)
-    h_rho = _rodrigues.jl_components(x[3:], gs[:3], e, minus_half, d)
-    q = _q_components(x[:3], x[3:], h_rho, *qc)
-    v = [(gi - qi).mul_(0.5) for gi, qi in zip(gs[3:], q, strict=True)]
-    u = _rodrigues.jl_components(x[3:], v, e, minus_half, d)  # h_phi / 2
-    r = _components.planes(_rot(T), 9)
-    o, top = _top_outputs(r[0])
-    G_R = [
-        _components.cross_planes(r[3 * i : 3 * i + 3], u, top[i][:3]) for i in range(3)
-    ]  # rows of R hat(u)
-    G_t = [
-        fma(fma(r[i] * h_rho[0], r[i + 1], h_rho[1]), r[i + 2], h_rho[2], out=oi[3])
-        for i, oi in zip((0, 3, 6), top, strict=True)
-    ]
-    return _stack_rows([(*G_R[i], G_t[i]) for i in range(3)], o)
-
-
-_log_grad_values = blocked(_log_backward_values, (2, 1, 1))
-
-
-def _log_jvp(saved, dT: Tensor) -> Tensor:
-    T, xi = saved
-    Rt = _rot(T).transpose(-1, -2)
-    v = torch.cat((_mv(Rt, _trans(dT)), _components.vee(Rt @ _rot(dT))), dim=-1)
-    return _jl_inv_apply(-xi, v)  # Jr(xi)^-1 v
-
-
-_LogFn = custom_function(
-    "Se3Log",
-    forward=_log_forward,
-    save=lambda inputs, out: (inputs[0], out),
-    backward=_log_backward,
-    jvp=_log_jvp,
-    event_dims=(2,),
-)
 
 
 def hat(xi: Float[Tensor, "*b 6"]) -> Float[Tensor, "*b 4 4"]:
@@ -715,7 +182,7 @@ def exp(xi: Float[Tensor, "*b 6"]) -> Float[Tensor, "*b 4 4"]:
         tensor([0.6366, 0.6366, 0.0000])
     """
     x, dtype = _checks.tensor(xi, _NAME + "exp", "xi", (6,))
-    return _checks.out(_exp(x), dtype)
+    return _checks.out(_se3_kernels.exp(x), dtype)
 
 
 def log(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 6"]:
@@ -743,7 +210,7 @@ def log(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 6"]:
         tensor([1.0000, 2.0000, 3.0000, 0.1000, 0.2000, 0.3000])
     """
     x, dtype = _checks.tensor(T, _NAME + "log", "T", (4, 4))
-    return _checks.out(_LogFn(x), dtype)
+    return _checks.out(_se3_kernels.log(x), dtype)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -772,7 +239,7 @@ def compose(T1: Float[Tensor, "*b1 4 4"], T2: Float[Tensor, "*b2 4 4"]) -> Float
         True
     """
     a, b, dtype, _ = _pair("compose", T1, T2, "T1", "T2")
-    return _checks.out(_ComposeFn(a, b), dtype)
+    return _checks.out(_se3_kernels.compose(a, b), dtype)
 
 
 def inverse(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 4 4"]:
@@ -784,7 +251,7 @@ def inverse(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 4 4"]:
         True
     """
     x, dtype = _checks.tensor(T, _NAME + "inverse", "T", (4, 4))
-    return _checks.out(_InverseFn(x), dtype)
+    return _checks.out(_se3_kernels.inverse(x), dtype)
 
 
 def act(T: Float[Tensor, "*b1 4 4"], points: Float[Tensor, "*b2 3"]) -> Float[Tensor, "*b 3"]:
@@ -796,7 +263,7 @@ def act(T: Float[Tensor, "*b1 4 4"], points: Float[Tensor, "*b2 3"]) -> Float[Te
         tensor([0., 2., 3.])
     """
     x, p, dtype, _ = _pair("act", T, points, "T", "points", tb=(3,))
-    return _checks.out(_ActFn(x, p), dtype)
+    return _checks.out(_se3_kernels.act(x, p), dtype)
 
 
 def adjoint(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 6 6"]:
@@ -836,7 +303,7 @@ def ad(xi: Float[Tensor, "*b 6"]) -> Float[Tensor, "*b 6 6"]:
 def _jac(fn: str, xi: Tensor, inv: bool, sign: float) -> Tensor:
     x, dtype = _checks.tensor(xi, _NAME + fn, "xi", (6,))
     x = x if sign > 0 else -x
-    return _checks.out(_jac_left_inv(x) if inv else _jac_left(x), dtype)
+    return _checks.out(_se3_jacobian.jac_left_inv(x) if inv else _se3_jacobian.jac_left(x), dtype)
 
 
 def jac_left(xi: Float[Tensor, "*b 6"]) -> Float[Tensor, "*b 6 6"]:
@@ -1025,8 +492,8 @@ def interpolate(
     a, b, dtype, _ = _pair("interpolate", T0, T1, "T0", "T1")
     t = _checks.real(t, fn, "t", a, ("T0", T0))
     _checks.batch_broadcast(fn, (a.shape[:-2], "T0"), (b.shape[:-2], "T1"), (t.shape, "t"))
-    xi = _LogFn(_between(a, b))
-    return _checks.out(_compose(a, _exp(t.unsqueeze(-1) * xi)), dtype)
+    xi = _se3_kernels.log(_between(a, b))
+    return _checks.out(_se3_kernels.compose(a, _se3_kernels.exp(t.unsqueeze(-1) * xi)), dtype)
 
 
 def distance(
@@ -1065,7 +532,7 @@ def rplus(T: Float[Tensor, "*b1 4 4"], xi: Float[Tensor, "*b2 6"]) -> Float[Tens
         tensor([1., 0., 0.])
     """
     x, v, dtype, _ = _pair("rplus", T, xi, "T", "xi", tb=(6,))
-    return _checks.out(_compose(x, _exp(v)), dtype)
+    return _checks.out(_se3_kernels.compose(x, _se3_kernels.exp(v)), dtype)
 
 
 def rminus(T1: Float[Tensor, "*b1 4 4"], T0: Float[Tensor, "*b2 4 4"]) -> Float[Tensor, "*b 6"]:
@@ -1078,7 +545,7 @@ def rminus(T1: Float[Tensor, "*b1 4 4"], T0: Float[Tensor, "*b2 4 4"]) -> Float[
         True
     """
     a, b, dtype, _ = _pair("rminus", T1, T0, "T1", "T0")
-    return _checks.out(_LogFn(_between(b, a)), dtype)
+    return _checks.out(_se3_kernels.log(_between(b, a)), dtype)
 
 
 def lplus(T: Float[Tensor, "*b1 4 4"], xi: Float[Tensor, "*b2 6"]) -> Float[Tensor, "*b 4 4"]:
@@ -1091,7 +558,7 @@ def lplus(T: Float[Tensor, "*b1 4 4"], xi: Float[Tensor, "*b2 6"]) -> Float[Tens
         True
     """
     x, v, dtype, _ = _pair("lplus", T, xi, "T", "xi", tb=(6,))
-    return _checks.out(_compose(_exp(v), x), dtype)
+    return _checks.out(_se3_kernels.compose(_se3_kernels.exp(v), x), dtype)
 
 
 def lminus(T1: Float[Tensor, "*b1 4 4"], T0: Float[Tensor, "*b2 4 4"]) -> Float[Tensor, "*b 6"]:
@@ -1104,7 +571,7 @@ def lminus(T1: Float[Tensor, "*b1 4 4"], T0: Float[Tensor, "*b2 4 4"]) -> Float[
         True
     """
     a, b, dtype, _ = _pair("lminus", T1, T0, "T1", "T0")
-    return _checks.out(_LogFn(_compose(a, _inverse(b))), dtype)
+    return _checks.out(_se3_kernels.log(_se3_kernels.compose(a, _se3_kernels.inverse(b))), dtype)
 
 
 def between(T0: Float[Tensor, "*b1 4 4"], T1: Float[Tensor, "*b2 4 4"]) -> Float[Tensor, "*b 4 4"]:
@@ -1138,7 +605,7 @@ def jac_compose(
         True
     """
     a, b, dtype, batch = _pair("jac_compose", T1, T2, "T1", "T2")
-    J1 = _adjoint(_inverse(b)).expand(*batch, 6, 6).clone()
+    J1 = _adjoint(_se3_kernels.inverse(b)).expand(*batch, 6, 6).clone()
     return _checks.out(J1, dtype), _checks.out(_eye6(batch, a), dtype)
 
 
@@ -1184,8 +651,8 @@ def jac_rplus(
     """
     x, v, dtype, batch = _pair("jac_rplus", T, xi, "T", "xi", tb=(6,))
     v = v.expand(*batch, 6)
-    JT = _adjoint(_exp(-v))
-    return _checks.out(JT, dtype), _checks.out(_jac_left(-v), dtype)
+    JT = _adjoint(_se3_kernels.exp(-v))
+    return _checks.out(JT, dtype), _checks.out(_se3_jacobian.jac_left(-v), dtype)
 
 
 def jac_rminus(
@@ -1199,8 +666,9 @@ def jac_rminus(
         True
     """
     a, b, dtype, _ = _pair("jac_rminus", T1, T0, "T1", "T0")
-    xi = _LogFn(_between(b, a))
-    return _checks.out(_jac_left_inv(-xi), dtype), _checks.out(-_jac_left_inv(xi), dtype)
+    xi = _se3_kernels.log(_between(b, a))
+    J1, J0 = _se3_jacobian.jac_left_inv(-xi), -_se3_jacobian.jac_left_inv(xi)
+    return _checks.out(J1, dtype), _checks.out(J0, dtype)
 
 
 def jac_between(

@@ -1,0 +1,440 @@
+"""The custom autograd Functions of SE(3): compose, inverse, act, exp and log of poses.
+
+Each forward works from components (the 12 entries of the top 3x4 block read as planes, the
+result's entries written into its columns), with a closed-form backward in the same style and a
+forward-mode rule; autograd's own graph of the slices and concatenations costs about twice as
+many passes over memory.  exp and log take their coefficients from :mod:`torchlie._rodrigues`
+and :mod:`torchlie._se3_jacobian`.  :mod:`torchlie.se3` checks the inputs and calls these.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import Tensor
+
+from . import _coeffs, _layout, _rodrigues, _rotation_matrix, _se3_jacobian
+from ._autograd import blocked, custom_function, fma
+from ._components import cross_planes, hat, mv, planes, rt_g_vee, vee
+
+# ----------------------------------------------------------------------------------------------
+# The top block, entry by entry
+# ----------------------------------------------------------------------------------------------
+
+
+def _pad_row(top: Tensor) -> Tensor:
+    """``(..., 3, 4) -> (..., 4, 4)`` with a zero last row."""
+    return torch.nn.functional.pad(top, (0, 0, 0, 1))
+
+
+def _top_entries(T: Tensor) -> list[list[Tensor]]:
+    """The entries of the top 3x4 block of ``T``, row by row (contiguous planes; strided views
+    while compiling)."""
+    e = _layout.planes(T[..., :3, :], (3, 4))
+    return [list(e[4 * i : 4 * i + 4]) for i in range(3)]
+
+
+def _rotation_and_translation(T: Tensor) -> tuple[list[Tensor], list[Tensor]]:
+    """:func:`_top_entries` as the 9 entries of the rotation (row by row) and the 3 of the
+    translation."""
+    e = _top_entries(T)
+    return [x for row in e for x in row[:3]], [row[3] for row in e]
+
+
+def _top_outputs(
+    like: Tensor | Sequence[Tensor],
+) -> tuple[tuple[Tensor | None, ...], list[list[Tensor | None]]]:
+    """The 16 columns of :func:`_layout.outputs` for a 4x4 result, and the 12 of its top block
+    row by row (where the entries are to be written)."""
+    o = _layout.outputs(like, 16)
+    return o, [list(o[4 * i : 4 * i + 4]) for i in range(3)]
+
+
+def _stack_top(
+    rows: Sequence[Sequence[Tensor]],
+    corner: float = 1.0,
+    out: Sequence[Tensor | None] | None = None,
+) -> Tensor:
+    """``[[rows], [0, 0, 0, corner]]``: a 4x4 matrix from the 12 entries of its top block (row by
+    row, all of one shape; written to the columns ``out`` of :func:`_top_outputs` or not)."""
+    if isinstance(out, _layout.Columns):
+        bottom = out.result[..., 12:]
+        bottom[..., :3].zero_()
+        bottom[..., 3].fill_(corner)
+        zero, last = out[12:15], out[15]
+    else:
+        zero = (torch.zeros_like(rows[0][0]),) * 3
+        last = zero[0] if corner == 0.0 else torch.full_like(zero[0], corner)
+    entries = (*rows[0], *rows[1], *rows[2], *zero, last)
+    return _layout.interleave(entries, out).unflatten(-1, (4, 4))
+
+
+def _stack_rows(
+    rows: Sequence[Sequence[Tensor]], out: Sequence[Tensor | None] | None = None
+) -> Tensor:
+    """:func:`_stack_top` with a zero last row (a gradient: the bottom row is not read)."""
+    return _stack_top(rows, 0.0, out)
+
+
+# ----------------------------------------------------------------------------------------------
+# compose / inverse / act
+# ----------------------------------------------------------------------------------------------
+
+
+def _compose_entries(A: Tensor, B: Tensor) -> Tensor:
+    """``A B`` entry by entry."""
+    a, b = _top_entries(A), _top_entries(B)
+    o, top = _top_outputs((a[0][0], b[0][0]))  # batches may broadcast
+    rows = []
+    for ai, oi in zip(a, top, strict=True):
+        row = [
+            fma(fma(ai[0] * b[0][j], ai[1], b[1][j]), ai[2], b[2][j], out=oi[j]) for j in range(3)
+        ]
+        t = fma(fma(ai[0] * b[0][3], ai[1], b[1][3]), ai[2], b[2][3])
+        rows.append([*row, torch.add(t, ai[3], out=oi[3])])
+    return _stack_top(rows, out=o)
+
+
+def _inverse_entries(T: Tensor) -> Tensor:
+    """``T^-1 = [[R^T, -R^T t], [0, 1]]`` entry by entry."""
+    r = _top_entries(T)
+    o, top = _top_outputs(r[0][0])
+    rows = []
+    for i in range(3):
+        col = [r[0][i], r[1][i], r[2][i]]
+        t = fma(fma(col[0] * r[0][3], col[1], r[1][3]), col[2], r[2][3])
+        rows.append([*col, torch.neg(t, out=top[i][3])])
+    return _stack_top(rows, out=o)
+
+
+def _compose_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor, Tensor]:
+    A, B = saved
+    dA, dB = _compose_grads(A, B, G)
+    return dA.sum_to_size(A.shape), dB.sum_to_size(B.shape)
+
+
+def _compose_bwd_entries(A: Tensor, B: Tensor, G: Tensor) -> tuple[Tensor, Tensor]:
+    """The backward of ``A B`` entry by entry: ``dA_ij = sum_k G_ik B_jk`` (``j < 3``),
+    ``dA_i3 = G_i3``, ``dB_kj = sum_i A_ik G_ij``."""
+    a, b, g = _top_entries(A), _top_entries(B), _top_entries(G)
+    oa, top_a = _top_outputs(g[0][0])
+    ob, top_b = _top_outputs(g[0][0])
+    da = [
+        [
+            fma(
+                fma(fma(gi[0] * b[j][0], gi[1], b[j][1]), gi[2], b[j][2]),
+                gi[3],
+                b[j][3],
+                out=oi[j],
+            )
+            for j in range(3)
+        ]
+        + [gi[3]]
+        for gi, oi in zip(g, top_a, strict=True)
+    ]
+    db = [
+        [
+            fma(fma(a[0][k] * g[0][j], a[1][k], g[1][j]), a[2][k], g[2][j], out=ok[j])
+            for j in range(4)
+        ]
+        for k, ok in zip(range(3), top_b, strict=True)
+    ]
+    return _stack_rows(da, oa), _stack_rows(db, ob)
+
+
+_compose_grads = blocked(_compose_bwd_entries, (2, 2, 2))
+
+
+def _compose_jvp(saved: tuple[Tensor, ...], dA: Tensor, dB: Tensor) -> Tensor:
+    A, B = saved
+    top = torch.matmul(dA[..., :3, :3], B[..., :3, :])
+    top = top + torch.matmul(A[..., :3, :3], dB[..., :3, :])
+    top.select(-1, 3).add_(dA[..., :3, 3])
+    return _pad_row(top)
+
+
+_ComposeFn = custom_function(
+    "Se3Compose",
+    forward=_compose_entries,
+    save=lambda inputs, out: (inputs[0], inputs[1]),
+    backward=_compose_bwd,
+    jvp=_compose_jvp,
+    event_dims=(2, 2),
+)
+
+
+def compose(A: Tensor, B: Tensor) -> Tensor:
+    """``A B`` (batch shapes broadcast; the bottom rows are not read)."""
+    return _ComposeFn(A, B)
+
+
+def _inverse_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor]:
+    (T,) = saved
+    return (_inverse_grads(T, G),)
+
+
+def _inverse_bwd_entries(T: Tensor, G: Tensor) -> Tensor:
+    """The backward of ``T^-1`` entry by entry (``out = [R^T, -R^T t]``):
+    ``dR_ij = G_ji - t_i G_j3``, ``dt_i = -sum_j R_ij G_j3``."""
+    r, g = _top_entries(T), _top_entries(G)
+    o, top = _top_outputs(g[0][0])
+    rows = []
+    for i, oi in zip(range(3), top, strict=True):
+        dR = [fma(g[j][i], r[i][3], g[j][3], value=-1.0, out=oi[j]) for j in range(3)]
+        dt = fma(fma(r[i][0] * g[0][3], r[i][1], g[1][3]), r[i][2], g[2][3])
+        rows.append([*dR, torch.neg(dt, out=oi[3])])
+    return _stack_rows(rows, o)
+
+
+_inverse_grads = blocked(_inverse_bwd_entries, (2, 2))
+
+
+def _inverse_jvp(saved: tuple[Tensor, ...], dT: Tensor) -> Tensor:
+    (T,) = saved
+    dRt = dT[..., :3, :3].transpose(-1, -2)
+    Rt = T[..., :3, :3].transpose(-1, -2)
+    dt = torch.matmul(dRt, T[..., :3, 3:]) + torch.matmul(Rt, dT[..., :3, 3:])
+    return _pad_row(torch.cat((dRt, -dt), dim=-1))
+
+
+_InverseFn = custom_function(
+    "Se3Inverse",
+    forward=_inverse_entries,
+    save=lambda inputs, out: (inputs[0],),
+    backward=_inverse_bwd,
+    jvp=_inverse_jvp,
+    event_dims=(2,),
+)
+
+
+def inverse(T: Tensor) -> Tensor:
+    """``T^-1 = [[R^T, -R^T t], [0, 1]]``."""
+    return _InverseFn(T)
+
+
+def _homogeneous(p: Tensor) -> Tensor:
+    return torch.nn.functional.pad(p, (0, 1), value=1.0)
+
+
+def _act_fwd(T: Tensor, p: Tensor) -> Tensor:
+    """``R p + t``, column by column (as :func:`torchlie.so3.act`)."""
+    return torch.add(mv(T[..., :3, :3], p), T[..., :3, 3])
+
+
+def _act_grads(T: Tensor, p: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
+    # out = [R, t] (p, 1): d[R, t] = g (p, 1)^T and dp = R^T g.
+    dT = _pad_row(g.unsqueeze(-1) * _homogeneous(p).unsqueeze(-2))
+    return dT, mv(T[..., :3, :3].transpose(-1, -2), g)
+
+
+_act_grads_blocked = blocked(_act_grads, (2, 1, 1))
+
+
+def _act_bwd(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]:
+    T, p = saved
+    dT, dp = _act_grads_blocked(T, p, g)
+    return dT.sum_to_size(T.shape), dp.sum_to_size(p.shape)
+
+
+def _act_jvp(saved: tuple[Tensor, ...], dT: Tensor, dp: Tensor) -> Tensor:
+    T, p = saved
+    out = torch.matmul(dT[..., :3, :], _homogeneous(p).unsqueeze(-1))
+    return (out + torch.matmul(T[..., :3, :3], dp.unsqueeze(-1))).squeeze(-1)
+
+
+_ActFn = custom_function(
+    "Se3Act",
+    forward=_act_fwd,
+    save=lambda inputs, out: (inputs[0], inputs[1]),
+    backward=_act_bwd,
+    jvp=_act_jvp,
+    event_dims=(2, 1),
+)
+
+
+def act(T: Tensor, p: Tensor) -> Tensor:
+    """``R p + t`` (batch shapes broadcast)."""
+    return _ActFn(T, p)
+
+
+# ----------------------------------------------------------------------------------------------
+# exp / log
+# ----------------------------------------------------------------------------------------------
+
+
+def _exp_forward(xi: Tensor) -> Tensor:
+    """``[[Exp(phi), Jl(phi) rho], [0, 1]]`` from components, one set of coefficients for both
+    blocks (runs without autograd: forward-only coefficients); the rotation block is
+    :func:`torchlie.so3.exp`'s, bit for bit."""
+    xyz, (a, b, c, d) = _rodrigues.coefficients(xi[..., 3:], "abcd")
+    o, top = _top_outputs(xyz[0])
+    R = _rodrigues.exp_entries(xyz, a, b, d, [e for row in top for e in row[:3]])
+    t = _rodrigues.jl_components(xyz, planes(xi[..., :3], 3), a, b, c, [r[3] for r in top])
+    return _stack_top([(*R[0:3], t[0]), (*R[3:6], t[1]), (*R[6:9], t[2])], out=o)
+
+
+def _exp_backward(saved, G: Tensor):
+    # T = [[R, t], [0, 1]], R = Exp(phi), t = Jl(phi) rho.  With a left perturbation,
+    # dt = (Q(rho, phi) - t^ Jl(phi)) dphi + Jl(phi) drho, so
+    #     g_rho = Jr(phi) g_t,
+    #     g_phi = Jl(phi) vee(R^T G_R - G_R^T R) + Jr(phi) (t x g_t) + Q(-rho, -phi) g_t.
+    xi, T = saved
+    if not torch.is_grad_enabled():
+        return (_exp_grad_values(xi, T, G),)
+    rho, phi = xi[..., :3], xi[..., 3:]  # create_graph: differentiable ops
+    R, t = T[..., :3, :3], T[..., :3, 3]
+    g_R, g_t = G[..., :3, :3], G[..., :3, 3]
+    g_rho = _rodrigues.jl_apply(phi, g_t, sign=-1.0)
+    g_phi = _rodrigues.jl_apply(phi, 2.0 * vee(R.transpose(-1, -2) @ g_R))
+    g_phi = g_phi + _rodrigues.jl_apply(phi, torch.linalg.cross(t, g_t, dim=-1), sign=-1.0)
+    return (torch.cat((g_rho, g_phi + _se3_jacobian.q_apply(-rho, -phi, g_t)), dim=-1),)
+
+
+def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor) -> Tensor:
+    """:func:`_exp_backward` from components, forward-only coefficients (plain backward)."""
+    x = planes(xi, 6)
+    xyz = x[3:]
+    half = _coeffs.half_angle(xyz)
+    a, b, c = _coeffs.rodrigues_values(None, "abc", half)
+    qc = _se3_jacobian.q_values(xi.dtype, half, (b, c))
+    a, b, c = (v.to(xi.dtype) for v in (a, b, c))
+    R, t = _rotation_and_translation(T)
+    G_R, g_t = _rotation_and_translation(G)
+    o = _layout.outputs(x[0], 6)
+    g_rho = _rodrigues.jl_components(xyz, g_t, a, -b, c, o[:3])
+    u = rt_g_vee(R, G_R)
+    g_phi = _rodrigues.jl_components(xyz, u, a, b, c)
+    g_tx = _rodrigues.jl_components(xyz, cross_planes(t, g_t), a, -b, c)
+    neg = [-v for v in x]
+    q = _se3_jacobian.q_components(neg[:3], neg[3:], g_t, *qc)
+    g_phi = [
+        torch.add(p, r, out=oi).add_(s) for p, r, s, oi in zip(g_phi, g_tx, q, o[3:], strict=True)
+    ]
+    return _layout.interleave((*g_rho, *g_phi), o)
+
+
+_exp_grad_values = blocked(_exp_backward_values, (1, 2, 2))
+
+
+def _exp_jvp(saved, dxi: Tensor) -> Tensor:
+    # dT = [[e_phi^ R, e_phi^ t + e_rho], [0, 0]] with (e_rho, e_phi) = J_left(xi) dxi.
+    xi, T = saved
+    rho, phi = xi[..., :3], xi[..., 3:]
+    e_phi = _rodrigues.jl_apply(phi, dxi[..., 3:])
+    e_rho = _rodrigues.jl_apply(phi, dxi[..., :3]) + _se3_jacobian.q_apply(rho, phi, dxi[..., 3:])
+    dR = hat(e_phi) @ T[..., :3, :3]
+    dt = torch.linalg.cross(e_phi, T[..., :3, 3], dim=-1) + e_rho
+    return _pad_row(torch.cat((dR, dt.unsqueeze(-1)), dim=-1))
+
+
+_ExpMapFn = custom_function(
+    "Se3Exp",
+    forward=_exp_forward,
+    save=lambda inputs, out: (inputs[0], out),
+    backward=_exp_backward,
+    jvp=_exp_jvp,
+    event_dims=(1,),
+)
+
+
+def exp(xi: Tensor) -> Tensor:
+    """``Exp(xi)``, the angle reduced first where it is too large for the formulas."""
+    return _ExpMapFn(_reduced(xi))
+
+
+def _reduced(xi: Tensor) -> Tensor:
+    """A twist with the same ``Exp`` as ``xi`` (and the same derivatives), the angle reduced
+    modulo ``2 pi`` where it is too large for the formulas, ``xi`` itself elsewhere.
+
+    With ``phi'``, ``lam`` and ``u`` of :func:`torchlie._coeffs.reduction`,
+    ``Jl(phi) = lam Jl(phi') + (1 - lam) u u^T`` and ``Jl(phi') u = u``, so
+    ``Jl(phi) rho = Jl(phi') rho'`` with ``rho' = lam rho + (1 - lam) (u . rho) u``.
+    ``xi`` itself while compiling (:func:`torchlie._coeffs.reduction`).
+    """
+    if torch.compiler.is_compiling():
+        return xi
+    phi, lam, u = _coeffs.reduction(xi[..., 3:])
+    lam, u = lam[..., 0], u.unbind(-1)
+    rho = xi[..., :3].unbind(-1)
+    along = fma(fma(u[0] * rho[0], u[1], rho[1]), u[2], rho[2])
+    big = lam < 1.0
+    rho = [
+        torch.where(big, torch.lerp(along * ui, ri, lam), ri) for ui, ri in zip(u, rho, strict=True)
+    ]
+    return torch.stack((*rho, *phi.unbind(-1)), dim=-1)
+
+
+def _log_forward(T: Tensor) -> Tensor:
+    """From components, stacked once.  ``Jl(phi)^-1 t`` with the coefficients
+    ``e = (theta/2) cot(theta/2)`` and ``D = (1 - e) / theta^2`` from the log's own angle and
+    cotangent (:func:`torchlie._rotation_matrix.log_and_cot`)."""
+    R, t = _rotation_and_translation(T)  # one transposition of the top block
+    phi, theta, e = _rotation_matrix.log_and_cot(R, cot=True)
+    d = torch.rsub(e, 1.0).div_(theta.mul_(theta).clamp_min_(_coeffs.H_MIN[T.dtype]))
+    rho = _rodrigues.jl_components(phi, t, e, e.new_full((), -0.5), d)
+    return _layout.interleave((*rho, *phi))
+
+
+def _log_backward(saved, g: Tensor):
+    # d xi = Jr(xi)^-1 (R^T dt, vee(R^T dR)) along the tangent directions (zero along the
+    # normal ones).  With h = Jr(xi)^-T g and A = so3 Jl(phi):
+    #     Jr(xi)^-T = [[A^-1, 0], [-A^-1 Q A^-1, A^-1]]   (Q = Q(rho, phi) = Q(-rho, -phi)^T),
+    # so G_t = R h_rho and G_R = R hat(h_phi) / 2.
+    T, xi = saved
+    if not torch.is_grad_enabled():
+        return (_log_grad_values(T, xi, g),)
+    R = T[..., :3, :3]  # create_graph: differentiable ops
+    rho, phi = xi[..., :3], xi[..., 3:]
+    h_rho = _rodrigues.jl_inv_apply(phi, g[..., :3])
+    h_phi = _rodrigues.jl_inv_apply(phi, g[..., 3:] - _se3_jacobian.q_apply(rho, phi, h_rho))
+    G_R = 0.5 * (R @ hat(h_phi))
+    top = torch.cat((G_R, mv(R, h_rho).unsqueeze(-1)), dim=-1)
+    return (torch.cat((top, torch.zeros_like(top[..., :1, :])), dim=-2),)
+
+
+def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
+    """:func:`_log_backward` from components, forward-only coefficients (plain backward)."""
+    x = planes(xi, 6)
+    gs = planes(g, 6)
+    half = _coeffs.half_angle(x[3:])  # one sin and cos for the coefficients of Jl^-1 and Q
+    qc = _se3_jacobian.q_values(xi.dtype, half)
+    e, d = (v.to(xi.dtype) for v in _coeffs.jl_inv_values(None, half))
+    minus_half = e.new_full((), -0.5)
+    h_rho = _rodrigues.jl_components(x[3:], gs[:3], e, minus_half, d)
+    q = _se3_jacobian.q_components(x[:3], x[3:], h_rho, *qc)
+    v = [(gi - qi).mul_(0.5) for gi, qi in zip(gs[3:], q, strict=True)]
+    u = _rodrigues.jl_components(x[3:], v, e, minus_half, d)  # h_phi / 2
+    r = planes(T[..., :3, :3], 9)
+    o, top = _top_outputs(r[0])
+    G_R = [cross_planes(r[3 * i : 3 * i + 3], u, top[i][:3]) for i in range(3)]  # rows of R hat(u)
+    G_t = [
+        fma(fma(r[i] * h_rho[0], r[i + 1], h_rho[1]), r[i + 2], h_rho[2], out=oi[3])
+        for i, oi in zip((0, 3, 6), top, strict=True)
+    ]
+    return _stack_rows([(*G_R[i], G_t[i]) for i in range(3)], o)
+
+
+_log_grad_values = blocked(_log_backward_values, (2, 1, 1))
+
+
+def _log_jvp(saved, dT: Tensor) -> Tensor:
+    T, xi = saved
+    Rt = T[..., :3, :3].transpose(-1, -2)
+    v = torch.cat((mv(Rt, dT[..., :3, 3]), vee(Rt @ dT[..., :3, :3])), dim=-1)
+    return _se3_jacobian.jl_inv_apply(-xi, v)  # Jr(xi)^-1 v
+
+
+_LogFn = custom_function(
+    "Se3Log",
+    forward=_log_forward,
+    save=lambda inputs, out: (inputs[0], out),
+    backward=_log_backward,
+    jvp=_log_jvp,
+    event_dims=(2,),
+)
+
+
+def log(T: Tensor) -> Tensor:
+    """``Log(T)`` (the bottom row is not read)."""
+    return _LogFn(T)
