@@ -437,7 +437,7 @@ def step(x: Tensor) -> Tensor:
 def q_series(t2: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """``(k1, k2, k3, k4) = (c1, c1 - 3 c2, c2, c3)`` of ``t2``, each to a few ulp of ``t2``'s
     dtype, with ``c1 = sinc3``, ``c2 = cosc4``, ``c3 = q3``: the coefficients of the top-right
-    block ``Q`` of the SE(3) Jacobian (``torchlie.se3._q_components``)."""
+    block ``Q`` of the SE(3) Jacobian (``torchlie._se3_jacobian.q_components``)."""
     c1, c2 = sinc3(t2), cosc4(t2)
     return c1, c1 - 3.0 * c2, c2, q3(t2, c1)
 
