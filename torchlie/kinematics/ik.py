@@ -33,9 +33,11 @@ converge as often and as fast as with the exact derivative.  Whether a step is t
 by the exact cost.
 
 Joint limits are kept by projection with an active set: a joint resting on a limit that the
-cost's gradient pushes outwards is left out of the step (its column of ``A`` is zeroed), and
-each trial point is clamped into ``[lower, upper]`` before it is evaluated, so every iterate
-and the answer are within the limits.  Measured on the bundled Panda (targets from random
+cost's gradient pushes outwards is left out of the step (its column of ``A`` is zeroed), as is
+one that the previous step pushed outwards (the clamp then spoiled that step, which a
+Gauss-Newton step can do while the gradient points inwards), and each trial point is clamped
+into ``[lower, upper]`` before it is evaluated, so every iterate and the answer are within the
+limits.  Measured on the bundled Panda (targets from random
 in-limit configurations, one start each, 100 iterations), the share of starts that converge
 is 50% for this projection, 38% for clamping alone and 50% for the bounded reparametrisation
 ``q = mid + half sin(u)`` (whose derivative vanishes at the limits); with 8 starts and
@@ -361,6 +363,14 @@ def _pose_error(P: Tensor, Ti: Tensor) -> tuple[Tensor, Tensor]:
     return ER, Et
 
 
+def _errors(perr: list[Tensor], rerr: list[Tensor]) -> tuple[Tensor, Tensor]:
+    """The worst position and rotation errors over the tasks (rotation 0 without poses)."""
+    p = torch.stack(perr).amax(0) if len(perr) > 1 else perr[0]
+    if not rerr:
+        return p, torch.zeros_like(p)
+    return p, torch.stack(rerr).amax(0) if len(rerr) > 1 else rerr[0]
+
+
 def _residuals(
     chain: Chain, q: Tensor, tasks: list[_Task], weights: Tensor, dofs: _Dofs | None
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
@@ -394,11 +404,7 @@ def _residuals(
             perr.append(_norm3(r))
     b = (torch.cat(rs) if len(rs) > 1 else rs[0]) * weights.unsqueeze(-1)
     A = (torch.cat(As) if len(As) > 1 else As[0]) * weights.view(-1, 1, 1)
-    p_err = torch.stack(perr).amax(0) if len(perr) > 1 else perr[0]
-    if not rerr:
-        return b, A, p_err, torch.zeros_like(p_err)
-    r_err = torch.stack(rerr).amax(0) if len(rerr) > 1 else rerr[0]
-    return b, A, p_err, r_err
+    return b, A, *_errors(perr, rerr)
 
 
 def _rotation_log(R: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -413,10 +419,6 @@ def _rotation_log(R: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     theta = torch.atan2(s, c)
     f = theta / s
     return v * f, theta, f * (c + 2.0) * 0.5  # cot(theta/2) = (2 + c) / s
-
-
-def _worst(errs: list[Tensor]) -> Tensor:
-    return torch.stack(errs).amax(0) if len(errs) > 1 else errs[0]
 
 
 def _linearise(
@@ -455,8 +457,7 @@ def _linearise(
     A = torch.cat(As, 1) if len(As) > 1 else As[0]
     if weights is not None:
         b, A = b * weights.unsqueeze(-1), A * weights.unsqueeze(-1)
-    p_err = _worst(perr)
-    return b, A, p_err, _worst(rerr) if rerr else torch.zeros_like(p_err)
+    return b, A, *_errors(perr, rerr)
 
 
 def _spd_solve(S: Tensor, y: Tensor) -> Tensor:
@@ -655,10 +656,9 @@ def inverse_kinematics(
         size = math.prod(tail)
         tb = t.expand(*batch, *tail).reshape(P, *tail)
         ref = _se3.inverse(tb) if pose else tb
-        grad_tasks.append(_Task(name, index, pose, ref.reshape(P, size).mT.reshape(*tail, P)))
-        tasks.append(
-            _Task(name, index, pose, ref.detach().reshape(P, size).mT.contiguous().view(*tail, P))
-        )
+        ref = ref.reshape(P, size).mT
+        grad_tasks.append(_Task(name, index, pose, ref.reshape(*tail, P)))
+        tasks.append(_Task(name, index, pose, ref.detach().contiguous().view(*tail, P)))
         weights += [wp] * 3 + ([wr] * 3 if pose else [])
     w_sqrt = torch.tensor(weights, dtype=dtype, device=device).sqrt()
     w_loop = None if all(w == 1.0 for w in weights) else w_sqrt
