@@ -7,8 +7,8 @@ same number of random starts per target (``--restarts``), tolerances 1e-4 m and 
 and one thread (``torch.set_num_threads(1)``):
 
 * torchlie: :meth:`Chain.inverse_kinematics <torchlie.kinematics.Chain.inverse_kinematics>`
-  with its defaults (a fixed budget of 40 iterations, no synchronisation), and with
-  ``early_exit=True`` (solved targets leave the batch);
+  with its defaults (a fixed budget of iterations, no synchronisation), and with
+  ``early_exit=True`` (the starts of solved targets leave the batch);
 * pytorch-kinematics: ``pytorch_kinematics.PseudoInverseIK`` with its defaults (50 iterations,
   ``early_stopping_any_converged=False``) and with ``early_stopping_any_converged=True`` (it
   stops when every target has a converged start), the starts uniform within the same limits.
@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import inspect
 import io
 import os
 import statistics
@@ -48,6 +49,7 @@ if str(ROOT) not in sys.path:
 
 from torchlie import se3  # noqa: E402
 from torchlie.kinematics import Chain, sample_robot  # noqa: E402
+from torchlie.kinematics.ik import inverse_kinematics  # noqa: E402
 from torchlie.kinematics.validate import _pk_text  # noqa: E402
 
 ROBOTS = {"arm7": "tool_tcp", "panda": "panda_hand_tcp", "tree": "left_tcp"}
@@ -75,7 +77,8 @@ def timed(fn, repeats: int):
 
 def torchlie_rows(chain, chain64, link, T, args):
     rows = []
-    for label, kw in (("torchlie (40 iterations, no sync)", {}),
+    budget = inspect.signature(inverse_kinematics).parameters["max_iterations"].default
+    for label, kw in ((f"torchlie ({budget} iterations, no sync)", {}),
                       ("torchlie early_exit=True", {"early_exit": True})):  # fmt: skip
 
         def run(T=T, kw=kw):

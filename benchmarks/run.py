@@ -184,8 +184,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--kinematics",
         action=argparse.BooleanOptionalAction,
         default=None,
-        help="also run benchmarks/bench_kinematics.py (forward kinematics against "
-        "pytorch-kinematics) and append its table (default: on, off with --quick)",
+        help="also run benchmarks/bench_kinematics.py (forward kinematics) and "
+        "benchmarks/bench_ik.py (inverse kinematics), both against pytorch-kinematics, and "
+        "append their tables (default: on, off with --quick)",
     )
     args = p.parse_args(argv)
     if args.sizes is None:
@@ -693,11 +694,15 @@ def markdown(result: dict) -> str:
 
     out += targets(result, tab, peers)
     out += compile_table(result, tab)
-    kin = result.get("kinematics")
-    if kin:
-        out += ["## Forward kinematics (`benchmarks/bench_kinematics.py`, wall clock)", ""]
-        out += [kin["output"] if kin["rc"] == 0 else f"failed ({kin['rc']}):\n\n```\n"
-                + kin["output"] + "\n```", ""]  # fmt: skip
+    for key, title in (
+        ("kinematics", "Forward kinematics (`benchmarks/bench_kinematics.py`, wall clock)"),
+        ("inverse_kinematics", "Inverse kinematics (`benchmarks/bench_ik.py`, CPU time)"),
+    ):
+        kin = result.get(key)
+        if kin:
+            out += [f"## {title}", ""]
+            out += [kin["output"] if kin["rc"] == 0 else f"failed ({kin['rc']}):\n\n```\n"
+                    + kin["output"] + "\n```", ""]  # fmt: skip
     out += ["## Calls timed", ""]
     for name in ops:
         calls = result["calls"].get(name, {})
@@ -793,13 +798,15 @@ def compile_table(result: dict, tab: Table) -> list[str]:
 
 
 KINEMATICS = ROOT / "benchmarks" / "bench_kinematics.py"
+INVERSE_KINEMATICS = ROOT / "benchmarks" / "bench_ik.py"
 
 
-def kinematics(args: argparse.Namespace, log=print) -> dict:
-    """Run the forward-kinematics benchmark in a subprocess (same environment); its output."""
-    if not KINEMATICS.exists():
-        return {"rc": None, "output": f"{KINEMATICS.name} not found"}
-    cmd = [sys.executable, str(KINEMATICS)] + (["--quick"] if args.quick else [])
+def kinematics(args: argparse.Namespace, log=print, script: Path = KINEMATICS) -> dict:
+    """Run a kinematics benchmark (forward: ``bench_kinematics.py``; inverse:
+    ``bench_ik.py``) in a subprocess (same environment); its output."""
+    if not script.exists():
+        return {"rc": None, "output": f"{script.name} not found"}
+    cmd = [sys.executable, str(script)] + (["--quick"] if args.quick else [])
     path = [str(ROOT)] + ([os.environ["PYTHONPATH"]] if os.environ.get("PYTHONPATH") else [])
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(path)}
     log("running " + " ".join(cmd[1:]))
@@ -810,7 +817,7 @@ def kinematics(args: argparse.Namespace, log=print) -> dict:
     return {
         "rc": proc.returncode,
         "output": out,
-        "command": "python benchmarks/bench_kinematics.py",
+        "command": f"python benchmarks/{script.name}",
     }
 
 
@@ -878,7 +885,8 @@ def main(argv: list[str] | None = None) -> int:
 
     result = run(args, log=lambda s: print(s, flush=True), checkpoint=checkpoint)
     if args.kinematics:
-        result["kinematics"] = kinematics(args, log=lambda s: print(s, flush=True))
+        for key, script in (("kinematics", KINEMATICS), ("inverse_kinematics", INVERSE_KINEMATICS)):
+            result[key] = kinematics(args, log=lambda s: print(s, flush=True), script=script)
     md = markdown(result)
     (out / "results.md").write_text(md)
     (out / "results.json").write_text(json.dumps(result, indent=1, default=str))

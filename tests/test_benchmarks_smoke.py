@@ -12,6 +12,7 @@ quaternion order, transpose or sign is an O(1) difference; precision is tested e
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import math
 import subprocess
@@ -207,3 +208,20 @@ def test_quick_run_compiled(tmp_path: Path) -> None:
     (rec,) = [r for r in result["records"] if r["impl"] == "compiled"]
     assert "error" not in rec
     assert rec["first_call_s"] > rec["median_s"] > 0
+
+
+def test_inverse_kinematics_table() -> None:
+    """``run.py``'s kinematics section also runs ``bench_ik.py`` (here ``--quick``: 100 targets
+    per robot, one timed call): a row per solver and robot, torchlie's with pk's speed-ups."""
+    args = brun.parse_args(["--quick"])
+    kin = brun.kinematics(args, log=lambda s: None, script=brun.INVERSE_KINEMATICS)
+    assert kin["rc"] == 0, kin["output"]
+    assert kin["command"] == "python benchmarks/bench_ik.py"
+    rows = [line.split(" | ") for line in kin["output"].splitlines() if line.startswith("| ")]
+    have_pk = importlib.util.find_spec("pytorch_kinematics") is not None
+    for robot in ("arm7", "panda", "tree"):
+        ours = [r for r in rows if r[0].startswith(f"| {robot} ") and "torchlie" in r[1]]
+        assert len(ours) == 2  # the fixed budget and early_exit
+        for r in ours:
+            assert float(r[2].rstrip("%")) >= 95.0  # solved
+            assert r[-1].rstrip(" |").endswith("x") == have_pk  # speed-ups against pk

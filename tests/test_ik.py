@@ -140,7 +140,8 @@ def test_batch_shapes_broadcast_and_empty():
     gen = torch.Generator().manual_seed(4)
     T = _fk(arm, arm.random_configuration(2, 3, generator=gen), "tool_tcp")
     q0 = arm.random_configuration(3, generator=gen)  # broadcast against (2, 3)
-    res = arm.inverse_kinematics(T, "tool_tcp", q0=q0, restarts=2, generator=gen)
+    res = arm.inverse_kinematics(T, "tool_tcp", q0=q0, restarts=2, max_iterations=40,
+                                 generator=gen)  # fmt: skip
     assert res.q.shape == (2, 3, 7)
     assert res.position_error.shape == res.converged.shape == res.iterations.shape == (2, 3)
     assert bool(res.converged.all())
@@ -212,6 +213,7 @@ def test_unreachable_targets_give_the_best_finite_point(dtype):
     res = arm.inverse_kinematics(far, "tool_tcp", restarts=4,
                                  generator=torch.Generator().manual_seed(0))  # fmt: skip
     assert not bool(res.converged.any())
+    assert torch.equal(res.iterations, torch.full((2,), 24))  # the whole (default) budget
     assert bool(torch.isfinite(res.q).all()) and _within_limits(arm, res.q)
     p = _fk(arm, res.q, "tool_tcp")[:, :3, 3]
     torch.testing.assert_close(res.position_error, (p - far).norm(dim=-1), atol=1e-5, rtol=0)
@@ -259,6 +261,41 @@ def test_residual_jacobian_is_the_exact_derivative(robot, links):
         expected = torch.func.jacrev(residual)(q[k])
         torch.testing.assert_close(b[:, k], residual(q[k]), atol=1e-12, rtol=0)
         torch.testing.assert_close(A[:, :, k], expected, atol=1e-10, rtol=0)
+
+
+@pytest.mark.parametrize("robot, links", [("panda", ["panda_hand_tcp"]),
+                                           ("tree", ["left_tcp", "drone_camera"])])  # fmt: skip
+def test_solver_residual_is_the_world_frame_residual(robot, links):
+    """The iterations' residual is ``diag(R, R)`` times the log residual (same norm, so the
+    same cost), and their Jacobian, the chain's world Jacobian, is its exact derivative at a
+    solution (``Jr(0) = I``)."""
+    chain = Chain.from_urdf(sample_robot(robot), dtype=F64)
+    gen = torch.Generator().manual_seed(9)
+    N = 4
+    q = chain.random_configuration(N, generator=gen)
+    T = chain.forward_kinematics(q, links)
+    w = torch.tensor([1.0, 1.0, 1.0, 0.5, 0.5, 0.5] * len(links), dtype=F64)
+    # diag(R, R) per link, per sample: (N, 6 L, 6 L)
+    Rot = torch.stack(
+        [torch.block_diag(*[T[n][k, :3, :3] for n in links for _ in range(2)]) for k in range(N)]
+    )
+    for at_solution in (False, True):
+        qs = q if at_solution else chain.random_configuration(N, generator=gen)
+        T_star = chain.forward_kinematics(qs, links)
+        tasks = [
+            ik_module._Task(name, chain._index[name], True,
+                            se3.inverse(T_star[name]).reshape(N, 16).mT.reshape(4, 4, N))
+            for name in links
+        ]  # fmt: skip
+        b, A, perr, rerr = ik_module._residuals(chain, q.mT.contiguous(), tasks, w, None)
+        bw, Aw, perr_w, rerr_w = ik_module._linearise(chain, q.mT.contiguous(), tasks, w, None)
+        torch.testing.assert_close(bw.mT, (Rot @ b.mT.unsqueeze(-1)).squeeze(-1), atol=1e-12,
+                                   rtol=0)  # fmt: skip
+        torch.testing.assert_close(perr_w, perr, atol=1e-12, rtol=0)
+        torch.testing.assert_close(rerr_w, rerr, atol=1e-12, rtol=0)
+        if at_solution:  # A (m, n, N); Aw (n, m, N)
+            torch.testing.assert_close(Aw.permute(2, 1, 0), Rot @ A.permute(2, 0, 1), atol=1e-12,
+                                       rtol=0)  # fmt: skip
 
 
 def _solve6(xi: torch.Tensor, chain: Chain, T0: torch.Tensor, q0: torch.Tensor) -> torch.Tensor:
@@ -341,21 +378,31 @@ def test_no_graph_without_targets_that_require_grad():
 
 @pytest.mark.compile
 @pytest.mark.slow
-def test_compiles_with_fullgraph():
+@pytest.mark.parametrize(
+    "offset, options",
+    [(0.01, {"restart_after": None, "max_iterations": 2}),
+     # the restarts: the best point per target, the round-robin of new starts
+     (0.3, {"restarts": 2, "restart_after": 1, "max_iterations": 4})],
+    ids=["no-restart", "restarts"],
+)  # fmt: skip
+def test_compiles_with_fullgraph(offset, options):
     chain = Chain.from_urdf(sample_robot("arm7"))
     gen = torch.Generator().manual_seed(11)
     q = chain.random_configuration(8, generator=gen)
     T = _fk(chain, q, "tool_tcp")
-    q0 = (q + 0.01).clamp(chain.lower, chain.upper)
+    q0 = (q + offset).clamp(chain.lower, chain.upper)
 
     def solve(T: torch.Tensor, q0: torch.Tensor) -> torch.Tensor:
-        r = chain.inverse_kinematics(T, "tool_tcp", q0=q0, restart_after=None, max_iterations=2)
-        return r.q, r.converged
+        r = chain.inverse_kinematics(T, "tool_tcp", q0=q0, **options)
+        return r.q, r.converged, r.iterations
 
-    q_c, conv_c = torch.compile(solve, fullgraph=True, backend="aot_eager")(T, q0)
-    q_e, conv_e = solve(T, q0)
+    torch.manual_seed(0)  # the same random starts in both
+    q_c, conv_c, it_c = torch.compile(solve, fullgraph=True, backend="aot_eager")(T, q0)
+    torch.manual_seed(0)
+    q_e, conv_e, it_e = solve(T, q0)
     torch.testing.assert_close(q_c, q_e, atol=1e-4, rtol=0)
-    assert torch.equal(conv_c, conv_e) and bool(conv_e.all())
+    assert torch.equal(conv_c, conv_e) and torch.equal(it_c, it_e)
+    assert bool(conv_e.all()) if offset < 0.1 else bool(conv_e.any())
 
 
 # ----------------------------------------------------------------------------------------------

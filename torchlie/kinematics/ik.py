@@ -25,12 +25,19 @@ residual rows than joints), ``mu = lambda * mean(diag)``; a step that lowers the
 and ``lambda`` shrinks, otherwise it is refused and ``lambda`` grows.  Each step is one batched
 forward-kinematics-and-Jacobian pass for every link at once (:meth:`Chain.jacobian`'s closed
 form); the small linear systems are solved by a Cholesky factorisation vectorised over the
-batch.
+batch.  The steps take ``Jr(r)^-1`` as the identity (exact at a solution, where ``r = 0``):
+with both the residual and the Jacobian rotated into the world frame (``diag(R, R)``, which
+leaves the step unchanged), ``A`` is then the chain's world Jacobian as it comes, which saves
+most of the work per step besides forward kinematics; on the bundled robots the starts
+converge as often and as fast as with the exact derivative.  Whether a step is taken is decided
+by the exact cost.
 
 Joint limits are kept by projection with an active set: a joint resting on a limit that the
-cost's gradient pushes outwards is left out of the step (its column of ``A`` is zeroed), and
-each trial point is clamped into ``[lower, upper]`` before it is evaluated, so every iterate
-and the answer are within the limits.  Measured on the bundled Panda (targets from random
+cost's gradient pushes outwards is left out of the step (its column of ``A`` is zeroed), as is
+one that the previous step pushed outwards (the clamp then spoiled that step, which a
+Gauss-Newton step can do while the gradient points inwards), and each trial point is clamped
+into ``[lower, upper]`` before it is evaluated, so every iterate and the answer are within the
+limits.  Measured on the bundled Panda (targets from random
 in-limit configurations, one start each, 100 iterations), the share of starts that converge
 is 50% for this projection, 38% for clamping alone and 50% for the bounded reparametrisation
 ``q = mid + half sin(u)`` (whose derivative vanishes at the limits); with 8 starts and
@@ -41,19 +48,24 @@ each step (same pose).  Mimic joints follow their joint (their own ``<limit>`` i
 enforced: the DoF they follow is what is bounded).
 
 Batching and restarts: targets of any batch shape ``(...)``; ``restarts = K`` solves ``K``
-starts per target side by side in one batch (the first from ``q0`` when given, the others
-uniform within the limits like :meth:`Chain.random_configuration`, from ``generator``).  A
-start still outside the tolerances after ``restart_after`` iterations is replaced by a fresh
-uniform one (most starts that converge do so within a dozen iterations; one stuck against the
-limits or in a local minimum rarely does), and the best point of every start is remembered.
+starts per target side by side in one batch of ``N = P K`` columns (the first start from
+``q0`` when given, the others uniform within the limits like
+:meth:`Chain.random_configuration`, from ``generator``).  Every ``restart_after + 1``
+iterations (a fixed schedule) the columns take new uniform starts, except the one with the
+best point of each target (it goes on: a solved target's keeps refining, an unreachable
+target's keeps improving; a target's only column restarts when it is not within the
+tolerances).  The new starts are dealt round-robin to the targets that no column has solved
+yet, so a hard target gets the columns of the solved ones: most starts that converge do so
+within a few iterations, and one stuck against the limits or in a local minimum rarely does.
 Per target the result is a point within tolerance if any start reached one (the lowest cost
 among those), else the lowest cost.
 
 The iteration count is fixed (``max_iterations``) and nothing in the loop reads a tensor value
 on the host, so it runs under ``torch.compile`` and on CUDA without synchronising.  With
-``early_exit=True`` (eager use) solved targets leave the batch (it shrinks each time half of it
-is solved) and the loop stops when none is left, which costs one synchronisation per
-iteration and saves most of the work when a few targets are hard.
+``early_exit=True`` (eager use) the columns of solved targets leave the batch (each time they
+are half of it; at least ``4 K`` columns per unsolved target stay, for the next restarts) and
+the loop stops when every target is solved, which costs one synchronisation per iteration and
+saves most of the work when a few targets are hard.
 
 Gradients
 ---------
@@ -104,6 +116,9 @@ _LAMBDA_DOWN = 0.25
 _LAMBDA_UP = 4.0
 _LAMBDA_MIN = 1e-9
 _LAMBDA_MAX = 1e9
+# With early exit, columns kept per unsolved target, in units of `restarts` (the surplus ones
+# take unsolved targets at the next restart).
+_SPARE = 4
 
 
 class IKResult(NamedTuple):
@@ -117,9 +132,8 @@ class IKResult(NamedTuple):
         rotation_error: ``(...)`` largest rotation angle, in rad, between a link's orientation
             and its target pose's (``0`` for position-only targets; detached).
         converged: ``(...)`` bool, both errors within their tolerances.
-        iterations: ``(...)`` int64, the iterations spent on the kept start (and on the starts
-            it replaced, see ``restart_after``) before it came within the tolerances
-            (``max_iterations``, or fewer with ``early_exit``, when it did not).
+        iterations: ``(...)`` int64, the iterations before a start came within the
+            tolerances (``max_iterations`` when none did).
     """
 
     q: Tensor
@@ -338,12 +352,32 @@ def _combine(G: Tensor, rows: tuple[Tensor, ...], G2: Tensor | None = None,
     return out
 
 
+def _pose_error(P: Tensor, Ti: Tensor) -> tuple[Tensor, Tensor]:
+    """Rotation ``(3, 3, N)`` (``[r, c]``) and translation ``(3, N)`` of ``T*^-1 T`` from the
+    transposed pose ``P (4, 4, N)`` of ``T`` and ``Ti (4, 4, N)`` = ``T*^-1``."""
+    ER = Ti[:3, None, 0] * P[None, :3, 0]
+    Et = torch.addcmul(Ti[:3, 3], Ti[:3, 0], P[3, 0])
+    for k in (1, 2):
+        ER = torch.addcmul(ER, Ti[:3, None, k], P[None, :3, k])
+        Et = torch.addcmul(Et, Ti[:3, k], P[3, k])
+    return ER, Et
+
+
+def _errors(perr: list[Tensor], rerr: list[Tensor]) -> tuple[Tensor, Tensor]:
+    """The worst position and rotation errors over the tasks (rotation 0 without poses)."""
+    p = torch.stack(perr).amax(0) if len(perr) > 1 else perr[0]
+    if not rerr:
+        return p, torch.zeros_like(p)
+    return p, torch.stack(rerr).amax(0) if len(rerr) > 1 else rerr[0]
+
+
 def _residuals(
     chain: Chain, q: Tensor, tasks: list[_Task], weights: Tensor, dofs: _Dofs | None
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Weighted residuals ``b (m, N)``, their Jacobian ``A (m, k, N)`` with respect to the DoFs
-    ``dofs`` (``k`` of them; all if None) and the position and rotation errors ``(N,)`` (worst
-    over the tasks) at ``q (n_dof, N)``."""
+    """Weighted residuals ``b (m, N)``, their exact Jacobian ``A (m, k, N)`` with respect to the
+    DoFs ``dofs`` (``k`` of them; all if None) and the position and rotation errors ``(N,)``
+    (worst over the tasks) at ``q (n_dof, N)``: the link-frame residuals of the module
+    docstring (used for the implicit gradients)."""
     links = tuple(t.link for t in tasks)
     poses, jacs = chain._poses_and_jacobians(q.mT, links, None if dofs is None else dofs.ids)
     rs, As, perr, rerr = [], [], [], []
@@ -351,13 +385,11 @@ def _residuals(
         # P (4, 4, N) with P[c, r] = T[r, c]; J (n, 6, N) in world coordinates.
         if task.pose:
             Ti = task.target  # (4, 4, N): T*^-1
-            RtT = P[:3, :3]  # R^T
-            ER = (Ti[:3, None, :3] * RtT[None]).sum(2)  # (T*^-1 T) rotation, [r, c]
-            Et = (Ti[:3, :3] * P[3, :3].unsqueeze(0)).sum(1) + Ti[:3, 3]
+            ER, Et = _pose_error(P, Ti)
             E = torch.cat((torch.cat((ER, Et.unsqueeze(1)), 1), Ti[3:]), 0)  # (4, 4, N)
             r = _se3.log(E.permute(2, 0, 1)).mT  # (6, N)
             # The derivative of the log: Jr(r)^-1 times the link-frame Jacobian R^T J.
-            G1, G2 = _jr_inv_rt(r, RtT)
+            G1, G2 = _jr_inv_rt(r, P[:3, :3])
             Jc = J.unbind(1)  # six (n, N): linear then angular rows
             top = [_combine(G1[i], Jc[:3], G2[i], Jc[3:]) for i in range(3)]
             bottom = [_combine(G1[i], Jc[3:]) for i in range(3)]
@@ -372,57 +404,114 @@ def _residuals(
             perr.append(_norm3(r))
     b = (torch.cat(rs) if len(rs) > 1 else rs[0]) * weights.unsqueeze(-1)
     A = (torch.cat(As) if len(As) > 1 else As[0]) * weights.view(-1, 1, 1)
-    p_err = torch.stack(perr).amax(0) if len(perr) > 1 else perr[0]
-    if not rerr:
-        return b, A, p_err, torch.zeros_like(p_err)
-    r_err = torch.stack(rerr).amax(0) if len(rerr) > 1 else rerr[0]
-    return b, A, p_err, r_err
+    return b, A, *_errors(perr, rerr)
+
+
+def _rotation_log(R: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """``phi = log(R)`` ``(3, N)``, its angle ``theta`` and ``(theta/2) cot(theta/2)`` ``(N,)``
+    for rotations ``R (3, 3, N)`` (``[r, c]``), from the skew part and the trace: a few vector
+    operations (the solver's residual; :func:`torchlie.so3.log` is the accurate one).  The angle
+    is accurate at every angle; the axis loses precision near ``pi`` (where ``sin`` vanishes),
+    which only perturbs steps taken far from a solution."""
+    v = torch.stack((R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]))
+    s = _norm3(v).clamp_min_(_coeffs.H_MIN[v.dtype])  # 2 sin(theta): v = 2 sin(theta) axis
+    c = R[0, 0] + R[1, 1] + R[2, 2] - 1.0  # 2 cos(theta)
+    theta = torch.atan2(s, c)
+    f = theta / s
+    return v * f, theta, f * (c + 2.0) * 0.5  # cot(theta/2) = (2 + c) / s
+
+
+def _linearise(
+    chain: Chain, q: Tensor, tasks: list[_Task], weights: Tensor | None, dofs: _Dofs | None
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """What one solver iteration needs at ``q (n_dof, N)``: the residuals rotated into the world
+    frame ``b (m, N)`` (weighted; the same norm as :func:`_residuals`'), their Jacobian
+    ``A (k, m, N)`` (DoF first) with ``Jr(r)^-1`` taken as the identity, which is the world
+    Jacobian of the chain as it is, and the position and rotation errors ``(N,)``.
+
+    With ``Rot = diag(R, R)`` (``R`` the link's rotation) the link-frame linearisation
+    ``r + Jr(r)^-1 Rot^T J dq`` has the norm of ``Rot r + Rot Jr(r)^-1 Rot^T J dq``, and
+    ``Jr(r)^-1 = I + O(|r|)``: at a solution the two agree, and away from one the cost that
+    decides whether a step is taken is still the exact one.
+    """
+    links = tuple(t.link for t in tasks)
+    poses, jacs = chain._poses_and_jacobians(q.mT, links, None if dofs is None else dofs.ids)
+    rs, As, perr, rerr = [], [], [], []
+    for task, P, J in zip(tasks, poses, jacs, strict=True):
+        if task.pose:
+            ER, Et = _pose_error(P, task.target)
+            phi, theta, e = _rotation_log(ER)
+            d = torch.rsub(e, 1.0).div_((theta * theta).clamp_min_(_coeffs.H_MIN[theta.dtype]))
+            rho = _so3._jl_components(phi.unbind(0), Et.unbind(0), e, e.new_full((), -0.5), d)
+            r = torch.cat((torch.stack(rho), phi)).view(2, 3, 1, -1)  # (rho, phi), link frame
+            r = (P[:3, :3] * r).sum(1).view(6, -1)  # R rho, R phi
+            perr.append(_norm3(Et))
+            rerr.append(theta)
+        else:
+            r = P[3, :3] - task.target
+            J = J[:, :3]
+            perr.append(_norm3(r))
+        rs.append(r)
+        As.append(J)
+    b = torch.cat(rs) if len(rs) > 1 else rs[0]
+    A = torch.cat(As, 1) if len(As) > 1 else As[0]
+    if weights is not None:
+        b, A = b * weights.unsqueeze(-1), A * weights.unsqueeze(-1)
+    return b, A, *_errors(perr, rerr)
 
 
 def _spd_solve(S: Tensor, y: Tensor) -> Tensor:
     """``S^-1 y`` for symmetric positive definite ``S (k, k, N)`` and ``y (k, N)``.
 
-    A Cholesky factorisation by columns, each a few vector operations over the batch (``k`` is
-    small: a few rows per link): for thousands of tiny systems this is several times faster on
-    a CPU than a LAPACK call per matrix, and it has no error check that would read a device
-    value.  A pivot that rounding makes non-positive is clamped to the smallest normal number,
-    so the result stays finite.
+    A right-looking Cholesky factorisation, a few vector operations over the batch per column
+    (``k`` is small: a few rows per link): for thousands of tiny systems this is several times
+    faster on a CPU than a LAPACK call per matrix, and it has no error check that would read a
+    device value.  A pivot that rounding makes non-positive is clamped to the smallest normal
+    number, so the result stays finite.
     """
     k = S.shape[0]
     tiny = torch.finfo(S.dtype).tiny
-    L = torch.zeros_like(S)
-    inv = torch.zeros_like(y)
+    cols, invs, zs = [], [], []  # column j of L below the diagonal, 1 / L[j, j], L^-1 y
     for j in range(k):
-        col = S[j:, j] if j == 0 else S[j:, j] - (L[j:, :j] * L[j, :j]).sum(1)
-        inv[j] = col[0].clamp_min(tiny).rsqrt()
-        L[j:, j] = col * inv[j]
-    z = torch.zeros_like(y)
-    for i in range(k):
-        acc = y[i] if i == 0 else y[i] - (L[i, :i] * z[:i]).sum(0)
-        z[i] = acc * inv[i]
-    x = torch.zeros_like(y)
-    for i in reversed(range(k)):
-        acc = z[i] if i == k - 1 else z[i] - (L[i + 1 :, i] * x[i + 1 :]).sum(0)
-        x[i] = acc * inv[i]
+        inv = S[0, 0].clamp_min(tiny).rsqrt()
+        col = S[1:, 0] * inv
+        z = y[0] * inv
+        if j + 1 < k:  # the Schur complement, and y with column j eliminated
+            S = torch.addcmul(S[1:, 1:], col.unsqueeze(1), col.unsqueeze(0), value=-1.0)
+            y = torch.addcmul(y[1:], col, z, value=-1.0)
+        cols.append(col)
+        invs.append(inv)
+        zs.append(z)
+    x = (zs[-1] * invs[-1]).unsqueeze(0)  # L^T x = z, from the last row up
+    for j in reversed(range(k - 1)):
+        xj = (zs[j] - (cols[j] * x).sum(0)) * invs[j]
+        x = torch.cat((xj.unsqueeze(0), x))
     return x
 
 
-def _step(A: Tensor, b: Tensor, lam: Tensor) -> Tensor:
-    """``dq = (A^T A + mu I)^-1 A^T b`` ``(n, N)`` (the descent step is ``-dq``), ``mu = lam
-    mean(diag)`` plus a floor of a few ulp; through the ``m x m`` dual system
-    ``dq = A^T (A A^T + mu I)^-1 b`` when ``m <= n``."""
-    m, n = A.shape[:2]
-    dual = m <= n
-    M = A if dual else A.transpose(0, 1)  # (k, l, N): S = M M^T
-    k = M.shape[0]
-    S = torch.stack([(M[i : i + 1] * M).sum(1) for i in range(k)])  # (k, k, N)
-    diag = torch.diagonal(S, dim1=0, dim2=1).mT  # (k, N)
+def _gram(X: Tensor) -> Tensor:
+    """``S[i, j] = sum_l X[l, i] X[l, j]``, ``(c, c, N)``, for ``X (l, c, N)``."""
+    S = X[0].unsqueeze(1) * X[0].unsqueeze(0)
+    for row in X[1:]:
+        S = torch.addcmul(S, row.unsqueeze(1), row.unsqueeze(0))
+    return S
+
+
+def _step(A: Tensor, b: Tensor, lam: Tensor, g: Tensor | None = None) -> Tensor:
+    """``dq = (A^T A + mu I)^-1 A^T b`` ``(k, N)`` (the descent step is ``-dq``) for
+    ``A (k, m, N)`` (DoF first) and ``b (m, N)``, ``mu = lam mean(diag)`` plus a floor of a few
+    ulp; through the ``m x m`` dual system ``dq = A^T (A A^T + mu I)^-1 b`` when ``m <= k``.
+    ``g``: ``A^T b`` when the caller has it."""
+    k, m = A.shape[:2]
+    dual = m <= k
+    S = _gram(A if dual else A.transpose(0, 1))
+    diag = torch.diagonal(S)  # (N, k or m), a view: mu is added in place
     eps = torch.finfo(A.dtype).eps
-    mu = lam * diag.mean(0) + eps * (1.0 + diag.amax(0))
-    S = S + mu * torch.eye(k, dtype=A.dtype, device=A.device).unsqueeze(-1)
+    mu = lam * diag.mean(-1) + eps * (1.0 + diag.amax(-1))
+    diag.add_(mu.unsqueeze(-1))
     if dual:
-        return (A * _spd_solve(S, b).unsqueeze(1)).sum(0)
-    return _spd_solve(S, (A * b.unsqueeze(1)).sum(0))
+        return (A * _spd_solve(S, b).unsqueeze(0)).sum(1)
+    return _spd_solve(S, (A * b.unsqueeze(0)).sum(1) if g is None else g)
 
 
 def _wrap_rotvecs(q: Tensor, rot: list[int]) -> Tensor:
@@ -470,8 +559,8 @@ def inverse_kinematics(
     restarts: int = 1,
     position_weight: float = 1.0,
     rotation_weight: float = 1.0,
-    max_iterations: int = 40,
-    restart_after: int | None = 12,
+    max_iterations: int = 24,
+    restart_after: int | None = 8,
     position_tolerance: float = 1e-4,
     rotation_tolerance: float = 1e-3,
     early_exit: bool = False,
@@ -497,12 +586,14 @@ def inverse_kinematics(
             targets position targets (their orientation is neither solved for nor checked).
         max_iterations: Levenberg-Marquardt iterations (each one forward-kinematics and
             Jacobian pass), at least 0.
-        restart_after: a start that is not within tolerance after this many iterations is
-            replaced by a fresh uniform one (``None``: never), so a budget of
-            ``max_iterations`` tries up to ``restarts * (1 + max_iterations // restart_after)``
-            starts per target at the cost of ``restarts``; the best point of every start is
-            kept.  Only the DoFs that move a target link are solved for: the others keep their
-            start value.
+        restart_after: every ``restart_after + 1`` iterations, starting after
+            ``restart_after``, the columns take fresh uniform starts for the targets not solved
+            yet, all but the best one of each target (``None``: never; see the module
+            docstring), so a budget of ``max_iterations`` tries up to
+            ``restarts * (1 + max_iterations // restart_after)`` starts per target on average
+            at the cost of ``restarts``, most of them for the hard targets; the best point of
+            every target is kept.  Only the DoFs that move a target link are solved for: the
+            others keep their start value.
         position_tolerance, rotation_tolerance: thresholds of ``converged`` (m, rad).
         early_exit: stop once every target has a start within tolerance (one device
             synchronisation per iteration; not for ``torch.compile(fullgraph=True)``).
@@ -558,25 +649,26 @@ def inverse_kinematics(
             draws = torch.cat((torch.cat((draws, more[:1, :, 1:]), 2), more[1:]), 0)
     seeds = _clamp(draws.reshape(n_seeds, N, n).mT.contiguous(), lo1, hi1)
 
-    # Tasks: targets broadcast to (P,) then repeated over the K starts, batch innermost.
+    # Tasks: targets broadcast to (P,), batch innermost.
     tasks, grad_tasks, weights = [], [], []
     for name, index, pose, t in items:
         tail = (4, 4) if pose else (3,)
         size = math.prod(tail)
         tb = t.expand(*batch, *tail).reshape(P, *tail)
         ref = _se3.inverse(tb) if pose else tb
-        grad_tasks.append(_Task(name, index, pose, ref.reshape(P, size).mT.reshape(*tail, P)))
-        rep = ref.detach().repeat_interleave(K, dim=0).reshape(N, size)
-        tasks.append(_Task(name, index, pose, rep.mT.contiguous().view(*tail, N)))
+        ref = ref.reshape(P, size).mT
+        grad_tasks.append(_Task(name, index, pose, ref.reshape(*tail, P)))
+        tasks.append(_Task(name, index, pose, ref.detach().contiguous().view(*tail, P)))
         weights += [wp] * 3 + ([wr] * 3 if pose else [])
     w_sqrt = torch.tensor(weights, dtype=dtype, device=device).sqrt()
+    w_loop = None if all(w == 1.0 for w in weights) else w_sqrt
     # Only the DoFs that move a target link are solved for (the others keep their start).
     moving = chain._moving_dofs(tuple(index for _, index, _, _ in items))
     dofs = None if moving == tuple(range(n)) else _Dofs(moving, torch.tensor(moving, device=device))
 
     with torch.no_grad():
         q_best, out = _solve(
-            chain, seeds, tasks, w_sqrt, dofs, lo1, hi1, (P, K), max_iterations,
+            chain, seeds, tasks, w_loop, dofs, lo1, hi1, (P, K), max_iterations,
             restart_after, (tol_p, tol_r), early_exit,
         )  # fmt: skip
 
@@ -590,7 +682,7 @@ def _solve(
     chain: Chain,
     seeds: Tensor,
     tasks: list[_Task],
-    w_sqrt: Tensor,
+    weights: Tensor | None,
     dofs: _Dofs | None,
     lo: Tensor,
     hi: Tensor,
@@ -600,100 +692,152 @@ def _solve(
     tols: tuple[float, float],
     early_exit: bool,
 ) -> tuple[Tensor, list[Tensor]]:
-    """The Levenberg-Marquardt loop (call without autograd) on the ``K`` starts of ``P``
-    targets (column ``p * K + k``); ``seeds (S, n, P K)`` are the starts and their
-    replacements.  Returns ``q (n, P)`` of the kept start per target and its position error,
-    rotation error, convergence flag and iteration count ``(P,)``.
+    """The Levenberg-Marquardt loop (call without autograd) on ``N = P K`` starts for ``P``
+    targets (``tasks``' targets ``(..., P)``): column ``c`` solves for target ``c // K`` until
+    it is restarted; ``seeds (S, n, N)`` are the starts and their replacements.  Returns
+    ``q (n, P)`` of the kept point per target and its position error, rotation error,
+    convergence flag and the iterations before the target was solved ``(P,)``.
 
-    With ``early_exit``, targets are dropped from the batch once solved (the batch shrinks
-    when half of it is done), and the loop ends when none is left.
+    Restarts follow a fixed schedule: every ``restart_after + 1`` iterations the best point of
+    every target is gathered from its columns (a column's own points only improve: a step is
+    taken when it lowers the cost and does not leave the tolerances), and every column but the
+    one holding it takes its next seed, dealt round-robin to the targets that no column has
+    solved yet; a target's only column goes on if it is within tolerance.  With
+    ``early_exit``, the columns of solved targets are dropped once they are half of the batch
+    (keeping ``_SPARE K`` columns per unsolved target), and the loop ends when every target is
+    solved.
     """
     P, K = PK
     tol_p, tol_r = tols
     n_seeds, n, N = seeds.shape
     dtype, device = seeds.dtype, seeds.device
     rot_dofs = [i for i, name in enumerate(chain.joint_names) if name.endswith(":rx")]
-    q = seeds[0]
-    b, A, perr, rerr = _residuals(chain, q, tasks, w_sqrt, dofs)
-    cost = 0.5 * (b * b).sum(0)
     sel = None if dofs is None else dofs.index
     lo_a, hi_a = (lo, hi) if sel is None else (lo.index_select(0, sel), hi.index_select(0, sel))
+    targets = [t.target for t in tasks]  # per target (..., P)
+    tgt = torch.arange(N, device=device) // K  # the target of every column
+    tasks = [
+        t._replace(target=x.index_select(-1, tgt)) for t, x in zip(tasks, targets, strict=True)
+    ]
+    q = seeds[0]
+    b, A, perr, rerr = _linearise(chain, q, tasks, weights, dofs)
     conv = (perr <= tol_p) & (rerr <= tol_r)
-    zeros = torch.zeros(N, dtype=torch.int64, device=device)
-    # Every per-start tensor, last dimension the start (so that early exit can select).
+    # Per column, last dimension the column (so that early exit can select).
     st: dict[str, Tensor] = {
-        "q": q, "b": b, "A": A, "perr": perr, "rerr": rerr, "cost": cost, "conv": conv,
+        "q": q, "b": b, "A": A, "perr": perr, "rerr": rerr, "cost": _half_sq(b), "conv": conv,
         "lam": torch.full((N,), _LAMBDA0, dtype=dtype, device=device),
-        "iters": zeros, "age": zeros, "seed": zeros,
-        "fresh": torch.zeros(N, dtype=torch.bool, device=device),  # take the next seed now
-        "best_q": q, "best_key": _key(conv, cost), "best_perr": perr, "best_rerr": rerr,
-        "best_conv": conv, "seeds": seeds,
+        "solved_at": torch.zeros(N, dtype=torch.int64, device=device),  # iterations until conv
+        "tgt": tgt, "seeds": seeds,
+        # Joints on a limit that the last step pushed outwards (and the clamp stopped).
+        "pushed": torch.zeros(lo_a.shape[0], N, dtype=torch.bool, device=device),
     }  # fmt: skip
-    targets = [t.target for t in tasks]
-    ids = torch.arange(P, device=device)  # targets still in the batch
-    q_out = q.new_zeros(n, P)
-    outs = [perr.new_zeros(P), perr.new_zeros(P), conv.new_zeros(P), zeros.new_zeros(P)]
+    # Per target: the best point so far.
+    inf = torch.full((P,), math.inf, dtype=dtype, device=device)
+    best = {
+        "q": q.view(n, P, K)[:, :, 0], "key": inf, "perr": inf, "rerr": inf,
+        "conv": torch.zeros(P, dtype=torch.bool, device=device),
+        "solved_at": torch.full((P,), max_iterations, dtype=torch.int64, device=device),
+    }  # fmt: skip
 
-    def finish(which: Tensor | None) -> None:
-        """Write the kept start of the targets ``which`` (positions in the batch; all if None)."""
-        p_now = st["q"].shape[-1] // K
-        pick = st["best_key"].view(p_now, K).argmin(1)
-        rows = torch.arange(p_now, device=device) if which is None else which
-        cols = rows * K + pick.index_select(0, rows)
-        where = ids.index_select(0, rows)
-        q_out.index_copy_(1, where, st["best_q"].index_select(1, cols))
-        for o, key in zip(outs, ("best_perr", "best_rerr", "best_conv", "iters"), strict=True):
-            o.index_copy_(0, where, st[key].index_select(0, cols))
+    def gather_best() -> Tensor:
+        """The best point of every target over its columns (ties: the first column); returns
+        which columns hold them."""
+        key, tgt = _key(st["conv"], st["cost"]), st["tgt"]
+        M = key.shape[0]
+        cols = torch.arange(M, device=device)
+        kmin = inf.scatter_reduce(0, tgt, key, "amin")
+        win = torch.where(key == kmin.index_select(0, tgt), cols, M)
+        c = torch.full((P,), M, device=device).scatter_reduce(0, tgt, win, "amin")
+        leads = torch.zeros(M + 1, dtype=torch.bool, device=device).index_fill_(0, c, True)
+        c = c.clamp(max=M - 1)
+        better = kmin < best["key"]
+        best["q"] = torch.where(better, st["q"].index_select(1, c), best["q"])
+        best["key"] = torch.where(better, kmin, best["key"])
+        for name in ("perr", "rerr", "conv"):
+            best[name] = torch.where(better, st[name].index_select(0, c), best[name])
+        first = best["solved_at"].scatter_reduce(0, tgt, st["solved_at"], "amin")
+        best["solved_at"] = torch.where(best["conv"], first, best["solved_at"])
+        return leads[:M]
 
-    for _ in range(max_iterations):
+    seed = 0
+    for it in range(max_iterations):
         if early_exit:
-            solved = st["conv"].view(st["conv"].shape[0] // K, K).any(1)
-            left = int((~solved).sum())  # the synchronisation early exit pays for
+            solved = best["conv"].scatter_reduce(0, st["tgt"], st["conv"], "amax")
+            done = solved.index_select(0, st["tgt"])
+            left, n_done = torch.stack(((~solved).sum(), done.sum())).tolist()  # one sync
             if left == 0:
                 break
-            if left <= solved.shape[0] // 2:  # drop the solved targets
-                done, keep = solved.nonzero().squeeze(1), (~solved).nonzero().squeeze(1)
-                finish(done)
-                cols = (keep.unsqueeze(1) * K + torch.arange(K, device=device)).reshape(-1)
+            spare = _SPARE * K * left if restart_after is not None else 0
+            size = max(done.shape[0] - n_done, min(done.shape[0], spare))
+            if 2 * size <= done.shape[0]:  # drop the columns of solved targets
+                gather_best()
+                extra = size - (done.shape[0] - n_done)
+                keep = ~done | (torch.cumsum(done.to(torch.int64), 0) <= extra)
+                cols = keep.nonzero().squeeze(1)
                 st = {k: v.index_select(-1, cols) for k, v in st.items()}
-                targets = [t.index_select(-1, cols) for t in targets]
-                tasks = [t._replace(target=x) for t, x in zip(tasks, targets, strict=True)]
-                ids = ids.index_select(0, keep)
-        q, A, b, lam, fresh = st["q"], st["A"], st["b"], st["lam"], st["fresh"]
-        st["iters"] = st["iters"] + (~st["conv"]).to(torch.int64)
-        # Projection with an active set: a joint on a limit that the gradient pushes outwards
-        # is left out of the step; the trial point is clamped into the limits.
-        g = (A * b.unsqueeze(1)).sum(0)
+                tasks = [t._replace(target=t.target.index_select(-1, cols)) for t in tasks]
+        q, A, b, lam, conv = st["q"], st["A"], st["b"], st["lam"], st["conv"]
+        # Projection with an active set: a joint on a limit that the gradient, or the last
+        # step, pushes outwards is left out of the step; the trial point is clamped into the
+        # limits.
+        g = (A * b).sum(1)
         q_a = q if sel is None else q.index_select(0, sel)
-        blocked = ((q_a <= lo_a) & (g > 0)) | ((q_a >= hi_a) & (g < 0))
-        dq = _step(A * (~blocked).to(dtype), b, lam)
+        at_lo, at_hi = q_a <= lo_a, q_a >= hi_a
+        blocked = (at_lo & (g > 0)) | (at_hi & (g < 0)) | (st["pushed"] & (at_lo | at_hi))
+        free = (~blocked).to(dtype)
+        dq = _step(A * free.unsqueeze(1), b, lam, g * free)
+        st["pushed"] = (at_lo & (dq > 0)) | (at_hi & (dq < 0))
         q_new = q - dq if sel is None else q.index_add(0, sel, dq, alpha=-1.0)
         q_new = _clamp(_wrap_rotvecs(q_new, rot_dofs), lo, hi)
-        if restart_after:
-            fresh_q = st["seeds"].gather(0, st["seed"].view(1, 1, -1).expand(1, n, -1))
-            q_new = torch.where(fresh, fresh_q.squeeze(0), q_new)
-        b_new, A_new, perr_new, rerr_new = _residuals(chain, q_new, tasks, w_sqrt, dofs)
-        cost_new = 0.5 * (b_new * b_new).sum(0)
-        ok = (cost_new < st["cost"]) | fresh  # False for nan: a failed step is refused
+        # Every restart_after + 1 iterations (after the first restart_after), the columns take
+        # the next seed and an unsolved target (evaluated here), but for the best of each.
+        restart = (
+            restart_after is not None
+            and it >= restart_after
+            and (it - restart_after) % (restart_after + 1) == 0
+            and seed + 1 < n_seeds
+        )
+        if restart:
+            leads = gather_best()
+            seed += 1
+            # The leading column of a target goes on (a solved target's keeps refining, an
+            # unreachable target's keeps improving), unless it is the target's only column and
+            # not within tolerance; the others restart.
+            shared = (
+                torch.zeros(P, dtype=torch.int64, device=device)
+                .index_add_(0, st["tgt"], torch.ones_like(st["tgt"]))
+                .index_select(0, st["tgt"])
+                > 1
+            )
+            fresh = ~leads | (~conv & ~shared)
+            unsolved = ~best["conv"]
+            order = torch.argsort(best["conv"].to(torch.uint8), stable=True)  # unsolved first
+            rank = torch.cumsum(fresh.to(torch.int64), 0) - 1
+            new_tgt = order.index_select(0, rank % unsolved.sum().clamp(min=1))
+            st["tgt"] = torch.where(fresh, new_tgt, st["tgt"])
+            tasks = [t._replace(target=x.index_select(-1, st["tgt"]))
+                     for t, x in zip(tasks, targets, strict=True)]  # fmt: skip
+            q_new = torch.where(fresh, st["seeds"][seed], q_new)
+            st["pushed"] = st["pushed"] & ~fresh
+        b_new, A_new, perr_new, rerr_new = _linearise(chain, q_new, tasks, weights, dofs)
+        cost_new = _half_sq(b_new)
+        conv_new = (perr_new <= tol_p) & (rerr_new <= tol_r)
+        ok = (cost_new < st["cost"]) & (conv_new | ~conv)  # False for nan: a failed step
+        if restart:
+            ok = ok | fresh
         for key, new in (("q", q_new), ("b", b_new), ("A", A_new), ("perr", perr_new),
-                         ("rerr", rerr_new), ("cost", cost_new)):  # fmt: skip
+                         ("rerr", rerr_new), ("cost", cost_new), ("conv", conv_new)):  # fmt: skip
             st[key] = torch.where(ok, new, st[key])
-        lam = torch.where(ok, lam * _LAMBDA_DOWN, lam * _LAMBDA_UP)
-        st["lam"] = torch.where(fresh, _LAMBDA0, lam.clamp(_LAMBDA_MIN, _LAMBDA_MAX))
-        conv = (st["perr"] <= tol_p) & (st["rerr"] <= tol_r)
-        st["conv"] = conv
-        key = _key(conv, st["cost"])
-        better = key < st["best_key"]
-        for name, new in (("q", st["q"]), ("key", key), ("perr", st["perr"]),
-                          ("rerr", st["rerr"]), ("conv", conv)):  # fmt: skip
-            st["best_" + name] = torch.where(better, new, st["best_" + name])
-        if restart_after:
-            age = torch.where(fresh, 0, st["age"] + 1)
-            fresh = (~conv) & (age >= restart_after) & (st["seed"] + 1 < n_seeds)
-            st["age"], st["fresh"] = age, fresh
-            st["seed"] = st["seed"] + fresh.to(torch.int64)
-    finish(None)
-    return q_out, outs
+        counted = conv & ~fresh if restart else conv  # solved before this iteration
+        st["solved_at"] = torch.where(counted, st["solved_at"], it + 1)
+        lam = (lam * torch.where(ok, _LAMBDA_DOWN, _LAMBDA_UP)).clamp(_LAMBDA_MIN, _LAMBDA_MAX)
+        st["lam"] = torch.where(fresh, _LAMBDA0, lam) if restart else lam
+    gather_best()
+    return best["q"], [best["perr"], best["rerr"], best["conv"], best["solved_at"]]
+
+
+def _half_sq(b: Tensor) -> Tensor:
+    return 0.5 * (b * b).sum(0)
 
 
 def _key(conv: Tensor, cost: Tensor) -> Tensor:
@@ -718,7 +862,7 @@ def _implicit_step(
         free = (q > lo) & (q < hi)  # a joint on a limit stays there
         A = A * (free if dofs is None else free.index_select(0, dofs.index)).to(A.dtype)
     b = _residual_values(chain, q, tasks, w_sqrt)
-    s = -_step(A, b, torch.zeros_like(q[0]))
+    s = -_step(A.transpose(0, 1), b, torch.zeros_like(q[0]))
     if dofs is not None:  # zero for the DoFs that do not move a target link
         s = q.new_zeros(q.shape).index_add(0, dofs.index, s)
     return s - s.detach()
