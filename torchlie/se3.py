@@ -81,11 +81,6 @@ __all__ = [
 
 _NAME = "torchlie.se3."
 
-#: ``Q(rho, phi) v`` from components (:func:`torchlie._se3_jacobian.q_components`), which
-#: :mod:`torchlie.kinematics.ik` reads here.
-_q_components = _se3_jacobian.q_components
-
-
 # ----------------------------------------------------------------------------------------------
 # Component helpers (private)
 # ----------------------------------------------------------------------------------------------

@@ -99,7 +99,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import torch
 from torch import Tensor
 
-from .. import _checks, _coeffs
+from .. import _checks, _coeffs, _rodrigues, _se3_jacobian
 from .. import se3 as _se3
 from .. import so3 as _so3
 
@@ -326,7 +326,7 @@ def _jr_inv_rt(r: Tensor, Rt: Tensor) -> tuple[Tensor, Tensor]:
     )
     neg_phi = tuple(-x for x in phi)
     eye = torch.eye(3, dtype=r.dtype, device=r.device).unsqueeze(-1)  # e_j along dim 0
-    Qcols = _se3._q_components(rho, neg_phi, eye.unbind(1), *ks)  # Q e_j: (3, N) each
+    Qcols = _se3_jacobian.q_components(rho, neg_phi, eye.unbind(1), *ks)  # Q e_j: (3, N) each
     Q = torch.stack(Qcols)  # (row i, column j, N)
     C = -_matmul3(_matmul3(B, Q), B)
     return _matmul3(B, Rt), _matmul3(C, Rt)
@@ -442,7 +442,7 @@ def _linearise(
             ER, Et = _pose_error(P, task.target)
             phi, theta, e = _rotation_log(ER)
             d = torch.rsub(e, 1.0).div_((theta * theta).clamp_min_(_coeffs.H_MIN[theta.dtype]))
-            rho = _so3._jl_components(phi.unbind(0), Et.unbind(0), e, e.new_full((), -0.5), d)
+            rho = _rodrigues.jl_components(phi.unbind(0), Et.unbind(0), e, e.new_full((), -0.5), d)
             r = torch.cat((torch.stack(rho), phi)).view(2, 3, 1, -1)  # (rho, phi), link frame
             r = (P[:3, :3] * r).sum(1).view(6, -1)  # R rho, R phi
             perr.append(_norm3(Et))
