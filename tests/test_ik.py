@@ -214,6 +214,8 @@ def test_unreachable_targets_give_the_best_finite_point(dtype):
                                  generator=torch.Generator().manual_seed(0))  # fmt: skip
     assert not bool(res.converged.any())
     assert torch.equal(res.iterations, torch.full((2,), 24))  # the whole (default) budget
+    one = arm.inverse_kinematics(far, "tool_tcp", generator=torch.Generator().manual_seed(0))
+    assert torch.equal(one.iterations, torch.full((2,), 40))  # one start: a larger budget
     assert bool(torch.isfinite(res.q).all()) and _within_limits(arm, res.q)
     p = _fk(arm, res.q, "tool_tcp")[:, :3, 3]
     torch.testing.assert_close(res.position_error, (p - far).norm(dim=-1), atol=1e-5, rtol=0)
@@ -300,7 +302,7 @@ def test_solver_residual_is_the_world_frame_residual(robot, links):
 
 def _solve6(xi: torch.Tensor, chain: Chain, T0: torch.Tensor, q0: torch.Tensor) -> torch.Tensor:
     return chain.inverse_kinematics(se3.compose(T0, se3.exp(xi)), "l6", q0=q0,
-                                    max_iterations=30, restart_after=None).q  # fmt: skip
+                                    max_iterations=30, restart_after=0).q  # fmt: skip
 
 
 def test_gradient_of_the_solution_matches_finite_differences():
@@ -321,7 +323,7 @@ def test_gradient_of_a_position_solution_matches_finite_differences():
     p = _fk(chain, q, "l4")[:3, 3].clone().requires_grad_()  # three joints move l4's origin
 
     def solve(x: torch.Tensor) -> torch.Tensor:
-        return chain.inverse_kinematics(x, "l4", q0=q + 0.05, restart_after=None).q
+        return chain.inverse_kinematics(x, "l4", q0=q + 0.05, restart_after=0).q
 
     assert torch.autograd.gradcheck(solve, (p,), atol=1e-6)
     (J,) = torch.autograd.functional.jacobian(solve, (p,))
@@ -380,7 +382,7 @@ def test_no_graph_without_targets_that_require_grad():
 @pytest.mark.slow
 @pytest.mark.parametrize(
     "offset, options",
-    [(0.01, {"restart_after": None, "max_iterations": 2}),
+    [(0.01, {"restart_after": 0, "max_iterations": 2}),
      # the restarts: the best point per target, the round-robin of new starts
      (0.3, {"restarts": 2, "restart_after": 1, "max_iterations": 4})],
     ids=["no-restart", "restarts"],

@@ -119,6 +119,12 @@ _LAMBDA_MAX = 1e9
 # With early exit, columns kept per unsolved target, in units of `restarts` (the surplus ones
 # take unsolved targets at the next restart).
 _SPARE = 4
+# Default iteration budget with fewer / at least _MANY_STARTS starts per target: with several
+# starts, those of solved targets restart for the unsolved ones, so fewer iterations reach the
+# same success (bundled robots and the Panda: 8 starts, 24 iterations solve every target; one
+# start needs 40 to solve as many as before the restarts were shared).
+_MANY_STARTS = 4
+_BUDGET = (40, 24)
 
 
 class IKResult(NamedTuple):
@@ -559,8 +565,8 @@ def inverse_kinematics(
     restarts: int = 1,
     position_weight: float = 1.0,
     rotation_weight: float = 1.0,
-    max_iterations: int = 24,
-    restart_after: int | None = 8,
+    max_iterations: int | None = None,
+    restart_after: int | None = None,
     position_tolerance: float = 1e-4,
     rotation_tolerance: float = 1e-3,
     early_exit: bool = False,
@@ -585,11 +591,14 @@ def inverse_kinematics(
             rotation rows of the residual (m against rad); ``rotation_weight=0`` makes pose
             targets position targets (their orientation is neither solved for nor checked).
         max_iterations: Levenberg-Marquardt iterations (each one forward-kinematics and
-            Jacobian pass), at least 0.
+            Jacobian pass), at least 0; by default 24 with 4 or more starts per target and 40
+            with fewer (with several starts the columns of solved targets restart for the
+            unsolved ones, so fewer iterations reach the same success).
         restart_after: every ``restart_after + 1`` iterations, starting after
             ``restart_after``, the columns take fresh uniform starts for the targets not solved
-            yet, all but the best one of each target (``None``: never; see the module
-            docstring), so a budget of ``max_iterations`` tries up to
+            yet, all but the best one of each target (``0``: never; by default a third of
+            ``max_iterations``; see the module docstring), so a budget of ``max_iterations``
+            tries up to
             ``restarts * (1 + max_iterations // restart_after)`` starts per target on average
             at the cost of ``restarts``, most of them for the hard targets; the best point of
             every target is kept.  Only the DoFs that move a target link are solved for: the
@@ -612,9 +621,12 @@ def inverse_kinematics(
     """
     items = _targets(chain, targets, link)
     restarts = _count(restarts, "restarts", 1)
+    if max_iterations is None:
+        max_iterations = _BUDGET[restarts >= _MANY_STARTS]
     max_iterations = _count(max_iterations, "max_iterations", 0)
-    if restart_after is not None:
-        restart_after = _count(restart_after, "restart_after", 1)
+    if restart_after is None:
+        restart_after = max(1, max_iterations // 3)
+    restart_after = _count(restart_after, "restart_after", 0) or None  # None: never
     wp = _number(position_weight, "position_weight", True)
     wr = _number(rotation_weight, "rotation_weight", False)
     if wr == 0:  # orientations ignored: pose targets are position targets
