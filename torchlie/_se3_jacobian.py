@@ -74,12 +74,10 @@ def q_components(
     ]
 
 
-def q_apply(
-    rho: Tensor, phi: Tensor, v: Tensor, form: tuple[Tensor, tuple[Tensor, ...]] | None = None
-) -> Tensor:
+def q_apply(rho: Tensor, x: Tensor, v: Tensor, ks: tuple[Tensor, ...] | None = None) -> Tensor:
     """``Q(rho, phi) v`` (batch shapes broadcast): :func:`q_components` on planar copies, with
-    ``phi`` and its :func:`_q_coeffs`, or ``form = (x, (k1, k2, k3, k4))``."""
-    x, ks = (phi, _q_coeffs(phi)) if form is None else form
+    ``x = phi`` and its :func:`_q_coeffs` (``ks=None``), or ``x, ks`` of :func:`_q_form`."""
+    ks = _q_coeffs(x) if ks is None else ks
     return _layout.interleave(q_components(planes(rho, 3), planes(x, 3), planes(v, 3), *ks))
 
 
@@ -87,7 +85,8 @@ def _q_matrix(rho: Tensor, phi: Tensor) -> Tensor:
     """``Q(rho, phi)`` as a matrix at every angle (:func:`_q_form`): :func:`q_apply` on the
     three unit vectors."""
     eye = torch.eye(3, dtype=rho.dtype, device=rho.device).expand(*rho.shape[:-1], 3, 3)
-    cols = q_apply(rho.unsqueeze(-2), phi, eye, _q_form(phi.unsqueeze(-2)))  # row j = Q e_j
+    x, ks = _q_form(phi.unsqueeze(-2))
+    cols = q_apply(rho.unsqueeze(-2), x, eye, ks)  # row j = Q e_j
     return cols.transpose(-1, -2)
 
 
