@@ -307,3 +307,72 @@ def test_gradients_are_finite(dtype):
         c = torch.randn(out.shape, generator=g, dtype=dtype)
         (grad,) = torch.autograd.grad(out, leaf, c)
         assert torch.isfinite(grad).all(), fn
+
+
+# ----------------------------------------------------------------------------------------------
+# torchlie.compiled: the same range (the rescaling and the angle reduction run inside the ops)
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.compile
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+def test_compiled_ops_take_every_magnitude(dtype):
+    from torchlie import compiled
+
+    cq = compiled.quaternion
+    s, q = _sweep(4, dtype)
+    unit = _unit_of(q).to(dtype)
+    p = _P.to(dtype)
+    for fn, eager in (
+        (cq.to_matrix, quaternion.to_matrix),  # custom Functions
+        (lambda x: cq.apply(x, p), lambda x: quaternion.apply(x, p)),
+        (cq.normalize, quaternion.normalize),  # plain formulas
+        (cq.to_rotvec, quaternion.to_rotvec),
+    ):
+        got = fn(q)
+        assert torch.isfinite(got).all(), s[~torch.isfinite(got).flatten(1).all(-1)]
+        torch.testing.assert_close(got, eager(unit), rtol=0, atol=_tol(dtype) * 4)
+    s, w = _sweep(3, dtype)
+    axis = _unit_of(w)
+    g = torch.Generator().manual_seed(4)
+    rho = torch.randn(w.shape, generator=g, dtype=dtype)
+    T = compiled.se3.exp(torch.cat((rho, w), -1))
+    for R in (
+        compiled.so3.exp(w),
+        cq.to_matrix(cq.from_rotvec(w)),
+        T[..., :3, :3],
+    ):
+        _assert_rotation(R, axis, dtype)
+    along = (T[..., :3, 3].double() * axis).sum(-1)
+    torch.testing.assert_close(along, (rho.double() * axis).sum(-1), rtol=0, atol=_tol(dtype) * 8)
+
+
+@pytest.mark.compile
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+def test_compiled_gradients_are_finite_and_eager(dtype):
+    """Through the custom Functions' backward, whose guard is carried back by hand: finite at
+    every magnitude, and eager's below ``1 / eps`` (beyond it the reduced angle may differ by
+    the rounding of the angle, a different but equally valid residue)."""
+    from torchlie import compiled
+
+    s, w = _sweep(3, dtype)
+    xi = torch.cat(
+        (torch.randn(w.shape, generator=torch.Generator().manual_seed(5), dtype=dtype), w), -1
+    )
+    q = torch.cat((torch.ones_like(w[:, :1]), w), -1)
+    p = _P.to(dtype)
+    exact = s < 1.0 / torch.finfo(dtype).eps
+    for fn, eager, x in (
+        (compiled.so3.exp, so3.exp, w),
+        (compiled.se3.exp, se3.exp, xi),
+        (compiled.quaternion.to_matrix, quaternion.to_matrix, q),
+        (lambda v: compiled.quaternion.apply(v, p), lambda v: quaternion.apply(v, p), q),
+    ):
+        leaf = x.clone().requires_grad_()
+        out = fn(leaf)
+        c = torch.randn(out.shape, generator=torch.Generator().manual_seed(6), dtype=dtype)
+        (grad,) = torch.autograd.grad(out, leaf, c)
+        assert torch.isfinite(grad).all(), s[~torch.isfinite(grad).all(-1)]
+        (want,) = torch.autograd.grad(eager(leaf), leaf, c)
+        scale = want[exact].abs().amax(-1, keepdim=True).clamp_min(1.0)
+        assert ((grad[exact] - want[exact]).abs() <= 64 * torch.finfo(dtype).eps * scale).all()

@@ -10,6 +10,13 @@ their formula) is declared with :func:`custom_function` from four pure functions
   differentiable torch ops (so double backward differentiates it);
 * ``jvp(saved, *tangents) -> tangent``  forward mode (``torch.func.jvp`` / ``jacfwd``).
 
+An op whose formula has a limited range (squares that overflow, angles beyond ``1 / eps``) takes a
+:class:`Guard` of its first input: the map into that range which leaves the op's value unchanged
+(a rescaling, an angle reduction).  The op's ``forward`` takes the input as it came and applies
+the guard itself (on components where its formula reads components); the Function saves the
+input as it came, and its ``backward`` and ``jvp`` see the guarded input, their derivatives
+carried back through the guard.  A compiled op then saves no guarded copy.
+
 The same formulas run in every mode: eager CPU and CUDA, ``torch.compile``, ``torch.func``
 transforms.  The only thing that differs is how the formula is evaluated.  On large eager CPU
 batches :func:`evaluate` runs it block by block over the flattened batch, each block's result
@@ -30,7 +37,7 @@ are constants there); eager ``torch.func`` and eager double backward give them.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import TypeVar
+from typing import NamedTuple, TypeVar
 
 import torch
 from torch import Tensor
@@ -131,6 +138,39 @@ def evaluate(fn: Callable[..., _Out], inputs: Sequence[Tensor], event_dims: Sequ
     return joined if isinstance(out, tuple) else joined[0]
 
 
+class Guard(NamedTuple):
+    """A map of an op's first input into its formula's range that leaves the op unchanged.
+
+    ``apply(x)`` is the guarded input (``x`` itself, bit for bit, inside the range);
+    ``linear(x, t)`` is the map's derivative at ``x`` applied to ``t``, which is symmetric, so it
+    also transposes a gradient.  ``apply`` under autograd has that derivative.
+    """
+
+    apply: Callable[[Tensor], Tensor]
+    linear: Callable[[Tensor, Tensor], Tensor]
+
+
+def _guarded(
+    guard: Guard,
+    backward: Callable[..., tuple[Tensor | None, ...]],
+    jvp: Callable[..., Tensor],
+) -> tuple[Callable[..., tuple[Tensor | None, ...]], Callable[..., Tensor]]:
+    """``backward`` and ``jvp`` of the guarded input, as functions of the input as it came
+    (``save`` keeps it first among the saved tensors)."""
+
+    def inner(saved: Sequence[Tensor]) -> tuple[Tensor, ...]:
+        return (guard.apply(saved[0]), *saved[1:])
+
+    def guarded_backward(saved: Sequence[Tensor], grad: Tensor) -> tuple[Tensor | None, ...]:
+        first, *rest = backward(inner(saved), grad)
+        return (None if first is None else guard.linear(saved[0], first), *rest)
+
+    def guarded_jvp(saved: Sequence[Tensor], dx: Tensor | None, *rest: Tensor | None) -> Tensor:
+        return jvp(inner(saved), None if dx is None else guard.linear(saved[0], dx), *rest)
+
+    return guarded_backward, guarded_jvp
+
+
 def _positional(forward: Callable[..., Tensor], n: int) -> Callable[..., Tensor]:
     """``forward`` as a function of exactly ``n`` positional tensors (Dynamo tells a
     ``setup_context``-style forward from one taking ``ctx`` by its signature)."""
@@ -161,7 +201,10 @@ class CustomFunction:
         backward: Callable[..., tuple[Tensor | None, ...]],
         jvp: Callable[..., Tensor],
         event_dims: tuple[int, ...],
+        guard: Guard | None = None,
     ) -> None:
+        if guard is not None:
+            backward, jvp = _guarded(guard, backward, jvp)
         self.name = name
         self.formula = forward
         self.event_dims = event_dims
@@ -237,13 +280,15 @@ def custom_function(
     backward: Callable[..., tuple[Tensor | None, ...]],
     jvp: Callable[..., Tensor],
     event_dims: tuple[int, ...],
+    guard: Guard | None = None,
 ) -> CustomFunction:
     """Build a :class:`CustomFunction` (see the module docstring for the four pieces).
 
     ``event_dims``: the number of trailing (non-batch) dimensions of each input, e.g. ``(1,)``
     for a rotation vector, ``(2, 1)`` for a matrix and a point (for :func:`evaluate`).
+    ``guard``: of the first input, which ``save`` then keeps first (see the module docstring).
     """
-    return CustomFunction(name, forward, save, backward, jvp, event_dims)
+    return CustomFunction(name, forward, save, backward, jvp, event_dims, guard)
 
 
 def blocked(fn: Callable[..., _Out], event_dims: tuple[int, ...]) -> Callable[..., _Out]:

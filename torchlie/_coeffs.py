@@ -35,7 +35,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from ._autograd import fma
+from ._autograd import Guard, fma
 
 # --------------------------------------------------------------------------------------------
 # Series coefficients (exact rationals, converted to float once).
@@ -279,6 +279,16 @@ _HUGE = {torch.float32: 2.0**60, torch.float64: 2.0**200}
 _PLAIN = {torch.float32: (2.0**-30, 2.0**30), torch.float64: (2.0**-300, 2.0**300)}
 
 
+def largest(v: Tensor | Sequence[Tensor]) -> Tensor:
+    """``max_i |v_i|`` over the last dimension (kept, size 1) or over planes, detached:
+    element-wise, component by component (no reduction kernel of its own while compiling)."""
+    planes = v.detach().abs().unbind(-1) if isinstance(v, Tensor) else [x.detach().abs() for x in v]
+    m = planes[0]
+    for x in planes[1:]:
+        m = torch.maximum(m, x)
+    return m.unsqueeze(-1) if isinstance(v, Tensor) else m
+
+
 def rescaled(v: Tensor) -> tuple[Tensor, Tensor]:
     """``(v / k, k)`` with ``k = 1`` where the largest ``|v_i|`` lies within :data:`_PLAIN`
     (so ``v / k`` is ``v`` itself, bit for bit) and ``k = max |v_i|`` elsewhere, over the
@@ -287,17 +297,26 @@ def rescaled(v: Tensor) -> tuple[Tensor, Tensor]:
     For the functions that are invariant to the scale of a quaternion, and for norms: the
     squares of ``v / k`` neither overflow nor underflow, so every finite non-zero ``v`` has a
     finite, accurate result.  A zero ``v`` gives ``k = 0`` and ``v / k`` NaN (no direction).
-
-    While compiling, ``(v, 1)``: the scaled copy would be a buffer of its own, and the fused
-    kernels of :mod:`torchlie.compiled` keep their one loop (and the range of the formulas,
-    magnitudes between about ``1e-19`` and ``1e19`` in float32, ``1e-154`` and ``1e154`` in
-    float64).
     """
-    if torch.compiler.is_compiling():
-        return v, torch.ones_like(v[..., :1])
-    m = v.detach().abs().amax(-1, keepdim=True)
-    k = torch.where(m.clamp(*_PLAIN[m.dtype]) == m, 1.0, m)
+    k = _scale(v)
     return v / k, k
+
+
+def rescaled_planes(v: Sequence[Tensor]) -> list[Tensor]:
+    """``v / k`` of :func:`rescaled`, of the planes ``v`` (element-wise only, for the fused loops
+    of ``torch.compile``)."""
+    k = _scale(v)
+    return [x / k for x in v]
+
+
+def _scale(v: Tensor | Sequence[Tensor]) -> Tensor:
+    """``k`` of :func:`rescaled` (of planes: a plane)."""
+    m = largest(v)
+    return torch.where(m.clamp(*_PLAIN[m.dtype]) == m, 1.0, m)
+
+
+#: :func:`rescaled` as the guard of a custom Function (the derivative of ``v / k`` is ``1 / k``).
+RESCALE = Guard(lambda v: v / _scale(v), lambda v, t: t / _scale(v))
 
 
 def reduction(w: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -315,53 +334,83 @@ def reduction(w: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     valid rotation about ``u``, and the left Jacobian follows from the reduced one,
     ``Jl(w) = lam Jl(w') + (1 - lam) u u^T``.  Derivatives: ``d w' / d w`` is ``I`` along ``u``
     (``d|w| / d w = u``, as for the true angle) and ``lam`` across, so gradients are those of the
-    functions at ``t`` and finite.
-
-    While compiling, ``(w, 1, w)``, as :func:`rescaled` (the fused kernels of
-    :mod:`torchlie.compiled` keep their one loop, and the range of the formulas).
+    functions at ``t`` and finite (``u`` and ``lam`` are held constant: their own derivatives are
+    of order ``1 / |w|``, below the rounding of the rest).
     """
-    if torch.compiler.is_compiling():
-        return w, torch.ones_like(w[..., :1]), w
-    reduced_w, lam, big, m = _reduce(w)
-    return reduced_w, lam, _axis(w, big, m)
+    lam, big, u = reduction_factors(w)
+    return reduced_by(w, (lam, big, u)), lam, torch.where(big, u, w)
 
 
-def _reduce(w: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """``(w', lam, big, m)`` of :func:`reduction` (``m`` the largest ``|w_i|``, ``big`` where
-    it is reduced)."""
-    m = w.detach().abs().amax(-1, keepdim=True)
+def _lam(w: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
+    """``(lam, big, m)`` of :func:`reduction`, detached (``big`` where the angle is reduced, ``m``
+    the largest ``|w_i|``); of a tensor ``(..., 3)`` (kept dimension) or of planes."""
+    m = largest(w)
     big = m > _HUGE[m.dtype]
-    lam = torch.where(big, torch.fmod(0.5 * m, math.pi).mul_(2.0).div_(m), 1.0)
-    reduced_w = w * lam
-    if torch.is_grad_enabled() and w.requires_grad:
-        # radial derivative 1 (that of the angle), not lam: add (1 - lam) u (u . dw), an exact 0
-        u = _axis(w.detach(), big, m)
-        radial = dot(u, w - w.detach()).unsqueeze(-1)
-        reduced_w = reduced_w + torch.where(big, (1.0 - lam) * radial, 0.0) * u
-    return reduced_w, lam, big, m
+    return torch.where(big, torch.fmod(0.5 * m, math.pi).mul_(2.0).div_(m), 1.0), big, m
 
 
-def _axis(w: Tensor, big: Tensor, m: Tensor) -> Tensor:
-    """``w / |w|`` where ``big``, from ``w / m`` (no overflow); ``w`` elsewhere."""
-    v = w / torch.where(big, m, 1.0)
-    return v * torch.where(big, sum_squares(v, keepdim=True), 1.0).rsqrt()
+def reduced_planes(w: Sequence[Tensor]) -> list[Tensor]:
+    """:func:`reduced` of the planes ``w``, without autograd (element-wise only, for the fused
+    loops of ``torch.compile``)."""
+    lam = _lam(w)[0]
+    return [x * lam for x in w]  # x itself where lam = 1
 
 
-def dot(a: Tensor, b: Tensor) -> Tensor:
-    """``sum_i a_i b_i`` over the last dimension, component by component from the first."""
-    x, y = a.unbind(-1), b.unbind(-1)
-    acc = x[0] * y[0]
-    for xi, yi in zip(x[1:], y[1:], strict=True):
-        acc = fma(acc, xi, yi)
-    return acc
+def reduction_factors(w: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """``(lam, big, u)`` of :func:`reduction`, detached (``big`` where the angle is reduced)."""
+    lam, big, m = _lam(w)
+    v = w.detach() / torch.where(big, m, 1.0)
+    return lam, big, v * torch.where(big, sum_squares(v, keepdim=True), 1.0).rsqrt()
+
+
+def reduction_planes(w: Sequence[Tensor]) -> tuple[Tensor, Tensor, list[Tensor]]:
+    """:func:`reduction_factors` of the planes ``w``: ``lam`` and ``big`` planes, ``u`` as planes
+    (element-wise only, for the fused loops of ``torch.compile``)."""
+    lam, big, m = _lam(w)
+    v = [x.detach() / torch.where(big, m, 1.0) for x in w]
+    r = torch.where(big, dot(v, v), 1.0).rsqrt()
+    return lam, big, [x * r for x in v]
+
+
+def reduced_by(
+    t: Tensor, factors: tuple[Tensor, Tensor, Tensor], across: Tensor | float = 0.0
+) -> Tensor:
+    """``lam t + (1 - lam) u (u . t) across`` where the angle is reduced, ``t`` elsewhere
+    (``factors`` of :func:`reduction_factors`).
+
+    ``across = 0``: the reduced rotation vector ``lam w``; ``across = 1``: the map
+    ``P = lam I + (1 - lam) u u^T`` applied to ``t``, which is the derivative of the reduction (and
+    gives ``Jl(w) rho = Jl(lam w) P rho``).  Under autograd the derivative in ``t`` is ``P``
+    whatever ``across`` (``lam`` and ``u`` held constant).
+    """
+    lam, big, u = factors
+    along = t if isinstance(across, float) and across == 1.0 else t * across
+    if torch.is_grad_enabled() and t.requires_grad:
+        along = along + (1.0 - across) * (t - t.detach())  # an exact 0 added: derivative 1
+    return torch.where(big, fma(t * lam, (1.0 - lam) * dot(u, along).unsqueeze(-1), u), t)
 
 
 def reduced(w: Tensor) -> Tensor:
     """The rotation vectors ``w`` with the angle reduced where it is beyond the range of the
-    formulas (:func:`reduction`), ``w`` itself elsewhere (and while compiling)."""
-    if torch.compiler.is_compiling():
-        return w
-    return _reduce(w)[0]
+    formulas (:func:`reduction`), ``w`` itself elsewhere."""
+    if torch.is_grad_enabled() and w.requires_grad:
+        return reduced_by(w, reduction_factors(w))
+    return w * _lam(w)[0]  # w itself where lam = 1
+
+
+#: :func:`reduced` as the guard of a custom Function.
+REDUCE = Guard(reduced, lambda w, t: reduced_by(t, reduction_factors(w), 1.0))
+
+
+def dot(a: Tensor | Sequence[Tensor], b: Tensor | Sequence[Tensor]) -> Tensor:
+    """``sum_i a_i b_i`` over the last dimension (or planes), component by component from the
+    first."""
+    x = a.unbind(-1) if isinstance(a, Tensor) else a
+    y = b.unbind(-1) if isinstance(b, Tensor) else b
+    acc = x[0] * y[0]
+    for xi, yi in zip(x[1:], y[1:], strict=True):
+        acc = fma(acc, xi, yi)
+    return acc
 
 
 #: Clamp of the half angle in the forward-only evaluations: sin(h)/h rounds to 1 below it.

@@ -23,11 +23,14 @@ from ._components import planes
 # ----------------------------------------------------------------------------------------------
 
 
-def coefficients(w: Tensor, parts: str = "abcd") -> tuple[tuple[Tensor, ...], tuple[Tensor, ...]]:
-    """Planes ``(x, y, z)`` of ``w`` and the coefficients ``parts`` of
+def coefficients(
+    w: Tensor | Sequence[Tensor], parts: str = "abcd"
+) -> tuple[tuple[Tensor, ...], tuple[Tensor, ...]]:
+    """Planes ``(x, y, z)`` of ``w`` (or ``w`` given as planes) and the coefficients ``parts`` of
     :func:`_coeffs.rodrigues_values` in ``w``'s dtype (forward-only)."""
-    values = _coeffs.rodrigues_values(w, parts)
-    return planes(w, 3), tuple(v.to(w.dtype) for v in values)
+    xyz = planes(w, 3)
+    values = _coeffs.rodrigues_values(xyz, parts)
+    return xyz, tuple(v.to(xyz[0].dtype) for v in values)
 
 
 def exp_entries(

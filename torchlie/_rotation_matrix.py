@@ -26,7 +26,7 @@ from ._hamilton import conj_product_vec, multiply
 # ----------------------------------------------------------------------------------------------
 
 
-def _to_matrix_forward(q: Tensor) -> Tensor:
+def _to_matrix_forward(q: Tensor | Sequence[Tensor]) -> Tensor:
     """:func:`torchlie.quaternion.to_matrix` entry by entry."""
     w, x, y, z = planes(q, 4)
     ww, yy = w * w, y * y
@@ -89,17 +89,18 @@ def _to_matrix_jvp(saved: tuple[Tensor, ...], dq: Tensor) -> Tensor:
 
 _ToMatrixFn = custom_function(
     "QuaternionToMatrix",
-    forward=_to_matrix_forward,
+    forward=lambda q: _to_matrix_forward(_coeffs.rescaled_planes(planes(q, 4))),
     save=lambda inputs, out: (inputs[0], out),
     backward=_to_matrix_backward,
     jvp=_to_matrix_jvp,
     event_dims=(1,),
+    guard=_coeffs.RESCALE,
 )
 
 
 def from_quaternion(q: Tensor) -> Tensor:
     """Rotation matrix of ``q / |q|`` (``torchlie.quaternion.to_matrix`` without input checks)."""
-    return _ToMatrixFn(_coeffs.rescaled(q)[0])
+    return _ToMatrixFn(q)
 
 
 # ----------------------------------------------------------------------------------------------

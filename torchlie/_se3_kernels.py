@@ -15,7 +15,7 @@ import torch
 from torch import Tensor
 
 from . import _coeffs, _layout, _rodrigues, _rotation_matrix, _se3_jacobian
-from ._autograd import blocked, custom_function, fma
+from ._autograd import Guard, blocked, custom_function, fma
 from ._components import cross_planes, hat, mv, planes, rt_g_vee, vee
 
 # ----------------------------------------------------------------------------------------------
@@ -266,11 +266,14 @@ def act(T: Tensor, p: Tensor) -> Tensor:
 def _exp_forward(xi: Tensor) -> Tensor:
     """``[[Exp(phi), Jl(phi) rho], [0, 1]]`` from components, one set of coefficients for both
     blocks (runs without autograd: forward-only coefficients); the rotation block is
-    :func:`torchlie.so3.exp`'s, bit for bit."""
-    xyz, (a, b, c, d) = _rodrigues.coefficients(xi[..., 3:], "abcd")
+    :func:`torchlie.so3.exp`'s, bit for bit.  The angle reduced first where it is too large for
+    the formulas (:func:`_reduction`, on planes: one fused loop while compiling)."""
+    x = planes(xi, 6)
+    x = _reduction(x, x, None)
+    xyz, (a, b, c, d) = _rodrigues.coefficients(x[3:], "abcd")
     o, top = _top_outputs(xyz[0])
     R = _rodrigues.exp_entries(xyz, a, b, d, [e for row in top for e in row[:3]])
-    t = _rodrigues.jl_components(xyz, planes(xi[..., :3], 3), a, b, c, [r[3] for r in top])
+    t = _rodrigues.jl_components(xyz, x[:3], a, b, c, [r[3] for r in top])
     return _stack_top([(*R[0:3], t[0]), (*R[3:6], t[1]), (*R[6:9], t[2])], out=o)
 
 
@@ -328,6 +331,42 @@ def _exp_jvp(saved, dxi: Tensor) -> Tensor:
     return _pad_row(torch.cat((dR, dt.unsqueeze(-1)), dim=-1))
 
 
+def _reduction(
+    xi: Sequence[Tensor], t: Sequence[Tensor], along_phi: Sequence[Tensor] | None
+) -> list[Tensor]:
+    """``(P t_rho, lam t_phi + (1 - lam) u (u . along_phi))`` where ``xi``'s angle is reduced,
+    ``t`` elsewhere (all as 6 planes), with ``lam``, ``u`` and ``P = lam I + (1 - lam) u u^T``
+    of ``xi``'s angle (:func:`torchlie._coeffs.reduction_planes`); ``along_phi`` None:
+    ``lam t_phi``.
+
+    ``Jl(phi) = lam Jl(phi') + (1 - lam) u u^T`` and ``Jl(phi') u = u``, so
+    ``Jl(phi) rho = Jl(phi') P rho``: the twist ``(P rho, lam phi)`` has the same ``Exp`` as
+    ``xi``, and ``P`` on both halves (``along_phi = t_phi``) is its derivative.
+    """
+    lam, big, u = _coeffs.reduction_planes(xi[3:])
+    k = 1.0 - lam
+    s = k * _coeffs.dot(u, t[:3])
+    rho = [torch.where(big, fma(c * lam, s, ui), c) for c, ui in zip(t[:3], u, strict=True)]
+    if along_phi is None:
+        return rho + [c * lam for c in t[3:]]  # c itself where lam = 1
+    s = k * _coeffs.dot(u, along_phi)
+    return rho + [torch.where(big, fma(c * lam, s, ui), c) for c, ui in zip(t[3:], u, strict=True)]
+
+
+def _reduced(xi: Tensor) -> Tensor:
+    """:func:`_reduction` of ``xi`` itself (with its derivative ``P`` under autograd)."""
+    x = xi.unbind(-1)
+    graph = torch.is_grad_enabled() and xi.requires_grad
+    along = [c - c.detach() for c in x[3:]] if graph else None  # an exact 0: derivative 1
+    return torch.stack(_reduction(x, x, along), dim=-1)
+
+
+def _reduced_derivative(xi: Tensor, t: Tensor) -> Tensor:
+    """The derivative of :func:`_reduced` at ``xi`` applied to ``t``: ``P`` on both halves."""
+    tt = t.unbind(-1)
+    return torch.stack(_reduction(xi.unbind(-1), tt, tt[3:]), dim=-1)
+
+
 _ExpMapFn = custom_function(
     "Se3Exp",
     forward=_exp_forward,
@@ -335,34 +374,13 @@ _ExpMapFn = custom_function(
     backward=_exp_backward,
     jvp=_exp_jvp,
     event_dims=(1,),
+    guard=Guard(_reduced, _reduced_derivative),
 )
 
 
 def exp(xi: Tensor) -> Tensor:
-    """``Exp(xi)``, the angle reduced first where it is too large for the formulas."""
-    return _ExpMapFn(_reduced(xi))
-
-
-def _reduced(xi: Tensor) -> Tensor:
-    """A twist with the same ``Exp`` as ``xi`` (and the same derivatives), the angle reduced
-    modulo ``2 pi`` where it is too large for the formulas, ``xi`` itself elsewhere.
-
-    With ``phi'``, ``lam`` and ``u`` of :func:`torchlie._coeffs.reduction`,
-    ``Jl(phi) = lam Jl(phi') + (1 - lam) u u^T`` and ``Jl(phi') u = u``, so
-    ``Jl(phi) rho = Jl(phi') rho'`` with ``rho' = lam rho + (1 - lam) (u . rho) u``.
-    ``xi`` itself while compiling (:func:`torchlie._coeffs.reduction`).
-    """
-    if torch.compiler.is_compiling():
-        return xi
-    phi, lam, u = _coeffs.reduction(xi[..., 3:])
-    lam, u = lam[..., 0], u.unbind(-1)
-    rho = xi[..., :3].unbind(-1)
-    along = fma(fma(u[0] * rho[0], u[1], rho[1]), u[2], rho[2])
-    big = lam < 1.0
-    rho = [
-        torch.where(big, torch.lerp(along * ui, ri, lam), ri) for ui, ri in zip(u, rho, strict=True)
-    ]
-    return torch.stack((*rho, *phi.unbind(-1)), dim=-1)
+    """``Exp(xi)``."""
+    return _ExpMapFn(xi)
 
 
 def _log_forward(T: Tensor) -> Tensor:

@@ -295,7 +295,7 @@ def axis_angle_to_matrix(
     t = _checks.real(angle, fn, "angle", n, ("axis", axis))
     _checks.batch_broadcast(fn, (n.shape[:-1], "axis"), (t.shape, "angle"))
     unit = _unit(n)  # zero axis -> NaN (documented)
-    return _checks.out(_so3._ExpFn(t.unsqueeze(-1) * unit), dtype)
+    return _checks.out(_so3._ExpMapFn(t.unsqueeze(-1) * unit), dtype)
 
 
 def matrix_to_axis_angle(

@@ -18,6 +18,8 @@ silent identity).  Other layouts and conventions convert at the boundary: :func:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
 from torch import Tensor
 
@@ -294,10 +296,10 @@ def apply(q: Float[Tensor, "*b1 4"], points: Float[Tensor, "*b2 3"]) -> Float[Te
     p, _ = _checks.tensor(points, fn, "points", (3,))
     _checks.same_dtype(fn, q=q, points=points)
     _checks.batch_broadcast(fn, (a.shape[:-1], "q"), (p.shape[:-1], "points"))
-    return _checks.out(_apply(a, p), dtype)
+    return _checks.out(_ApplyFn(a, p), dtype)
 
 
-def _apply_values(q: Tensor, p: Tensor) -> Tensor:
+def _apply_values(q: Tensor | Sequence[Tensor], p: Tensor) -> Tensor:
     """:func:`apply` from components: ``p + s (w (v x p) + v x (v x p))``, ``s = 2 / |q|^2``."""
     w, *v = _components.planes(q, 4)
     pc = _components.planes(p, 3)
@@ -317,7 +319,7 @@ def _apply_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tenso
     # <g, dy> = <p x R^T g, d>: dL/dq = 2 q (0, p x R^T g) / |q|^2 (orthogonal to q).
     q, p = saved
     if torch.is_grad_enabled():  # create_graph: differentiable ops
-        dp = _apply(_conjugate(q), g)
+        dp = _ApplyFn(_conjugate(q), g)
         a = torch.linalg.cross(p.expand_as(dp), dp, dim=-1)
         # q (0, a) spelled out, not _hamilton.multiply: its complex form on large batches rounds
         # differently from its component form on small blocks (ulps, amplified in second order)
@@ -370,16 +372,13 @@ def _apply_jvp(saved: tuple[Tensor, ...], dq: Tensor | None, dp: Tensor | None) 
 
 _ApplyFn = custom_function(
     "QuaternionApply",
-    forward=_apply_values,
+    forward=lambda q, p: _apply_values(_coeffs.rescaled_planes(_components.planes(q, 4)), p),
     save=lambda inputs, out: (inputs[0], inputs[1]),
     backward=_apply_backward,
     jvp=_apply_jvp,
     event_dims=(1, 1),
+    guard=_coeffs.RESCALE,
 )
-
-
-def _apply(q: Tensor, p: Tensor) -> Tensor:
-    return _ApplyFn(_coeffs.rescaled(q)[0], p)
 
 
 def exp(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:

@@ -26,6 +26,8 @@ matrices through :func:`project` first.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
 from torch import Tensor
 
@@ -75,7 +77,7 @@ _NAME = "torchlie.so3."
 # ----------------------------------------------------------------------------------------------
 
 
-def _exp(w: Tensor) -> Tensor:
+def _exp(w: Tensor | Sequence[Tensor]) -> Tensor:
     """Forward of :func:`exp` (runs without autograd: forward-only coefficients)."""
     xyz, (a, b, d) = _rodrigues.coefficients(w, "abd")
     o = _layout.outputs(xyz[0], 9)
@@ -105,18 +107,13 @@ def _exp_jvp(saved, dw: Tensor) -> Tensor:
 
 _ExpMapFn = custom_function(
     "So3Exp",
-    forward=_exp,
+    forward=lambda w: _exp(_coeffs.reduced_planes(_components.planes(w, 3))),
     save=lambda inputs, out: (inputs[0], out),
     backward=_exp_backward,
     jvp=_exp_jvp,
     event_dims=(1,),
+    guard=_coeffs.REDUCE,  # the angle reduced modulo 2 pi where it is too large for the formulas
 )
-
-
-def _ExpFn(w: Tensor) -> Tensor:
-    """``Exp(w)``, the angle reduced modulo ``2 pi`` first where it is too large for the
-    formulas (:func:`torchlie._coeffs.reduced`: the same rotation and derivatives)."""
-    return _ExpMapFn(_coeffs.reduced(w))
 
 
 def _log(R: Tensor) -> Tensor:
@@ -194,7 +191,7 @@ def exp(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
                 [ 0.,  0.,  1.]])
     """
     x, dtype = _checks.tensor(omega, _NAME + "exp", "omega", (3,))
-    return _checks.out(_ExpFn(x), dtype)
+    return _checks.out(_ExpMapFn(x), dtype)
 
 
 def log(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3"]:
@@ -540,7 +537,7 @@ def interpolate(
     t = _checks.real(t, fn, "t", a, ("R0", R0))
     _checks.batch_broadcast(fn, (a.shape[:-2], "R0"), (b.shape[:-2], "R1"), (t.shape, "t"))
     w = _LogFn(a.transpose(-1, -2) @ b)
-    return _checks.out(a @ _ExpFn(t.unsqueeze(-1) * w), dtype)
+    return _checks.out(a @ _ExpMapFn(t.unsqueeze(-1) * w), dtype)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -592,7 +589,7 @@ def rplus(R: Float[Tensor, "*b1 3 3"], tau: Float[Tensor, "*b2 3"]) -> Float[Ten
         tensor([0.0000, 0.0000, 0.3000])
     """
     x, v, dtype, _ = _pair("rplus", R, tau, "R", "tau", tb=(3,))
-    return _checks.out(x @ _ExpFn(v), dtype)
+    return _checks.out(x @ _ExpMapFn(v), dtype)
 
 
 def rminus(R1: Float[Tensor, "*b1 3 3"], R0: Float[Tensor, "*b2 3 3"]) -> Float[Tensor, "*b 3"]:
@@ -619,7 +616,7 @@ def lplus(R: Float[Tensor, "*b1 3 3"], tau: Float[Tensor, "*b2 3"]) -> Float[Ten
         True
     """
     x, v, dtype, _ = _pair("lplus", R, tau, "R", "tau", tb=(3,))
-    return _checks.out(_ExpFn(v) @ x, dtype)
+    return _checks.out(_ExpMapFn(v) @ x, dtype)
 
 
 def lminus(R1: Float[Tensor, "*b1 3 3"], R0: Float[Tensor, "*b2 3 3"]) -> Float[Tensor, "*b 3"]:
@@ -707,7 +704,7 @@ def jac_rplus(
     """
     x, v, dtype, batch = _pair("jac_rplus", R, tau, "R", "tau", tb=(3,))
     v = v.expand(*batch, 3)
-    JR = _ExpFn(v).transpose(-1, -2)
+    JR = _ExpMapFn(v).transpose(-1, -2)
     return _checks.out(JR, dtype), _checks.out(_rodrigues.jac_matrix(v, "right"), dtype)
 
 
