@@ -298,8 +298,9 @@ def rescaled(v: Tensor) -> tuple[Tensor, Tensor]:
     squares of ``v / k`` neither overflow nor underflow, so every finite non-zero ``v`` has a
     finite, accurate result.  A zero ``v`` gives ``k = 0`` and ``v / k`` NaN (no direction).
     """
-    k = _scale(v)
-    return v / k, k
+    x = v.unbind(-1)
+    k = _scale(x)
+    return torch.stack([c / k for c in x], dim=-1), k.unsqueeze(-1)  # on planes: one loop compiled
 
 
 def rescaled_planes(v: Sequence[Tensor]) -> list[Tensor]:
@@ -316,7 +317,10 @@ def _scale(v: Tensor | Sequence[Tensor]) -> Tensor:
 
 
 #: :func:`rescaled` as the guard of a custom Function (the derivative of ``v / k`` is ``1 / k``).
-RESCALE = Guard(lambda v: v / _scale(v), lambda v, t: t / _scale(v))
+RESCALE = Guard(
+    lambda v: rescaled(v)[0],
+    lambda v, t: torch.stack([x / _scale(v.unbind(-1)) for x in t.unbind(-1)], dim=-1),
+)
 
 
 def reduction(w: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -337,8 +341,9 @@ def reduction(w: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     functions at ``t`` and finite (``u`` and ``lam`` are held constant: their own derivatives are
     of order ``1 / |w|``, below the rounding of the rest).
     """
-    lam, big, u = reduction_factors(w)
-    return reduced_by(w, (lam, big, u)), lam, torch.where(big, u, w)
+    lam, big, u = reduction_planes(w.unbind(-1))
+    u = torch.where(big.unsqueeze(-1), torch.stack(u, -1), w)
+    return reduced(w), lam.unsqueeze(-1), u
 
 
 def _lam(w: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
@@ -350,56 +355,56 @@ def _lam(w: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
 
 
 def reduced_planes(w: Sequence[Tensor]) -> list[Tensor]:
-    """:func:`reduced` of the planes ``w``, without autograd (element-wise only, for the fused
-    loops of ``torch.compile``)."""
+    """:func:`reduced` of the planes ``w`` (element-wise only, for the fused loops of
+    ``torch.compile``)."""
+    if torch.is_grad_enabled() and any(x.requires_grad for x in w):
+        return reduce_planes(reduction_planes(w), w, [x - x.detach() for x in w])
     lam = _lam(w)[0]
     return [x * lam for x in w]  # x itself where lam = 1
 
 
-def reduction_factors(w: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """``(lam, big, u)`` of :func:`reduction`, detached (``big`` where the angle is reduced)."""
-    lam, big, m = _lam(w)
-    v = w.detach() / torch.where(big, m, 1.0)
-    return lam, big, v * torch.where(big, sum_squares(v, keepdim=True), 1.0).rsqrt()
-
-
 def reduction_planes(w: Sequence[Tensor]) -> tuple[Tensor, Tensor, list[Tensor]]:
-    """:func:`reduction_factors` of the planes ``w``: ``lam`` and ``big`` planes, ``u`` as planes
-    (element-wise only, for the fused loops of ``torch.compile``)."""
+    """``(lam, big, u)`` of :func:`reduction`, detached, of the planes ``w`` (``big`` where the
+    angle is reduced; element-wise only, for the fused loops of ``torch.compile``)."""
     lam, big, m = _lam(w)
     v = [x.detach() / torch.where(big, m, 1.0) for x in w]
     r = torch.where(big, dot(v, v), 1.0).rsqrt()
     return lam, big, [x * r for x in v]
 
 
-def reduced_by(
-    t: Tensor, factors: tuple[Tensor, Tensor, Tensor], across: Tensor | float = 0.0
-) -> Tensor:
-    """``lam t + (1 - lam) u (u . t) across`` where the angle is reduced, ``t`` elsewhere
-    (``factors`` of :func:`reduction_factors`).
+def reduce_planes(
+    factors: tuple[Tensor, Tensor, Sequence[Tensor]],
+    t: Sequence[Tensor],
+    along: Sequence[Tensor] | None = None,
+) -> list[Tensor]:
+    """``lam t + (1 - lam) u (u . along)`` where the angle is reduced, ``t`` elsewhere, on planes
+    (``factors`` of :func:`reduction_planes`); ``along`` None: ``lam t``.
 
-    ``across = 0``: the reduced rotation vector ``lam w``; ``across = 1``: the map
-    ``P = lam I + (1 - lam) u u^T`` applied to ``t``, which is the derivative of the reduction (and
-    gives ``Jl(w) rho = Jl(lam w) P rho``).  Under autograd the derivative in ``t`` is ``P``
-    whatever ``across`` (``lam`` and ``u`` held constant).
+    ``along = t``: the derivative ``P = lam I + (1 - lam) u u^T`` of the reduction applied to
+    ``t``; ``along = t - t.detach()`` (an exact 0): the reduced ``lam t``, with derivative ``P``
+    under autograd.
     """
     lam, big, u = factors
-    along = t if isinstance(across, float) and across == 1.0 else t * across
-    if torch.is_grad_enabled() and t.requires_grad:
-        along = along + (1.0 - across) * (t - t.detach())  # an exact 0 added: derivative 1
-    return torch.where(big, fma(t * lam, (1.0 - lam) * dot(u, along).unsqueeze(-1), u), t)
+    if along is None:
+        return [x * lam for x in t]  # x itself where lam = 1
+    s = (1.0 - lam) * dot(u, along)
+    return [torch.where(big, fma(x * lam, s, ui), x) for x, ui in zip(t, u, strict=True)]
 
 
 def reduced(w: Tensor) -> Tensor:
     """The rotation vectors ``w`` with the angle reduced where it is beyond the range of the
-    formulas (:func:`reduction`), ``w`` itself elsewhere."""
-    if torch.is_grad_enabled() and w.requires_grad:
-        return reduced_by(w, reduction_factors(w))
-    return w * _lam(w)[0]  # w itself where lam = 1
+    formulas (:func:`reduction`), ``w`` itself elsewhere; under autograd with the derivative
+    ``P`` of :func:`reduce_planes` (computed on planes, stacked: one loop while compiling)."""
+    return torch.stack(reduced_planes(w.unbind(-1)), dim=-1)
 
 
-#: :func:`reduced` as the guard of a custom Function.
-REDUCE = Guard(reduced, lambda w, t: reduced_by(t, reduction_factors(w), 1.0))
+#: :func:`reduced` as the guard of a custom Function (on planes, stacked: one loop compiled).
+REDUCE = Guard(
+    reduced,
+    lambda w, t: torch.stack(
+        reduce_planes(reduction_planes(w.unbind(-1)), t.unbind(-1), t.unbind(-1)), dim=-1
+    ),
+)
 
 
 def dot(a: Tensor | Sequence[Tensor], b: Tensor | Sequence[Tensor]) -> Tensor:

@@ -343,14 +343,8 @@ def _reduction(
     ``Jl(phi) rho = Jl(phi') P rho``: the twist ``(P rho, lam phi)`` has the same ``Exp`` as
     ``xi``, and ``P`` on both halves (``along_phi = t_phi``) is its derivative.
     """
-    lam, big, u = _coeffs.reduction_planes(xi[3:])
-    k = 1.0 - lam
-    s = k * _coeffs.dot(u, t[:3])
-    rho = [torch.where(big, fma(c * lam, s, ui), c) for c, ui in zip(t[:3], u, strict=True)]
-    if along_phi is None:
-        return rho + [c * lam for c in t[3:]]  # c itself where lam = 1
-    s = k * _coeffs.dot(u, along_phi)
-    return rho + [torch.where(big, fma(c * lam, s, ui), c) for c, ui in zip(t[3:], u, strict=True)]
+    f = _coeffs.reduction_planes(xi[3:])
+    return _coeffs.reduce_planes(f, t[:3], t[:3]) + _coeffs.reduce_planes(f, t[3:], along_phi)
 
 
 def _reduced(xi: Tensor) -> Tensor:

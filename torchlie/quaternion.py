@@ -200,10 +200,10 @@ def _exp_pure(a: Tensor) -> Tensor:
 
     ``|a|`` is reduced modulo ``2 pi`` first where it is too large for the formulas
     (:func:`torchlie._coeffs.reduced`; the same value and derivatives)."""
-    a = _coeffs.reduced(a)
-    x, y, z = a.unbind(-1)
-    t2 = fma(fma(x * x, y, y), z, z).unsqueeze(-1)
-    return torch.cat((_coeffs.cos_sqrt(t2), _coeffs.sinc(t2) * a), dim=-1)
+    x, y, z = _coeffs.reduced_planes(a.unbind(-1))
+    t2 = fma(fma(x * x, y, y), z, z)
+    s = _coeffs.sinc(t2)
+    return torch.stack((_coeffs.cos_sqrt(t2), s * x, s * y, s * z), dim=-1)
 
 
 def to_rotvec(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 3"]:
