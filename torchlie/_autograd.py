@@ -11,7 +11,7 @@ their formula) is declared with :func:`custom_function` from four pure functions
 * ``jvp(saved, *tangents) -> tangent``  forward mode (``torch.func.jvp`` / ``jacfwd``).
 
 An op whose formula has a limited range (squares that overflow, angles beyond ``1 / eps``) takes a
-:class:`Guard` of its first input: the map into that range which leaves the op's value unchanged
+:data:`Guard` of its first input: the map into that range which leaves the op's value unchanged
 (a rescaling, an angle reduction).  The op's ``forward`` takes the input as it came and applies
 the guard itself (on components where its formula reads components); the Function saves the
 input as it came, and its ``backward`` and ``jvp`` see the guarded input, their derivatives
@@ -37,7 +37,7 @@ are constants there); eager ``torch.func`` and eager double backward give them.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import NamedTuple, TypeVar
+from typing import TypeVar
 
 import torch
 from torch import Tensor
@@ -104,8 +104,8 @@ def evaluate(fn: Callable[..., _Out], inputs: Sequence[Tensor], event_dims: Sequ
 
     ``event_dims[i]`` trailing dimensions of input ``i`` are not batch.  Blocks are taken for
     eager CPU tensors of one common batch shape of at least two blocks, outside transforms and
-    without a graph being recorded; ``fn`` returns a tensor or a tuple of tensors with the batch
-    shape first, and a block's result is the same whatever block it is in (row by row).
+    without a graph being recorded; ``fn`` returns a tensor or a tuple of tensors (or None) with
+    the batch shape first, and a block's result is the same whatever block it is in (row by row).
     """
     first = inputs[0]
     if (
@@ -126,47 +126,60 @@ def evaluate(fn: Callable[..., _Out], inputs: Sequence[Tensor], event_dims: Sequ
     flat = [
         x.reshape((n,) + x.shape[x.dim() - k :]) for x, k in zip(inputs, event_dims, strict=True)
     ]
-    results: tuple[Tensor, ...] = ()
+    results: tuple[Tensor | None, ...] = ()
     for start in range(0, n, rows):
         out = fn(*(x[start : start + rows] for x in flat))
         outs = out if isinstance(out, tuple) else (out,)
         if not results:
-            results = tuple(o.new_empty((n,) + o.shape[1:]) for o in outs)
+            results = tuple(None if o is None else o.new_empty((n,) + o.shape[1:]) for o in outs)
         for r, o in zip(results, outs, strict=True):
-            r[start : start + rows].copy_(o)
-    joined = tuple(r.reshape(batch + r.shape[1:]) for r in results)
-    return joined if isinstance(out, tuple) else joined[0]
+            if r is not None:
+                r[start : start + rows].copy_(o)
+    joined = tuple(None if r is None else r.reshape(batch + r.shape[1:]) for r in results)
+    return joined if isinstance(out, tuple) else joined[0]  # type: ignore[return-value]
 
 
-class Guard(NamedTuple):
-    """A map of an op's first input into its formula's range that leaves the op unchanged.
-
-    ``apply(x)`` is the guarded input (``x`` itself, bit for bit, inside the range);
-    ``linear(x, t)`` is the map's derivative at ``x`` applied to ``t``, which is symmetric, so it
-    also transposes a gradient.  ``apply`` under autograd has that derivative.
-    """
-
-    apply: Callable[[Tensor], Tensor]
-    linear: Callable[[Tensor, Tensor], Tensor]
+#: A map of an op's first input into its formula's range that leaves the op unchanged:
+#: ``guard(x)`` is the guarded input (``x`` itself, bit for bit, inside the range) and the map's
+#: derivative at ``x``, a function of a tangent; it is symmetric, so it also transposes a
+#: gradient.  The guarded input has that derivative under autograd.
+Guard = Callable[[Tensor], tuple[Tensor, Callable[[Tensor], Tensor]]]
 
 
 def _guarded(
     guard: Guard,
     backward: Callable[..., tuple[Tensor | None, ...]],
     jvp: Callable[..., Tensor],
+    event_dims: int,
 ) -> tuple[Callable[..., tuple[Tensor | None, ...]], Callable[..., Tensor]]:
     """``backward`` and ``jvp`` of the guarded input, as functions of the input as it came
-    (``save`` keeps it first among the saved tensors)."""
+    (``save`` keeps it first among the saved tensors, of ``event_dims`` trailing dimensions).
 
-    def inner(saved: Sequence[Tensor]) -> tuple[Tensor, ...]:
-        return (guard.apply(saved[0]), *saved[1:])
+    The plain backward (no ``create_graph``) runs guard, formula and the guard's derivative
+    block by block (:func:`evaluate`), the saved tensors and the gradient taken with the batch
+    shape of the input."""
+
+    def inner(saved: Sequence[Tensor]) -> tuple[tuple[Tensor, ...], Callable[[Tensor], Tensor]]:
+        x, derivative = guard(saved[0])
+        return (x, *saved[1:]), derivative
+
+    def through(saved: Sequence[Tensor], grad: Tensor) -> tuple[Tensor | None, ...]:
+        guarded, derivative = inner(saved)
+        first, *rest = backward(guarded, grad)
+        return (None if first is None else derivative(first), *rest)
 
     def guarded_backward(saved: Sequence[Tensor], grad: Tensor) -> tuple[Tensor | None, ...]:
-        first, *rest = backward(inner(saved), grad)
-        return (None if first is None else guard.linear(saved[0], first), *rest)
+        if torch.is_grad_enabled():  # create_graph
+            return through(saved, grad)
+        batch = saved[0].dim() - event_dims
+        tensors = (*saved, grad)
+        return evaluate(
+            lambda *t: through(t[:-1], t[-1]), tensors, [t.dim() - batch for t in tensors]
+        )
 
     def guarded_jvp(saved: Sequence[Tensor], dx: Tensor | None, *rest: Tensor | None) -> Tensor:
-        return jvp(inner(saved), None if dx is None else guard.linear(saved[0], dx), *rest)
+        guarded, derivative = inner(saved)
+        return jvp(guarded, None if dx is None else derivative(dx), *rest)
 
     return guarded_backward, guarded_jvp
 
@@ -204,7 +217,7 @@ class CustomFunction:
         guard: Guard | None = None,
     ) -> None:
         if guard is not None:
-            backward, jvp = _guarded(guard, backward, jvp)
+            backward, jvp = _guarded(guard, backward, jvp, event_dims[0])
         self.name = name
         self.formula = forward
         self.event_dims = event_dims

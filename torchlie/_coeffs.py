@@ -30,7 +30,7 @@ half angle replaces the series and its ``where`` (``sin(h)/h`` is exact to round
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import torch
 from torch import Tensor
@@ -280,13 +280,17 @@ _PLAIN = {torch.float32: (2.0**-30, 2.0**30), torch.float64: (2.0**-300, 2.0**30
 
 
 def largest(v: Tensor | Sequence[Tensor]) -> Tensor:
-    """``max_i |v_i|`` over the last dimension (kept, size 1) or over planes, detached:
-    element-wise, component by component (no reduction kernel of its own while compiling)."""
-    planes = v.detach().abs().unbind(-1) if isinstance(v, Tensor) else [x.detach().abs() for x in v]
-    m = planes[0]
-    for x in planes[1:]:
-        m = torch.maximum(m, x)
-    return m.unsqueeze(-1) if isinstance(v, Tensor) else m
+    """``max_i |v_i|`` over the last dimension (kept, size 1) or over planes, detached.
+
+    While compiling, element-wise, component by component (no reduction kernel of its own)."""
+    if isinstance(v, Tensor):
+        if not torch.compiler.is_compiling():
+            return v.detach().abs().amax(-1, keepdim=True)
+        return largest(v.unbind(-1)).unsqueeze(-1)
+    m = v[0].detach().abs()
+    for x in v[1:]:
+        m = torch.maximum(m, x.detach().abs())
+    return m
 
 
 def rescaled(v: Tensor) -> tuple[Tensor, Tensor]:
@@ -297,10 +301,14 @@ def rescaled(v: Tensor) -> tuple[Tensor, Tensor]:
     For the functions that are invariant to the scale of a quaternion, and for norms: the
     squares of ``v / k`` neither overflow nor underflow, so every finite non-zero ``v`` has a
     finite, accurate result.  A zero ``v`` gives ``k = 0`` and ``v / k`` NaN (no direction).
+    While compiling, computed on the planes and stacked (one fused loop; the same values).
     """
+    if not torch.compiler.is_compiling():
+        k = _scale(v)
+        return v / k, k
     x = v.unbind(-1)
     k = _scale(x)
-    return torch.stack([c / k for c in x], dim=-1), k.unsqueeze(-1)  # on planes: one loop compiled
+    return torch.stack([c / k for c in x], dim=-1), k.unsqueeze(-1)
 
 
 def rescaled_planes(v: Sequence[Tensor]) -> list[Tensor]:
@@ -316,11 +324,15 @@ def _scale(v: Tensor | Sequence[Tensor]) -> Tensor:
     return torch.where(m.clamp(*_PLAIN[m.dtype]) == m, 1.0, m)
 
 
+def _rescale_guard(v: Tensor) -> tuple[Tensor, Callable[[Tensor], Tensor]]:
+    scaled, k = rescaled(v)
+    if not torch.compiler.is_compiling():
+        return scaled, lambda t: t / k
+    return scaled, lambda t: torch.stack([x / k[..., 0] for x in t.unbind(-1)], dim=-1)
+
+
 #: :func:`rescaled` as the guard of a custom Function (the derivative of ``v / k`` is ``1 / k``).
-RESCALE = Guard(
-    lambda v: rescaled(v)[0],
-    lambda v, t: torch.stack([x / _scale(v.unbind(-1)) for x in t.unbind(-1)], dim=-1),
-)
+RESCALE: Guard = _rescale_guard
 
 
 def reduction(w: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -398,13 +410,14 @@ def reduced(w: Tensor) -> Tensor:
     return torch.stack(reduced_planes(w.unbind(-1)), dim=-1)
 
 
+def _reduce_guard(w: Tensor) -> tuple[Tensor, Callable[[Tensor], Tensor]]:
+    x = w.unbind(-1)
+    f = reduction_planes(x)
+    return reduced(w), lambda t: torch.stack(reduce_planes(f, t.unbind(-1), t.unbind(-1)), -1)
+
+
 #: :func:`reduced` as the guard of a custom Function (on planes, stacked: one loop compiled).
-REDUCE = Guard(
-    reduced,
-    lambda w, t: torch.stack(
-        reduce_planes(reduction_planes(w.unbind(-1)), t.unbind(-1), t.unbind(-1)), dim=-1
-    ),
-)
+REDUCE: Guard = _reduce_guard
 
 
 def dot(a: Tensor | Sequence[Tensor], b: Tensor | Sequence[Tensor]) -> Tensor:

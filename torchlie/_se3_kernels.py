@@ -9,13 +9,13 @@ and :mod:`torchlie._se3_jacobian`.  :mod:`torchlie.se3` checks the inputs and ca
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import torch
 from torch import Tensor
 
 from . import _coeffs, _layout, _rodrigues, _rotation_matrix, _se3_jacobian
-from ._autograd import Guard, blocked, custom_function, fma
+from ._autograd import blocked, custom_function, fma
 from ._components import cross_planes, hat, mv, planes, rt_g_vee, vee
 
 # ----------------------------------------------------------------------------------------------
@@ -347,18 +347,18 @@ def _reduction(
     return _coeffs.reduce_planes(f, t[:3], t[:3]) + _coeffs.reduce_planes(f, t[3:], along_phi)
 
 
-def _reduced(xi: Tensor) -> Tensor:
-    """:func:`_reduction` of ``xi`` itself (with its derivative ``P`` under autograd)."""
+def _guard(xi: Tensor) -> tuple[Tensor, Callable[[Tensor], Tensor]]:
+    """:func:`_reduction` of ``xi`` itself (with its derivative ``P`` under autograd), and that
+    derivative, ``P`` on both halves, as a function of a tangent."""
     x = xi.unbind(-1)
     graph = torch.is_grad_enabled() and xi.requires_grad
     along = [c - c.detach() for c in x[3:]] if graph else None  # an exact 0: derivative 1
-    return torch.stack(_reduction(x, x, along), dim=-1)
 
+    def derivative(t: Tensor) -> Tensor:
+        tt = t.unbind(-1)
+        return torch.stack(_reduction(x, tt, tt[3:]), dim=-1)
 
-def _reduced_derivative(xi: Tensor, t: Tensor) -> Tensor:
-    """The derivative of :func:`_reduced` at ``xi`` applied to ``t``: ``P`` on both halves."""
-    tt = t.unbind(-1)
-    return torch.stack(_reduction(xi.unbind(-1), tt, tt[3:]), dim=-1)
+    return torch.stack(_reduction(x, x, along), dim=-1), derivative
 
 
 _ExpMapFn = custom_function(
@@ -368,7 +368,7 @@ _ExpMapFn = custom_function(
     backward=_exp_backward,
     jvp=_exp_jvp,
     event_dims=(1,),
-    guard=Guard(_reduced, _reduced_derivative),
+    guard=_guard,
 )
 
 
