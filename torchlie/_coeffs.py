@@ -353,25 +353,29 @@ def reduction(w: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     functions at ``t`` and finite (``u`` and ``lam`` are held constant: their own derivatives are
     of order ``1 / |w|``, below the rounding of the rest).
     """
-    lam, big, u = reduction_planes(w.unbind(-1))
+    x = w.unbind(-1)
+    lam, big, u = f = reduction_planes(x)
     u = torch.where(big.unsqueeze(-1), torch.stack(u, -1), w)
-    return reduced(w), lam.unsqueeze(-1), u
+    return torch.stack(reduced_planes(x, f), dim=-1), lam.unsqueeze(-1), u
 
 
-def _lam(w: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
-    """``(lam, big, m)`` of :func:`reduction`, detached (``big`` where the angle is reduced, ``m``
-    the largest ``|w_i|``); of a tensor ``(..., 3)`` (kept dimension) or of planes."""
+def _lam(w: Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
+    """``(lam, big, m)`` of :func:`reduction`, detached, of the planes ``w`` (``big`` where the
+    angle is reduced, ``m`` the largest ``|w_i|``)."""
     m = largest(w)
     big = m > _HUGE[m.dtype]
     return torch.where(big, torch.fmod(0.5 * m, math.pi).mul_(2.0).div_(m), 1.0), big, m
 
 
-def reduced_planes(w: Sequence[Tensor]) -> list[Tensor]:
+def reduced_planes(
+    w: Sequence[Tensor], factors: tuple[Tensor, Tensor, Sequence[Tensor]] | None = None
+) -> list[Tensor]:
     """:func:`reduced` of the planes ``w`` (element-wise only, for the fused loops of
-    ``torch.compile``)."""
+    ``torch.compile``); ``factors`` of :func:`reduction_planes` if the caller has them."""
     if torch.is_grad_enabled() and any(x.requires_grad for x in w):
-        return reduce_planes(reduction_planes(w), w, [x - x.detach() for x in w])
-    lam = _lam(w)[0]
+        f = reduction_planes(w) if factors is None else factors
+        return reduce_planes(f, w, [x - x.detach() for x in w])
+    lam = (_lam(w) if factors is None else factors)[0]
     return [x * lam for x in w]  # x itself where lam = 1
 
 
@@ -413,7 +417,8 @@ def reduced(w: Tensor) -> Tensor:
 def _reduce_guard(w: Tensor) -> tuple[Tensor, Callable[[Tensor], Tensor]]:
     x = w.unbind(-1)
     f = reduction_planes(x)
-    return reduced(w), lambda t: torch.stack(reduce_planes(f, t.unbind(-1), t.unbind(-1)), -1)
+    guarded = torch.stack(reduced_planes(x, f), dim=-1)
+    return guarded, lambda t: torch.stack(reduce_planes(f, t.unbind(-1), t.unbind(-1)), -1)
 
 
 #: :func:`reduced` as the guard of a custom Function (on planes, stacked: one loop compiled).

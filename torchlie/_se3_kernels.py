@@ -269,7 +269,7 @@ def _exp_forward(xi: Tensor) -> Tensor:
     :func:`torchlie.so3.exp`'s, bit for bit.  The angle reduced first where it is too large for
     the formulas (:func:`_reduction`, on planes: one fused loop while compiling)."""
     x = planes(xi, 6)
-    x = _reduction(x, x, None)
+    x = _reduction(_coeffs.reduction_planes(x[3:]), x, None)
     xyz, (a, b, c, d) = _rodrigues.coefficients(x[3:], "abcd")
     o, top = _top_outputs(xyz[0])
     R = _rodrigues.exp_entries(xyz, a, b, d, [e for row in top for e in row[:3]])
@@ -332,18 +332,19 @@ def _exp_jvp(saved, dxi: Tensor) -> Tensor:
 
 
 def _reduction(
-    xi: Sequence[Tensor], t: Sequence[Tensor], along_phi: Sequence[Tensor] | None
+    f: tuple[Tensor, Tensor, Sequence[Tensor]],
+    t: Sequence[Tensor],
+    along_phi: Sequence[Tensor] | None,
 ) -> list[Tensor]:
-    """``(P t_rho, lam t_phi + (1 - lam) u (u . along_phi))`` where ``xi``'s angle is reduced,
-    ``t`` elsewhere (all as 6 planes), with ``lam``, ``u`` and ``P = lam I + (1 - lam) u u^T``
-    of ``xi``'s angle (:func:`torchlie._coeffs.reduction_planes`); ``along_phi`` None:
-    ``lam t_phi``.
+    """``(P t_rho, lam t_phi + (1 - lam) u (u . along_phi))`` where the angle is reduced, ``t``
+    elsewhere (6 planes), with ``lam``, ``u`` and ``P = lam I + (1 - lam) u u^T`` of a twist's
+    angle (``f``: :func:`torchlie._coeffs.reduction_planes` of its ``phi``); ``along_phi``
+    None: ``lam t_phi``.
 
     ``Jl(phi) = lam Jl(phi') + (1 - lam) u u^T`` and ``Jl(phi') u = u``, so
     ``Jl(phi) rho = Jl(phi') P rho``: the twist ``(P rho, lam phi)`` has the same ``Exp`` as
     ``xi``, and ``P`` on both halves (``along_phi = t_phi``) is its derivative.
     """
-    f = _coeffs.reduction_planes(xi[3:])
     return _coeffs.reduce_planes(f, t[:3], t[:3]) + _coeffs.reduce_planes(f, t[3:], along_phi)
 
 
@@ -351,14 +352,15 @@ def _guard(xi: Tensor) -> tuple[Tensor, Callable[[Tensor], Tensor]]:
     """:func:`_reduction` of ``xi`` itself (with its derivative ``P`` under autograd), and that
     derivative, ``P`` on both halves, as a function of a tangent."""
     x = xi.unbind(-1)
+    f = _coeffs.reduction_planes(x[3:])
     graph = torch.is_grad_enabled() and xi.requires_grad
     along = [c - c.detach() for c in x[3:]] if graph else None  # an exact 0: derivative 1
 
     def derivative(t: Tensor) -> Tensor:
         tt = t.unbind(-1)
-        return torch.stack(_reduction(x, tt, tt[3:]), dim=-1)
+        return torch.stack(_reduction(f, tt, tt[3:]), dim=-1)
 
-    return torch.stack(_reduction(x, x, along), dim=-1), derivative
+    return torch.stack(_reduction(f, x, along), dim=-1), derivative
 
 
 _ExpMapFn = custom_function(
