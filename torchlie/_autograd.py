@@ -6,8 +6,9 @@ their formula) is declared with :func:`custom_function` from four pure functions
 
 * ``forward(*inputs) -> output``       the op's formula, in differentiable torch ops;
 * ``save(inputs, output) -> tuple``     the tensors the derivatives need;
-* ``backward(saved, grad) -> grads``    the derivative's formula; under ``create_graph`` in
-  differentiable torch ops (so double backward differentiates it);
+* ``backward(saved, grad) -> grads``    the derivative's formula, one for every mode: its
+  coefficients are forward-only in a plain backward pass and differentiable under
+  ``create_graph`` (so double backward differentiates the same formula);
 * ``jvp(saved, *tangents) -> tangent``  forward mode (``torch.func.jvp`` / ``jacfwd``).
 
 An op whose formula has a limited range (squares that overflow, angles beyond ``1 / eps``) takes a

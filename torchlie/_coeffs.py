@@ -455,46 +455,59 @@ def rodrigues_values(
     parts: str = "abcd",
     half: tuple[Tensor, Tensor, Tensor, Tensor] | None = None,
 ) -> tuple[Tensor, ...]:
-    """``(a, b, c, d) = (sin t / t, (1 - cos t)/t^2, (t - sin t)/t^3, cos t)`` of ``t = |w|``.
+    """The coefficients of Rodrigues' forms of ``t = |w|``, by letter (:data:`RODRIGUES`), in
+    the order of ``parts`` (the others are not computed); forward-only (module docstring).
 
-    ``Exp(w) = d I + a hat(w) + b w w^T`` and ``Jl(w) = a I + b hat(w) + c w w^T``.
-    Forward-only (module docstring).  With ``h = t/2`` and ``s = sin(h)/h``: ``a = s cos h``,
-    ``b = s^2 / 2`` and ``d = (cos h - sin h)(cos h + sin h)``, free of cancellation at every
-    angle; one ``sqrt``, ``sin`` and ``cos`` per element.  ``c = (1 - a)/t^2`` has no series: its
-    absolute error is about ``eps / t^2``, so the term it enters, ``c w w^T``, is accurate to
-    about ``eps`` at every angle (and 0 at t = 0); use it only in that product.  Computed in
-    the precision of :func:`theta2` (float64 for float32 input) and returned in it.  ``w`` as a
-    ``(..., 3)`` tensor or its three components (as :func:`theta2`), or ``half``: its
-    :func:`half_angle`.  ``parts``: the coefficients wanted, by letter, in the order returned
-    (``"abd"`` for ``Exp``, ``"abc"`` for ``Jl``); the others are not computed.
+    With ``h = t/2`` and ``s = sin(h)/h``: ``a = s cos h``, ``b = s^2 / 2``,
+    ``d = (cos h - sin h)(cos h + sin h)`` and ``e = cos(h) / s``, free of cancellation at every
+    angle; one ``sqrt``, ``sin`` and ``cos`` per element.  ``c = (1 - a)/t^2`` and
+    ``f = (1 - e)/t^2`` have no series: their absolute error is about ``eps / t^2``, so the term
+    they enter, ``c w w^T``, is accurate to about ``eps`` at every angle (and 0 at t = 0); use
+    them only in that product.  Computed in the precision of :func:`theta2` (float64 for
+    float32 input) and returned in it.  ``w`` as a ``(..., 3)`` tensor or its three components
+    (as :func:`theta2`), or ``half``: its :func:`half_angle`.
     """
     t2, s, sh, ch = half_angle(w) if half is None else half
-    a = s * ch
-    values = {"a": a}
+    values: dict[str, Tensor] = {}
+    if "a" in parts or "c" in parts:
+        values["a"] = s * ch
     if "c" in parts:
-        values["c"] = (1.0 - a).div_(t2.clamp_min(H_MIN[t2.dtype]))
+        values["c"] = (1.0 - values["a"]).div_(t2.clamp_min(H_MIN[t2.dtype]))
     if "d" in parts:
         values["d"] = (ch - sh).mul_(ch + sh)
     if "b" in parts:
         values["b"] = (s * s).mul_(0.5)
+    if "e" in parts or "f" in parts:
+        values["e"] = ch / s
+    if "f" in parts:
+        values["f"] = (1.0 - values["e"]).div_(t2.clamp_min(H_MIN[t2.dtype]))
     return tuple(values[k] for k in parts)
 
 
-def jl_inv_values(
-    w: Tensor | Sequence[Tensor] | None,
-    half: tuple[Tensor, Tensor, Tensor, Tensor] | None = None,
-) -> tuple[Tensor, Tensor]:
-    """``((t/2) cot(t/2), (1 - (t/2) cot(t/2))/t^2)`` of ``t = |w|`` in ``[0, pi]``:
-    ``Jl^-1 = e I - hat(w)/2 + D w w^T``.
+#: The coefficients of Rodrigues' forms by letter: ``Exp(w) = d I + a hat(w) + b w w^T``,
+#: ``Jl(w) = a I + b hat(w) + c w w^T`` and ``Jl(w)^-1 = e I - hat(w)/2 + f w w^T``, functions
+#: of ``t2``, differentiable to every order (double where).
+RODRIGUES: dict[str, Callable[[Tensor], Tensor]] = {
+    "a": sinc,
+    "b": cosc,
+    "c": sinc3,
+    "d": cos_sqrt,
+    "e": lambda t2: 1.0 - t2 * jinv(t2),
+    "f": jinv,
+}
 
-    Forward-only (module docstring).  ``e = cos(h) / (sin(h)/h)`` with ``h = t/2``; ``D`` has,
-    like ``c`` of :func:`rodrigues_values`, an absolute error of about ``eps / t^2`` and is
-    meant only for the product ``D w w^T``.  ``w`` as a ``(..., 3)`` tensor or its three
-    components (as :func:`theta2`), or ``half``: its :func:`half_angle`.
-    """
-    t2, s, _, ch = half_angle(w) if half is None else half
-    e = ch / s
-    return e, (1.0 - e).div_(t2.clamp_min(H_MIN[t2.dtype]))
+
+def rodrigues(
+    w: Sequence[Tensor], parts: str, differentiable: bool, half: tuple[Tensor, ...] | None = None
+) -> tuple[Tensor, ...]:
+    """The coefficients ``parts`` of :data:`RODRIGUES` of the planes ``w``, in :func:`theta2`'s
+    precision: differentiable (the series above), or forward-only (:func:`rodrigues_values`,
+    cheaper, for the plain backward passes; from ``half`` if given).  The one choice between
+    the two evaluations of a coefficient."""
+    if differentiable:
+        t2 = theta2(w)
+        return tuple(RODRIGUES[k](t2) for k in parts)
+    return rodrigues_values(w, parts, half)
 
 
 def step(x: Tensor) -> Tensor:

@@ -94,10 +94,10 @@ def rt_g_vee(
     return out[0], out[1], out[2]
 
 
-def r_hat_values(R: Tensor, u: Sequence[Tensor]) -> Tensor:
+def r_hat(R: Tensor, u: Sequence[Tensor]) -> Tensor:
     """``R hat(u)`` from components: row ``i`` is ``cross(R_i, u)``."""
     r = planes(R, 9)
-    o = _layout.outputs(r[0], 9)
+    o = _layout.outputs((r[0], u[0]), 9)
     out = [c for i in (0, 3, 6) for c in cross_planes(r[i : i + 3], u, o[i : i + 3])]
     return _layout.interleave(out, o).unflatten(-1, (3, 3))
 

@@ -2,9 +2,10 @@
 ``Jl(w)``, ``Jr(w)`` and their inverses applied to vectors or formed as matrices.
 
 Each is ``a I + b hat(w) + c w w^T`` (or applied to a vector, ``a v + b (w x v) + c (w . v) w``)
-with coefficients of :mod:`torchlie._coeffs`; the ``*_values`` forms take forward-only
-coefficients (backward passes without ``create_graph``), the others differentiable ones.
-:mod:`torchlie.so3` and :mod:`torchlie.se3` build their exp, log and Jacobians on these.
+with the coefficients of :data:`torchlie._coeffs.RODRIGUES`: one formula, whose coefficients are
+forward-only in the forward passes and the plain backward passes, and differentiable wherever
+the result may be differentiated.  :mod:`torchlie.so3` and :mod:`torchlie.se3` build their exp,
+log and Jacobians on these.
 """
 
 from __future__ import annotations
@@ -24,12 +25,13 @@ from ._components import planes
 
 
 def coefficients(
-    w: Tensor | Sequence[Tensor], parts: str = "abcd"
+    w: Tensor | Sequence[Tensor], parts: str = "abcd", differentiable: bool = False
 ) -> tuple[tuple[Tensor, ...], tuple[Tensor, ...]]:
     """Planes ``(x, y, z)`` of ``w`` (or ``w`` given as planes) and the coefficients ``parts`` of
-    :func:`_coeffs.rodrigues_values` in ``w``'s dtype (forward-only)."""
+    :data:`torchlie._coeffs.RODRIGUES` in ``w``'s dtype: forward-only (the forward passes and the
+    plain backward passes) or ``differentiable`` (:func:`torchlie._coeffs.rodrigues`)."""
     xyz = planes(w, 3)
-    values = _coeffs.rodrigues_values(xyz, parts)
+    values = _coeffs.rodrigues(xyz, parts, differentiable)
     return xyz, tuple(v.to(xyz[0].dtype) for v in values)
 
 
@@ -83,45 +85,32 @@ def jl_components(
     return result
 
 
-def jl_apply_values(w: Tensor, v: tuple[Tensor, ...], sign: float = 1.0) -> Tensor:
-    """``Jl(w) v`` (``sign=1``) or ``Jr(w) v`` (``sign=-1``) from components; forward-only.
+def jl_apply(
+    w: Tensor | Sequence[Tensor],
+    v: Tensor | Sequence[Tensor],
+    sign: float = 1.0,
+    inverse: bool = False,
+    stacked: bool = True,
+    differentiable: bool = True,
+) -> Tensor | list[Tensor]:
+    """``Jl(w) v`` (``sign=1``) or ``Jr(w) v = Jl(-w) v`` (``sign=-1``), or with ``inverse`` their
+    inverses (for angles of at most pi), without a matrix::
 
-    ``Jl(w) v = a v + b (w x v) + c (w . v) w`` with :func:`torchlie._coeffs.rodrigues_values`
-    (not differentiable: backward passes without ``create_graph`` only).
+        Jl(w) v = a v + b (w x v) + c (w . v) w,    Jl(w)^-1 v = e v - (w x v)/2 + f (w . v) w
+
+    ``w`` and ``v`` as ``(..., 3)`` tensors or their components (batches may broadcast); the
+    result as a tensor or, ``stacked=False``, its components.  The coefficients are
+    differentiable, or forward-only (``differentiable=False``: a plain backward pass).
     """
-    xyz, (a, b, c) = coefficients(w, "abc")
-    o = _layout.outputs(xyz[0], 3)
-    return _layout.interleave(jl_components(xyz, v, a, b if sign > 0 else -b, c, o), o)
-
-
-def jl_inv_apply_values(
-    w: Tensor | Sequence[Tensor], v: Tensor | Sequence[Tensor]
-) -> tuple[Tensor, Tensor, Tensor]:
-    """Components of ``Jl(w)^-1 v = e v - (w x v)/2 + D (w . v) w`` for ``w`` of angle at most
-    pi (a log's); forward-only.  ``w`` and ``v`` as ``(..., 3)`` tensors or as their three
-    components."""
-    wc = planes(w, 3)
-    e, d = (t.to(wc[0].dtype) for t in _coeffs.jl_inv_values(wc))
-    out = jl_components(wc, planes(v, 3), e, e.new_full((), -0.5), d)
-    return out[0], out[1], out[2]
-
-
-def jl_apply(w: Tensor, v: Tensor, sign: float = 1.0) -> Tensor:
-    """``Jl(w) v`` (``sign=1``) or ``Jr(w) v = Jl(-w) v`` (``sign=-1``), without a matrix."""
-    t2 = _coeffs.theta2(w, keepdim=True)
-    b, c = _coeffs.cosc(t2).to(w.dtype), _coeffs.sinc3(t2).to(w.dtype)
-    wxv = torch.linalg.cross(w, v, dim=-1)
-    wxwxv = torch.linalg.cross(w, wxv, dim=-1)
-    return v + sign * b * wxv + c * wxwxv
-
-
-def jl_inv_apply(w: Tensor, v: Tensor, sign: float = 1.0) -> Tensor:
-    """``Jl(w)^-1 v`` (``sign=1``) or ``Jr(w)^-1 v`` (``sign=-1``), without a matrix."""
-    t2 = _coeffs.theta2(w, keepdim=True)
-    d = _coeffs.jinv(t2).to(w.dtype)
-    wxv = torch.linalg.cross(w, v, dim=-1)
-    wxwxv = torch.linalg.cross(w, wxv, dim=-1)
-    return v - sign * 0.5 * wxv + d * wxwxv
+    if inverse:
+        xyz, (a, c) = coefficients(w, "ef", differentiable)
+        b = a.new_full((), -0.5)
+    else:
+        xyz, (a, b, c) = coefficients(w, "abc", differentiable)
+    vc = planes(v, 3)
+    o = _layout.outputs((xyz[0], vc[0]), 3) if stacked else (None,) * 3
+    parts = jl_components(xyz, vc, a, b if sign > 0 else -b, c, o)
+    return _layout.interleave(parts, o) if stacked else parts
 
 
 # ----------------------------------------------------------------------------------------------
@@ -148,21 +137,18 @@ def jac_matrix(w: Tensor, kind: str) -> Tensor:
 
 def _jac_formula(w: Tensor, kind: str) -> Tensor:
     """:func:`jac_matrix` by the formula of each kind."""
-    # I + b hat + c hat^2 = (1 - c t2) I + b hat + c w w^T
-    t2 = _coeffs.theta2(w)
     if kind in ("left", "right"):
-        b = _coeffs.cosc(t2) * (1.0 if kind == "left" else -1.0)
-        c = _coeffs.sinc3(t2)
+        xyz, (a, b, c) = coefficients(w, "abc", differentiable=True)
+        b = b if kind == "left" else -b
     else:
-        b = torch.full_like(t2, -0.5 if kind == "left_inv" else 0.5)
-        c = _coeffs.jinv(t2)
-    a = (1.0 - c * t2).to(w.dtype)
-    return _abc_matrix(a, b.to(w.dtype), c.to(w.dtype), w)
+        xyz, (a, c) = coefficients(w, "ef", differentiable=True)
+        b = torch.full_like(a, -0.5 if kind == "left_inv" else 0.5)
+    return _abc_matrix(a, b, c, xyz)
 
 
-def _abc_matrix(a: Tensor, b: Tensor, c: Tensor, w: Tensor) -> Tensor:
-    """``a I + b hat(w) + c w w^T`` from components (``a, b, c`` of shape ``w.shape[:-1]``)."""
-    x, y, z = w.unbind(-1)
+def _abc_matrix(a: Tensor, b: Tensor, c: Tensor, xyz: Sequence[Tensor]) -> Tensor:
+    """``a I + b hat(w) + c w w^T`` from the components ``xyz`` of ``w``."""
+    x, y, z = xyz
     cx, cy, cz = c * x, c * y, c * z
     bx, by, bz = b * x, b * y, b * z
     cxy, cxz, cyz = cx * y, cx * z, cy * z

@@ -18,7 +18,7 @@ from torch import Tensor
 
 from . import _coeffs, _layout
 from ._autograd import blocked, custom_function, fma
-from ._components import cross_planes, norm2, planes, r_hat_values, rt_g_vee, skew_vee, vee
+from ._components import cross_planes, norm2, planes, r_hat, rt_g_vee, skew_vee, vee
 from ._hamilton import conj_product_vec, multiply
 
 # ----------------------------------------------------------------------------------------------
@@ -50,24 +50,14 @@ def _to_matrix_forward(q: Tensor | Sequence[Tensor]) -> Tensor:
     return _layout.interleave(entries, o).unflatten(-1, (3, 3))
 
 
-def _to_matrix_backward(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor]:
+def _to_matrix_grad(q: Tensor, R: Tensor, G: Tensor) -> Tensor:
     # With u = q/|q|, a change dq turns R into R Exp(d), d = 2 vec(conj(q) dq) / |q|^2, so
     # <G, R hat(d)> = a . d with a = vee(R^T G - G^T R), and dL/dq = 2 (q (0, a)) / |q|^2
     # (orthogonal to q: to_matrix does not see the scale of q).
-    q, R = saved
-    if torch.is_grad_enabled():  # create_graph: differentiable ops
-        a = skew_vee(R.transpose(-1, -2) @ G)
-        k = 2.0 / (q * q).sum(-1, keepdim=True)
-        return (k * multiply(q, torch.nn.functional.pad(a, (1, 0))),)
-    return (_to_matrix_grad_values(q, R, G),)
-
-
-def _to_matrix_grad_values_block(q: Tensor, R: Tensor, G: Tensor) -> Tensor:
-    """The plain backward of :func:`torchlie.quaternion.to_matrix` from components."""
     w, x, y, z = planes(q, 4)
     a1, a2, a3 = rt_g_vee(R, G)
     k = 2.0 / norm2(w, x, y, z)
-    o = _layout.outputs(w, 4)
+    o = _layout.outputs((w, a1), 4)
     gw = torch.mul(fma(fma(x * a1, y, a2), z, a3), k, out=o[0]).neg_()
     c = cross_planes((x, y, z), (a1, a2, a3))
     gv = [
@@ -77,7 +67,7 @@ def _to_matrix_grad_values_block(q: Tensor, R: Tensor, G: Tensor) -> Tensor:
     return _layout.interleave((gw, *gv), o)
 
 
-_to_matrix_grad_values = blocked(_to_matrix_grad_values_block, (1, 2, 2))
+_to_matrix_grad_blocked = blocked(_to_matrix_grad, (1, 2, 2))
 
 
 def _to_matrix_jvp(saved: tuple[Tensor, ...], dq: Tensor) -> Tensor:
@@ -91,7 +81,7 @@ _ToMatrixFn = custom_function(
     "QuaternionToMatrix",
     forward=lambda q: _to_matrix_forward(_coeffs.rescaled_planes(planes(q, 4))),
     save=lambda inputs, out: (inputs[0], out),
-    backward=_to_matrix_backward,
+    backward=lambda saved, G: (_to_matrix_grad_blocked(*saved, G),),
     jvp=_to_matrix_jvp,
     event_dims=(1,),
     guard=_coeffs.RESCALE,
@@ -184,9 +174,6 @@ def _from_matrix_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]
     # step).  So dL/dd = u = vec(conj(q) g) / 2 and G = R hat(u) / 2, the gradient that
     # autograd gives through the step and Shepperd's formula at a rotation.
     R, q = saved
-    if torch.is_grad_enabled():  # create_graph: differentiable ops
-        u = 0.25 * conj_product_vec(q, g)
-        return (torch.linalg.cross(R, u.unsqueeze(-2).expand_as(R), dim=-1),)
     w, x, y, z = planes(q, 4)
     gw, gx, gy, gz = planes(g, 4)
     c = cross_planes((x, y, z), (gx, gy, gz))
@@ -194,7 +181,7 @@ def _from_matrix_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]
         fma(w * gi, gw, vi, value=-1.0).sub_(ci).mul_(0.25)
         for gi, vi, ci in zip((gx, gy, gz), (x, y, z), c, strict=True)
     ]
-    return (r_hat_values(R, u),)
+    return (r_hat(R, u),)
 
 
 def _from_matrix_jvp(saved: tuple[Tensor, ...], dR: Tensor) -> Tensor:

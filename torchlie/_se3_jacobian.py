@@ -28,16 +28,23 @@ def _in_dtype(ks: tuple[Tensor, ...], dtype: torch.dtype) -> tuple[Tensor, ...]:
     return tuple(k.to(dtype) for k in ks)
 
 
-def q_values(
-    dtype: torch.dtype, half: tuple[Tensor, ...], bc: tuple[Tensor, Tensor] | None = None
-) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """:func:`_q_coeffs` of ``phi`` for input of ``dtype``, forward-only (the plain backward
-    passes), from its :func:`_coeffs.half_angle`: for float32, :func:`_coeffs.q_values` from
-    Rodrigues' ``b`` and ``c`` (``bc``, or evaluated from ``half``; no trigonometric function
-    of its own), :func:`_coeffs.q_series` otherwise; in ``dtype``."""
-    if bc is None and dtype == torch.float32:
-        bc = _coeffs.rodrigues_values(None, "bc", half)
-    return _in_dtype(_coeffs.q_plain(dtype, half[0], *(bc or (None, None))), dtype)
+def coefficients(
+    phi: Sequence[Tensor], parts: str, differentiable: bool
+) -> tuple[tuple[Tensor, ...], tuple[Tensor, ...]]:
+    """The coefficients ``parts`` of :data:`torchlie._coeffs.RODRIGUES` and ``(k1, k2, k3, k4)``
+    of :func:`q_components` of the angle of the planes ``phi``, in their dtype: differentiable
+    (:func:`torchlie._coeffs.rodrigues`, :func:`torchlie._coeffs.q_series`), or forward-only for
+    the plain backward passes, all from one ``sin`` and ``cos`` (for float32, ``Q``'s from
+    Rodrigues' ``b`` and ``c``: :func:`torchlie._coeffs.q_values`)."""
+    dtype = phi[0].dtype
+    half = None if differentiable else _coeffs.half_angle(phi)
+    extra = "bc" if dtype == torch.float32 and not differentiable else ""
+    values = _coeffs.rodrigues(phi, parts + extra, differentiable, half)
+    if differentiable:
+        ks = _coeffs.q_series(_coeffs.theta2(phi))
+    else:
+        ks = _coeffs.q_plain(dtype, half[0], *(values[len(parts) :] or (None, None)))
+    return _in_dtype(values[: len(parts)], dtype), _in_dtype(ks, dtype)
 
 
 def q_components(
@@ -130,6 +137,6 @@ def jac_left_inv(xi: Tensor) -> Tensor:
 def jl_inv_apply(xi: Tensor, v: Tensor) -> Tensor:
     """``Jl(xi)^-1 v`` without a matrix."""
     rho, phi = xi[..., :3], xi[..., 3:]
-    u_phi = _rodrigues.jl_inv_apply(phi, v[..., 3:])
-    u_rho = _rodrigues.jl_inv_apply(phi, v[..., :3] - q_apply(rho, phi, u_phi))
+    u_phi = _rodrigues.jl_apply(phi, v[..., 3:], inverse=True)
+    u_rho = _rodrigues.jl_apply(phi, v[..., :3] - q_apply(rho, phi, u_phi), inverse=True)
     return torch.cat((u_rho, u_phi), dim=-1)

@@ -277,37 +277,20 @@ def _exp_forward(xi: Tensor) -> Tensor:
     return _stack_top([(*R[0:3], t[0]), (*R[3:6], t[1]), (*R[6:9], t[2])], out=o)
 
 
-def _exp_backward(saved, G: Tensor):
+def _exp_grad(xi: Tensor, T: Tensor, G: Tensor) -> Tensor:
     # T = [[R, t], [0, 1]], R = Exp(phi), t = Jl(phi) rho.  With a left perturbation,
     # dt = (Q(rho, phi) - t^ Jl(phi)) dphi + Jl(phi) drho, so
     #     g_rho = Jr(phi) g_t,
     #     g_phi = Jl(phi) vee(R^T G_R - G_R^T R) + Jr(phi) (t x g_t) + Q(-rho, -phi) g_t.
-    xi, T = saved
-    if not torch.is_grad_enabled():
-        return (_exp_grad_values(xi, T, G),)
-    rho, phi = xi[..., :3], xi[..., 3:]  # create_graph: differentiable ops
-    R, t = T[..., :3, :3], T[..., :3, 3]
-    g_R, g_t = G[..., :3, :3], G[..., :3, 3]
-    g_rho = _rodrigues.jl_apply(phi, g_t, sign=-1.0)
-    g_phi = _rodrigues.jl_apply(phi, 2.0 * vee(R.transpose(-1, -2) @ g_R))
-    g_phi = g_phi + _rodrigues.jl_apply(phi, torch.linalg.cross(t, g_t, dim=-1), sign=-1.0)
-    return (torch.cat((g_rho, g_phi + _se3_jacobian.q_apply(-rho, -phi, g_t)), dim=-1),)
-
-
-def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor) -> Tensor:
-    """:func:`_exp_backward` from components, forward-only coefficients (plain backward)."""
     x = planes(xi, 6)
     xyz = x[3:]
-    half = _coeffs.half_angle(xyz)
-    a, b, c = _coeffs.rodrigues_values(None, "abc", half)
-    qc = _se3_jacobian.q_values(xi.dtype, half, (b, c))
-    a, b, c = (v.to(xi.dtype) for v in (a, b, c))
+    # coefficients that differentiate under create_graph
+    (a, b, c), qc = _se3_jacobian.coefficients(xyz, "abc", torch.is_grad_enabled())
     R, t = _rotation_and_translation(T)
     G_R, g_t = _rotation_and_translation(G)
-    o = _layout.outputs(x[0], 6)
+    o = _layout.outputs((x[0], R[0], g_t[0]), 6)
     g_rho = _rodrigues.jl_components(xyz, g_t, a, -b, c, o[:3])
-    u = rt_g_vee(R, G_R)
-    g_phi = _rodrigues.jl_components(xyz, u, a, b, c)
+    g_phi = _rodrigues.jl_components(xyz, rt_g_vee(R, G_R), a, b, c)
     g_tx = _rodrigues.jl_components(xyz, cross_planes(t, g_t), a, -b, c)
     neg = [-v for v in x]
     q = _se3_jacobian.q_components(neg[:3], neg[3:], g_t, *qc)
@@ -317,7 +300,7 @@ def _exp_backward_values(xi: Tensor, T: Tensor, G: Tensor) -> Tensor:
     return _layout.interleave((*g_rho, *g_phi), o)
 
 
-_exp_grad_values = blocked(_exp_backward_values, (1, 2, 2))
+_exp_grad_blocked = blocked(_exp_grad, (1, 2, 2))
 
 
 def _exp_jvp(saved, dxi: Tensor) -> Tensor:
@@ -367,7 +350,7 @@ _ExpMapFn = custom_function(
     "Se3Exp",
     forward=_exp_forward,
     save=lambda inputs, out: (inputs[0], out),
-    backward=_exp_backward,
+    backward=lambda saved, G: (_exp_grad_blocked(*saved, G),),
     jvp=_exp_jvp,
     event_dims=(1,),
     guard=_guard,
@@ -390,37 +373,22 @@ def _log_forward(T: Tensor) -> Tensor:
     return _layout.interleave((*rho, *phi))
 
 
-def _log_backward(saved, g: Tensor):
+def _log_grad(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
     # d xi = Jr(xi)^-1 (R^T dt, vee(R^T dR)) along the tangent directions (zero along the
     # normal ones).  With h = Jr(xi)^-T g and A = so3 Jl(phi):
     #     Jr(xi)^-T = [[A^-1, 0], [-A^-1 Q A^-1, A^-1]]   (Q = Q(rho, phi) = Q(-rho, -phi)^T),
     # so G_t = R h_rho and G_R = R hat(h_phi) / 2.
-    T, xi = saved
-    if not torch.is_grad_enabled():
-        return (_log_grad_values(T, xi, g),)
-    R = T[..., :3, :3]  # create_graph: differentiable ops
-    rho, phi = xi[..., :3], xi[..., 3:]
-    h_rho = _rodrigues.jl_inv_apply(phi, g[..., :3])
-    h_phi = _rodrigues.jl_inv_apply(phi, g[..., 3:] - _se3_jacobian.q_apply(rho, phi, h_rho))
-    G_R = 0.5 * (R @ hat(h_phi))
-    top = torch.cat((G_R, mv(R, h_rho).unsqueeze(-1)), dim=-1)
-    return (torch.cat((top, torch.zeros_like(top[..., :1, :])), dim=-2),)
-
-
-def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
-    """:func:`_log_backward` from components, forward-only coefficients (plain backward)."""
     x = planes(xi, 6)
     gs = planes(g, 6)
-    half = _coeffs.half_angle(x[3:])  # one sin and cos for the coefficients of Jl^-1 and Q
-    qc = _se3_jacobian.q_values(xi.dtype, half)
-    e, d = (v.to(xi.dtype) for v in _coeffs.jl_inv_values(None, half))
+    # coefficients that differentiate under create_graph
+    (e, f), qc = _se3_jacobian.coefficients(x[3:], "ef", torch.is_grad_enabled())
     minus_half = e.new_full((), -0.5)
-    h_rho = _rodrigues.jl_components(x[3:], gs[:3], e, minus_half, d)
+    h_rho = _rodrigues.jl_components(x[3:], gs[:3], e, minus_half, f)
     q = _se3_jacobian.q_components(x[:3], x[3:], h_rho, *qc)
     v = [(gi - qi).mul_(0.5) for gi, qi in zip(gs[3:], q, strict=True)]
-    u = _rodrigues.jl_components(x[3:], v, e, minus_half, d)  # h_phi / 2
+    u = _rodrigues.jl_components(x[3:], v, e, minus_half, f)  # h_phi / 2
     r = planes(T[..., :3, :3], 9)
-    o, top = _top_outputs(r[0])
+    o, top = _top_outputs((r[0], x[0], gs[0]))
     G_R = [cross_planes(r[3 * i : 3 * i + 3], u, top[i][:3]) for i in range(3)]  # rows of R hat(u)
     G_t = [
         fma(fma(r[i] * h_rho[0], r[i + 1], h_rho[1]), r[i + 2], h_rho[2], out=oi[3])
@@ -429,7 +397,7 @@ def _log_backward_values(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
     return _stack_rows([(*G_R[i], G_t[i]) for i in range(3)], o)
 
 
-_log_grad_values = blocked(_log_backward_values, (2, 1, 1))
+_log_grad_blocked = blocked(_log_grad, (2, 1, 1))
 
 
 def _log_jvp(saved, dT: Tensor) -> Tensor:
@@ -443,7 +411,7 @@ _LogFn = custom_function(
     "Se3Log",
     forward=_log_forward,
     save=lambda inputs, out: (inputs[0], out),
-    backward=_log_backward,
+    backward=lambda saved, g: (_log_grad_blocked(*saved, g),),
     jvp=_log_jvp,
     event_dims=(2,),
 )

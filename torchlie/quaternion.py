@@ -313,32 +313,16 @@ def _apply_values(q: Tensor | Sequence[Tensor], p: Tensor) -> Tensor:
     return _layout.interleave(parts, o)
 
 
-def _apply_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]:
+def _apply_grads(q: Tensor, p: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
     # y = R p with R the rotation of q / |q|: dL/dp = R^T g (the rotation by conj(q)).  A
     # change dq turns R into R Exp(d), d = 2 vec(conj(q) dq) / |q|^2, so dy = R (d x p) and
     # <g, dy> = <p x R^T g, d>: dL/dq = 2 q (0, p x R^T g) / |q|^2 (orthogonal to q).
-    q, p = saved
-    if torch.is_grad_enabled():  # create_graph: differentiable ops
-        dp = _ApplyFn(_conjugate(q), g)
-        a = torch.linalg.cross(p.expand_as(dp), dp, dim=-1)
-        # q (0, a) spelled out, not _hamilton.multiply: its complex form on large batches rounds
-        # differently from its component form on small blocks (ulps, amplified in second order)
-        w, v = q[..., :1], q[..., 1:].expand_as(a)
-        u = torch.cat(((v * a).sum(-1, keepdim=True).neg(), w * a + torch.linalg.cross(v, a)), -1)
-        dq = u * (2.0 / (q * q).sum(-1, keepdim=True))
-    else:
-        dq, dp = _apply_grads(q, p, g)
-    return dq.sum_to_size(q.shape), dp.sum_to_size(p.shape)
-
-
-def _apply_grads_block(q: Tensor, p: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
-    """The plain backward of :func:`apply` from components."""
     w, *v = _components.planes(q, 4)
     pc, gc = _components.planes(p, 3), _components.planes(g, 3)
     s = 2.0 / _components.norm2(w, *v)
-    like = gc[0]  # the batch shape of the result: q's and p's broadcast
-    oq = _layout.outputs(like, 4)
-    op = _layout.outputs(like, 3)
+    likes = (w, pc[0], gc[0])  # the batch shape of the result: q's and p's broadcast
+    oq = _layout.outputs(likes, 4)
+    op = _layout.outputs(likes, 3)
     # R^T g = g + s (v x (v x g) - w (v x g))
     c = _components.cross_planes(v, gc)
     dp = [
@@ -356,7 +340,13 @@ def _apply_grads_block(q: Tensor, p: Tensor, g: Tensor) -> tuple[Tensor, Tensor]
     return _layout.interleave(dq, oq), _layout.interleave(dp, op)
 
 
-_apply_grads = blocked(_apply_grads_block, (1, 1, 1))
+_apply_grads_blocked = blocked(_apply_grads, (1, 1, 1))
+
+
+def _apply_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]:
+    q, p = saved
+    dq, dp = _apply_grads_blocked(q, p, g)
+    return dq.sum_to_size(q.shape), dp.sum_to_size(p.shape)
 
 
 def _apply_jvp(saved: tuple[Tensor, ...], dq: Tensor | None, dp: Tensor | None) -> Tensor:

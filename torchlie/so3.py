@@ -84,20 +84,14 @@ def _exp(w: Tensor | Sequence[Tensor]) -> Tensor:
     return _layout.interleave(_rodrigues.exp_entries(xyz, a, b, d, o), o).unflatten(-1, (3, 3))
 
 
-def _exp_backward(saved, g: Tensor):
-    w, R = saved
-    # dL/dw = Jl(w) vee(R^T G - G^T R) (full vee, i.e. twice the skew part's)
-    if torch.is_grad_enabled():  # create_graph: differentiable ops
-        M = R.transpose(-1, -2) @ g
-        return (_rodrigues.jl_apply(w, 2.0 * _components.vee(M)),)
-    return (_exp_grad_values(w, R, g),)
+def _exp_grad(w: Tensor, R: Tensor, g: Tensor) -> Tensor:
+    # dL/dw = Jl(w) vee(R^T G - G^T R) (full vee, i.e. twice the skew part's); coefficients
+    # that differentiate under create_graph
+    v = _components.rt_g_vee(R, g)
+    return _rodrigues.jl_apply(w, v, differentiable=torch.is_grad_enabled())
 
 
-def _exp_grad_values_block(w: Tensor, R: Tensor, g: Tensor) -> Tensor:
-    return _rodrigues.jl_apply_values(w, _components.rt_g_vee(R, g))
-
-
-_exp_grad_values = blocked(_exp_grad_values_block, (1, 2, 2))
+_exp_grad_blocked = blocked(_exp_grad, (1, 2, 2))
 
 
 def _exp_jvp(saved, dw: Tensor) -> Tensor:
@@ -109,7 +103,7 @@ _ExpMapFn = custom_function(
     "So3Exp",
     forward=lambda w: _exp(_coeffs.reduced_planes(_components.planes(w, 3))),
     save=lambda inputs, out: (inputs[0], out),
-    backward=_exp_backward,
+    backward=lambda saved, g: (_exp_grad_blocked(*saved, g),),
     jvp=_exp_jvp,
     event_dims=(1,),
     guard=_coeffs.REDUCE,  # the angle reduced modulo 2 pi where it is too large for the formulas
@@ -121,31 +115,28 @@ def _log(R: Tensor) -> Tensor:
     return _rotation_matrix.log(R)
 
 
-def _log_backward(saved, g: Tensor):
-    R, w = saved
+def _log_grad(R: Tensor, w: Tensor, g: Tensor) -> Tensor:
     # Gradient of log o polar: G = R hat(Jl^-1(w) g) / 2 (tangent part only).
-    if torch.is_grad_enabled():  # create_graph: differentiable ops
-        return (0.5 * (R @ _components.hat(_rodrigues.jl_inv_apply(w, g))),)
-    return (_log_grad_values(R, w, g),)
+    u = _rodrigues.jl_apply(
+        w, 0.5 * g, inverse=True, stacked=False, differentiable=torch.is_grad_enabled()
+    )
+    return _components.r_hat(R, u)
 
 
-def _log_grad_values_block(R: Tensor, w: Tensor, g: Tensor) -> Tensor:
-    return _components.r_hat_values(R, _rodrigues.jl_inv_apply_values(w, 0.5 * g))
-
-
-_log_grad_values = blocked(_log_grad_values_block, (2, 1, 1))
+_log_grad_blocked = blocked(_log_grad, (2, 1, 1))
 
 
 def _log_jvp(saved, dR: Tensor) -> Tensor:
     R, w = saved
-    return _rodrigues.jl_inv_apply(w, _components.vee(R.transpose(-1, -2) @ dR), sign=-1.0)
+    d = _components.vee(R.transpose(-1, -2) @ dR)
+    return _rodrigues.jl_apply(w, d, sign=-1.0, inverse=True)
 
 
 _LogFn = custom_function(
     "So3Log",
     forward=_log,
     save=lambda inputs, out: (inputs[0], out),
-    backward=_log_backward,
+    backward=lambda saved, g: (_log_grad_blocked(*saved, g),),
     jvp=_log_jvp,
     event_dims=(2,),
 )
