@@ -27,8 +27,9 @@ One loop per op.  Inductor fuses two element-wise computations into one loop onl
 a common buffer, and the constant entries of a result (the ``(0, 0, 0, 1)`` row of a pose) read
 none; every function here is compiled with :data:`FUSION` as well, which lets such computations
 share the op's loop.  The compiled functions run the same formulas as the eager ones; their
-values agree with eager's within a few ulp (the fused loop contracts and orders some products
-differently).  The first call of each function compiles it, which takes seconds.
+values agree with eager's within a few ulp, not bit for bit (eager CPU multiply-adds round once,
+Inductor's CPU loops round the product and the sum separately).  The first call of each
+function compiles it, which takes seconds.
 """
 
 from __future__ import annotations
