@@ -28,7 +28,7 @@ def _in_dtype(ks: tuple[Tensor, ...], dtype: torch.dtype) -> tuple[Tensor, ...]:
     return tuple(k.to(dtype) for k in ks)
 
 
-def coefficients(
+def jl_and_q_coefficients(
     phi: Sequence[Tensor], parts: str, differentiable: bool
 ) -> tuple[tuple[Tensor, ...], tuple[Tensor, ...]]:
     """The coefficients ``parts`` of :data:`torchlie._coeffs.RODRIGUES` and ``(k1, k2, k3, k4)``

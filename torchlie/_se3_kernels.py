@@ -285,7 +285,7 @@ def _exp_grad(xi: Tensor, T: Tensor, G: Tensor) -> Tensor:
     x = planes(xi, 6)
     xyz = x[3:]
     # coefficients that differentiate under create_graph
-    (a, b, c), qc = _se3_jacobian.coefficients(xyz, "abc", torch.is_grad_enabled())
+    (a, b, c), qc = _se3_jacobian.jl_and_q_coefficients(xyz, "abc", torch.is_grad_enabled())
     R, t = _rotation_and_translation(T)
     G_R, g_t = _rotation_and_translation(G)
     o = _layout.outputs((x[0], R[0], g_t[0]), 6)
@@ -381,7 +381,7 @@ def _log_grad(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
     x = planes(xi, 6)
     gs = planes(g, 6)
     # coefficients that differentiate under create_graph
-    (e, f), qc = _se3_jacobian.coefficients(x[3:], "ef", torch.is_grad_enabled())
+    (e, f), qc = _se3_jacobian.jl_and_q_coefficients(x[3:], "ef", torch.is_grad_enabled())
     minus_half = e.new_full((), -0.5)
     h_rho = _rodrigues.jl_components(x[3:], gs[:3], e, minus_half, f)
     q = _se3_jacobian.q_components(x[:3], x[3:], h_rho, *qc)
