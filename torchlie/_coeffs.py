@@ -35,6 +35,7 @@ from collections.abc import Callable, Sequence
 import torch
 from torch import Tensor
 
+from . import _layout
 from ._autograd import Guard, fma
 
 # --------------------------------------------------------------------------------------------
@@ -311,16 +312,27 @@ def rescaled(v: Tensor) -> tuple[Tensor, Tensor]:
     return torch.stack([c / k for c in x], dim=-1), k.unsqueeze(-1)
 
 
-def rescaled_planes(v: Sequence[Tensor]) -> list[Tensor]:
-    """``v / k`` of :func:`rescaled`, of the planes ``v`` (element-wise only, for the fused loops
-    of ``torch.compile``)."""
-    k = _scale(v)
-    return [x / k for x in v]
+def rescaled_planes(v: Tensor, n: int) -> Sequence[Tensor]:
+    """The planes of ``v / k`` of :func:`rescaled` (``n`` components, no autograd).
+
+    In eager mode from the contiguous stack of ``v``'s planes, whole: ``k`` from one maximum
+    over its rows and one division of the stack (the values of the planes, bit for bit, in a
+    few operations); while compiling element-wise on the planes (one fused loop)."""
+    if torch.compiler.is_compiling():
+        x = v.unbind(-1)
+        k = _scale(x)
+        return [c / k for c in x]
+    S = _layout.stacked(v, n)
+    return (S / _scale_of(S.abs().amax(0))).unbind(0)
 
 
 def _scale(v: Tensor | Sequence[Tensor]) -> Tensor:
     """``k`` of :func:`rescaled` (of planes: a plane)."""
-    m = largest(v)
+    return _scale_of(largest(v))
+
+
+def _scale_of(m: Tensor) -> Tensor:
+    """``k`` of :func:`rescaled` from the largest ``|v_i|``."""
     return torch.where(m.clamp(*_PLAIN[m.dtype]) == m, 1.0, m)
 
 
@@ -362,7 +374,11 @@ def reduction(w: Tensor) -> tuple[Tensor, Tensor, Tensor]:
 def _lam(w: Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
     """``(lam, big, m)`` of :func:`reduction`, detached, of the planes ``w`` (``big`` where the
     angle is reduced, ``m`` the largest ``|w_i|``)."""
-    m = largest(w)
+    return _lam_of(largest(w))
+
+
+def _lam_of(m: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """:func:`_lam` from the largest ``|w_i|``."""
     big = m > _HUGE[m.dtype]
     return torch.where(big, torch.fmod(0.5 * m, math.pi).mul_(2.0).div_(m), 1.0), big, m
 
@@ -386,6 +402,16 @@ def reduction_planes(w: Sequence[Tensor]) -> tuple[Tensor, Tensor, list[Tensor]]
     v = [x.detach() / torch.where(big, m, 1.0) for x in w]
     r = torch.where(big, dot(v, v), 1.0).rsqrt()
     return lam, big, [x * r for x in v]
+
+
+def reduced_planes_of(w: Tensor) -> Sequence[Tensor]:
+    """The planes of :func:`reduced` of ``w`` ``(..., 3)`` (no autograd): in eager mode from the
+    contiguous stack of its planes, whole (as :func:`rescaled_planes`); while compiling
+    element-wise on the planes."""
+    if torch.compiler.is_compiling():
+        return reduced_planes(w.unbind(-1))
+    S = _layout.stacked(w, 3)
+    return (S * _lam_of(S.abs().amax(0))[0]).unbind(0)
 
 
 def reduce_planes(

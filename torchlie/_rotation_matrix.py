@@ -79,7 +79,7 @@ def _to_matrix_jvp(saved: tuple[Tensor, ...], dq: Tensor) -> Tensor:
 
 _ToMatrixFn = custom_function(
     "QuaternionToMatrix",
-    forward=lambda q: _to_matrix_forward(_coeffs.rescaled_planes(planes(q, 4))),
+    forward=lambda q: _to_matrix_forward(_coeffs.rescaled_planes(q, 4)),
     save=lambda inputs, out: (inputs[0], out),
     backward=lambda saved, G: (_to_matrix_grad_blocked(*saved, G),),
     jvp=_to_matrix_jvp,

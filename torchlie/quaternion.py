@@ -362,7 +362,7 @@ def _apply_jvp(saved: tuple[Tensor, ...], dq: Tensor | None, dp: Tensor | None) 
 
 _ApplyFn = custom_function(
     "QuaternionApply",
-    forward=lambda q, p: _apply_values(_coeffs.rescaled_planes(_components.planes(q, 4)), p),
+    forward=lambda q, p: _apply_values(_coeffs.rescaled_planes(q, 4), p),
     save=lambda inputs, out: (inputs[0], inputs[1]),
     backward=_apply_backward,
     jvp=_apply_jvp,

@@ -101,7 +101,7 @@ def _exp_jvp(saved, dw: Tensor) -> Tensor:
 
 _ExpMapFn = custom_function(
     "So3Exp",
-    forward=lambda w: _exp(_coeffs.reduced_planes(_components.planes(w, 3))),
+    forward=lambda w: _exp(_coeffs.reduced_planes_of(w)),
     save=lambda inputs, out: (inputs[0], out),
     backward=lambda saved, g: (_exp_grad_blocked(*saved, g),),
     jvp=_exp_jvp,
