@@ -49,9 +49,9 @@ def cross_planes(
 def mv(M: Tensor, v: Tensor) -> Tensor:
     """``M @ v`` for a batch of matrices and vectors (batch shapes broadcast), column by
     column: each element's result is summed alike whatever the batch around it."""
-    out = M[..., 0] * v[..., :1]
-    out = fma(out, M[..., 1], v[..., 1:2])
-    return fma(out, M[..., 2], v[..., 2:3])
+    m0, m1, m2 = M.unbind(-1)
+    v0, v1, v2 = v.unsqueeze(-2).unbind(-1)
+    return fma(fma(m0 * v0, m1, v1), m2, v2)
 
 
 def hat(w: Tensor) -> Tensor:
