@@ -21,10 +21,11 @@ name               value                                            series at 0
 ``atan_ratio``     atan2(n, w) / n  (for n >= 0)                    (1/w)(1 - (n/w)**2/3 + ...)
 =================  ==============================================  =========================
 
-Forward-only evaluations (``*_values``) serve the forward passes of the custom autograd Functions,
-which run without autograd: there no branch needs to be safe to differentiate, so a clamp of the
-half angle replaces the series and its ``where`` (``sin(h)/h`` is exact to rounding for every
-``h > 0``, and equals 1 for the clamped value).  They must not be differentiated.
+Forward-only evaluations (``*_values``) serve the forward passes of the custom autograd Functions
+and their plain backward passes, which run without autograd: there no branch needs to be safe to
+differentiate, so a clamp of the half angle replaces the series and its ``where`` (``sin(h)/h`` is
+exact to rounding for every ``h > 0``, and equals 1 for the clamped value).  They must not be
+differentiated: under ``create_graph`` the same formulas take the series (:func:`rodrigues`).
 """
 
 from __future__ import annotations
