@@ -46,6 +46,8 @@ from torch.autograd import Function
 from torch.autograd import forward_ad as _forward_ad
 
 _Out = TypeVar("_Out", Tensor, tuple[Tensor, ...])
+_is_compiling = torch.compiler.is_compiling
+_addcmul = torch.addcmul
 
 #: Rows per block and thread for 4-byte elements (in proportion for other element sizes): the
 #: planes of a block stay in a core's cache from one element-wise operation to the next.
@@ -84,9 +86,11 @@ def fma(x: Tensor, t1: Tensor, t2: Tensor, value: float = 1.0, out: Tensor | Non
     carry a tangent and others do not, as the terms of a linearised op do (see the module
     docstring); Inductor generates the same fused code from either spelling.
     """
-    if torch.compiler.is_compiling():
+    if _is_compiling():
         return x + t1 * t2 if value == 1.0 else x + value * t1 * t2
-    return torch.addcmul(x, t1, t2, value=value, out=out)
+    if out is None:  # keyword arguments cost torch's argument parser more than the product
+        return _addcmul(x, t1, t2) if value == 1.0 else _addcmul(x, t1, t2, value=value)
+    return _addcmul(x, t1, t2, value=value, out=out)
 
 
 def _records(inputs: Sequence[Tensor]) -> bool:
