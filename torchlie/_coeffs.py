@@ -400,7 +400,8 @@ def reduction_planes(w: Sequence[Tensor]) -> tuple[Tensor, Tensor, list[Tensor]]
     """``(lam, big, u)`` of :func:`reduction`, detached, of the planes ``w`` (``big`` where the
     angle is reduced; element-wise only, for the fused loops of ``torch.compile``)."""
     lam, big, m = _lam(w)
-    v = [x.detach() / torch.where(big, m, 1.0) for x in w]
+    d = torch.where(big, m, 1.0)
+    v = [x.detach() / d for x in w]
     r = torch.where(big, dot(v, v), 1.0).rsqrt()
     return lam, big, [x * r for x in v]
 
