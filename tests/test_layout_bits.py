@@ -297,7 +297,20 @@ def _sliced(x: torch.Tensor) -> torch.Tensor:
     return torch.stack((x, torch.full_like(x, 7.0)), 1).flatten(0, 1)[::2]
 
 
+def _unchanged(fn: Callable, what: str) -> Callable:
+    """``fn``, asserting that it leaves its inputs as they were (the kernels read views of them)."""
+
+    def run(*xs: torch.Tensor):
+        before = [x.clone() for x in xs]
+        out = fn(*xs)
+        _assert_same(xs, before, what + ": an input was written to")
+        return out
+
+    return run
+
+
 def _check_layouts(fn: Callable, xs: list[torch.Tensor], what: str) -> None:
+    fn = _unchanged(fn, what)
     want = fn(*xs)
     _assert_same(fn(*[_transposed(x) for x in xs]), want, what + " transposed")
     _assert_same(fn(*[_sliced(x) for x in xs]), want, what + " sliced")
@@ -378,11 +391,14 @@ GRADS = [
 def _grads(fn, xs: list[torch.Tensor], cot: list[torch.Tensor] | None = None):
     """The gradients of ``fn`` at ``xs`` for the cotangents ``cot`` (drawn if not given)."""
     leaves = [x.detach().requires_grad_() for x in xs]
+    before = [x.clone() for x in xs]
     out = _flat(fn(*leaves))
     if cot is None:
         g = torch.Generator().manual_seed(6)
         cot = [torch.randn(o.shape, generator=g, dtype=o.dtype) for o in out]
-    return list(torch.autograd.grad(out, leaves, cot)), cot
+    grads = list(torch.autograd.grad(out, leaves, cot))
+    _assert_same(leaves, before, "an input was written to")
+    return grads, cot
 
 
 @pytest.mark.slow
