@@ -316,9 +316,10 @@ def rescaled(v: Tensor) -> tuple[Tensor, Tensor]:
 def rescaled_planes(v: Tensor, n: int) -> Sequence[Tensor]:
     """The planes of ``v / k`` of :func:`rescaled` (``n`` components, no autograd).
 
-    In eager mode from the contiguous stack of ``v``'s planes, whole: ``k`` from one maximum
-    over its rows and one division of the stack (the values of the planes, bit for bit, in a
-    few operations); while compiling element-wise on the planes (one fused loop)."""
+    In eager mode from the stack of ``v``'s planes (:func:`torchlie._layout.stacked`), whole:
+    ``k`` from one maximum over its rows and one division of the stack (the values of the
+    planes, bit for bit, in a few operations); while compiling element-wise on the planes (one
+    fused loop)."""
     if torch.compiler.is_compiling():
         x = v.unbind(-1)
         k = _scale(x)
@@ -408,8 +409,8 @@ def reduction_planes(w: Sequence[Tensor]) -> tuple[Tensor, Tensor, list[Tensor]]
 
 def reduced_planes_of(w: Tensor) -> Sequence[Tensor]:
     """The planes of :func:`reduced` of ``w`` ``(..., 3)`` (no autograd): in eager mode from the
-    contiguous stack of its planes, whole (as :func:`rescaled_planes`); while compiling
-    element-wise on the planes."""
+    stack of its planes, whole (as :func:`rescaled_planes`); while compiling element-wise on
+    the planes."""
     if torch.compiler.is_compiling():
         return reduced_planes(w.unbind(-1))
     S = _layout.stacked(w, 3)

@@ -20,7 +20,7 @@ from ._autograd import fma
 
 
 def planes(M: Tensor | Sequence[Tensor], n: int) -> tuple[Tensor, ...]:
-    """The ``n`` trailing entries of ``M`` as contiguous planes (see :func:`_layout.planes`);
+    """The ``n`` trailing entries of ``M`` as planes (see :func:`_layout.planes`);
     ``n = 9``: a 3x3 matrix read row by row.  ``M`` given as its planes already: those (the
     callers that read several blocks of one matrix transpose it once)."""
     if not isinstance(M, Tensor):

@@ -1,7 +1,9 @@
-"""Layout changes of the eager kernels: ``(..., n)`` tensors to and from ``n`` contiguous planes.
+"""Layout changes of the eager kernels: ``(..., n)`` tensors to and from ``n`` planes.
 
-The kernels read the components of their inputs as contiguous planes (one tensor per component)
-and write their results by interleaving planes again, one mechanism for every op.
+The kernels read the components of their inputs as planes (one tensor per component) and write
+their results by interleaving planes again, one mechanism for every op.  The planes are views of
+the input where that is cheapest, copies where the kernels' arithmetic then runs faster; the
+kernels never write into them.
 
 Planes from rows (:func:`planes`): torch's copy kernel splits a ``(N, n)`` tensor into planes
 with strided element loads, which costs more than the arithmetic of the cheap ops after it.  A
@@ -13,16 +15,17 @@ back as ``+0.0``.  The product is taken only where it is exact: CPU tensors of f
 float32 while float32 matrix products are full precision (no bfloat16 or TF32 setting), in eager
 mode outside ``torch.func`` transforms, and for batches of at least :data:`MIN_ROWS` elements.
 Large batches of 3-vectors, and of vectors where the product is not taken, are split by one copy
-per column instead.  Everywhere else (CUDA, ``torch.compile``, vmap, small batches) the plain
-copy and unbind, or strided views while compiling.
+per column instead.  Vectors of smaller CPU batches are read where they are (strided views: any
+copy costs more than the strided reads it saves there); matrices of smaller batches, and
+everything on CUDA, by the plain transposing copy; while compiling, strided views.
 
 Rows from planes (:func:`outputs`, :func:`interleave`): on large eager CPU batches a kernel's
 last operations write their values straight into the columns of its result (``out=`` a strided
 view), so no pass over the result interleaves them afterwards.
 
 Bits.  The same numbers give the same bits whatever their layout, batch size or broadcast: the
-planes are exact copies (the product's differences above aside: the sign of a zero, and
-non-finite components), and the formulas are written only in element-wise operations that
+planes hold the input's numbers exactly (the product's differences above aside: the sign of a
+zero, and non-finite components), and the formulas are written only in element-wise operations that
 round alike in torch's vectorised loop, its scalar loop (the tail of an array, strided
 operands) and into strided outputs.  Two kinds of operation do not, and are not used: CPU
 ``torch.atan2`` (:func:`torchlie._coeffs.atan2` takes its place) and reductions, whose order of
@@ -33,6 +36,7 @@ the premise about torch's loops included.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import torch
@@ -40,8 +44,8 @@ from torch import Tensor
 
 from torchlie import _autograd, _checks
 
-#: Smallest batch (number of elements) that takes the product transposition and the writes
-#: into columns (below it the extra kernel launches cost more than they save).
+#: Smallest batch (number of elements) that takes the transpositions and the writes into
+#: columns (below it the extra kernel launches cost more than they save).
 MIN_ROWS = 8192
 
 _is_compiling = torch.compiler.is_compiling
@@ -97,12 +101,13 @@ def _use_product(x: Tensor, rows: int) -> bool:
 
 
 def planes(M: Tensor, n: int | tuple[int, int]) -> tuple[Tensor, ...]:
-    """The trailing entries of ``M`` as contiguous planes of its batch shape.
+    """The trailing entries of ``M`` as planes of its batch shape (module docstring).
 
     ``n`` is the size of the last dimension, or ``(rows, cols)`` for a matrix read row by row
-    (which may be a strided block, such as the rotation block of a pose).  One transposition;
-    while compiling, strided views instead (the fused loop reads each entry where it is, and a
-    copy would be one more buffer for AOTAutograd to save for the backward).
+    (which may be a strided block, such as the rotation block of a pose).  One transposition
+    (views of small batches of vectors); while compiling, strided views instead (the fused
+    loop reads each entry where it is, and a copy would be one more buffer for AOTAutograd to
+    save for the backward).
     """
     matrix = isinstance(n, tuple)
     if _is_compiling():
@@ -113,12 +118,14 @@ def planes(M: Tensor, n: int | tuple[int, int]) -> tuple[Tensor, ...]:
 
 
 def stacked(M: Tensor, n: int | tuple[int, int]) -> Tensor:
-    """:func:`planes` as one contiguous ``(count, *batch)`` tensor (eager mode; the same
-    transposition)."""
+    """:func:`planes` as one ``(count, *batch)`` tensor (eager mode; the same transposition):
+    contiguous, or a view of ``M`` for small CPU batches of vectors."""
     matrix = isinstance(n, tuple)
     batch = M.shape[: M.dim() - (2 if matrix else 1)]
     rows = batch.numel()
     count = n[0] * n[1] if matrix else n
+    if not matrix and rows < MIN_ROWS and M.device.type == "cpu":
+        return M.movedim(-1, 0)
     if _use_product(M, rows) and (matrix or n > 3):
         flat = M.reshape((rows,) + M.shape[len(batch) :])
         if matrix:
@@ -180,8 +187,8 @@ def outputs(like: Tensor | Sequence[Tensor], n: int) -> tuple[Tensor | None, ...
     differentiable)."""
     likes = (like,) if isinstance(like, Tensor) else tuple(like)
     first = likes[0]
-    if not eager_cpu(first):
-        return (None,) * n
+    if not eager_cpu(first) or math.prod([x.numel() for x in likes]) < MIN_ROWS:
+        return (None,) * n  # (the product bounds the size of the broadcast)
     batch = broadcast(*(x.shape for x in likes))
     if batch.numel() < MIN_ROWS or _autograd.needs_graph(likes):
         return (None,) * n
