@@ -25,9 +25,9 @@ view), so no pass over the result interleaves them afterwards.
 
 Bits.  The same numbers give the same bits whatever their layout, batch size or broadcast: the
 planes hold the input's numbers exactly (the product's differences above aside: the sign of a
-zero, and non-finite components), and the formulas are written only in element-wise operations that
-round alike in torch's vectorised loop, its scalar loop (the tail of an array, strided
-operands) and into strided outputs.  Two kinds of operation do not, and are not used: CPU
+zero, and non-finite components), and the formulas are written only in element-wise
+operations that round alike in torch's vectorised loop, its scalar loop (the tail of an array,
+strided operands) and into strided outputs.  Two kinds of operation do not, and are not used: CPU
 ``torch.atan2`` (:func:`torchlie._coeffs.atan2` takes its place) and reductions, whose order of
 summation follows the layout (sums over a few components are written out one by one; sums
 over a set are taken over contiguous copies).  ``tests/test_layout_bits.py`` pins all of it,
