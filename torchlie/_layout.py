@@ -109,11 +109,11 @@ def planes(M: Tensor, n: int | tuple[int, int]) -> tuple[Tensor, ...]:
     loop reads each entry where it is, and a copy would be one more buffer for AOTAutograd to
     save for the backward).
     """
-    matrix = isinstance(n, tuple)
-    if _is_compiling():
-        if matrix:
+    if isinstance(n, tuple):
+        if _is_compiling():
             return tuple(M[..., i, j] for i in range(n[0]) for j in range(n[1]))
-        return M.unbind(-1)
+    elif _is_compiling() or (M.numel() < MIN_ROWS * n and M.device.type == "cpu"):
+        return M.unbind(-1)  # the views of :func:`stacked`, taken in one call
     return stacked(M, n).unbind(0)
 
 
