@@ -161,8 +161,8 @@ def tolerance(x: object, fn: str, arg: str, dtype: torch.dtype) -> float:
 def batch_broadcast(fn: str, *shapes: tuple[torch.Size, str]) -> torch.Size:
     """Broadcast the leading (batch) shapes, raising a ``ValueError`` that names the function.
 
-    Eager calls broadcast in plain Python over the sizes (``torch.broadcast_shapes`` costs ~10 us
-    a call, more than a small op's arithmetic); while compiling, sizes may be symbolic and
+    Eager calls broadcast in plain Python over the sizes (``torch.broadcast_shapes`` costs more
+    than a small op's arithmetic); while compiling, sizes may be symbolic and
     ``torch.broadcast_shapes`` decides (it is traced once, so it costs nothing per call).
     """
     if torch.compiler.is_compiling():
