@@ -2,10 +2,10 @@
 angle of a matrix: the kernels that :mod:`torchlie.quaternion`, :mod:`torchlie.so3` and
 :mod:`torchlie.se3` share.
 
-:func:`from_quaternion` and :func:`to_quaternion` (Shepperd's method after one
-orthogonalisation step) are custom Functions with closed-form backward and forward-mode rules;
-:func:`log` and :func:`log_and_cot` read the rotation vector straight from Shepperd's
-unnormalised candidate (the forward of ``so3.log`` and ``se3.log``).  They are apart from
+:func:`from_quaternion` and :func:`to_quaternion` (Shepperd's method, refined by one power
+step) are custom Functions with closed-form backward and forward-mode rules; :func:`log` and
+:func:`log_and_cot` read the rotation vector straight from the unnormalised candidate (the
+forward of ``so3.log`` and ``se3.log``).  They are apart from
 :mod:`torchlie.quaternion` so that so3 and se3 build on them without the rest of that module.
 """
 
@@ -98,44 +98,24 @@ def from_quaternion(q: Tensor) -> Tensor:
 # ----------------------------------------------------------------------------------------------
 
 
-def _orthogonalize_step(R: Tensor | Sequence[Tensor]) -> tuple[Tensor, ...]:
-    """One Newton step of the polar decomposition, ``R - R (R^T R - I) / 2``, from components.
-
-    Returns the 9 entries row by row (no batched 3x3 matmul: those cost more than the rest).
-    """
-    m00, m01, m02, m10, m11, m12, m20, m21, m22 = planes(R, 9)
-
-    def dot3(a: Tensor, b: Tensor, c: Tensor, d: Tensor, e: Tensor, f: Tensor) -> Tensor:
-        return fma(fma(a * d, b, e), c, f)
-
-    e00 = dot3(m00, m10, m20, m00, m10, m20) - 1.0
-    e11 = dot3(m01, m11, m21, m01, m11, m21) - 1.0
-    e22 = dot3(m02, m12, m22, m02, m12, m22) - 1.0
-    e01 = dot3(m00, m10, m20, m01, m11, m21)
-    e02 = dot3(m00, m10, m20, m02, m12, m22)
-    e12 = dot3(m01, m11, m21, m02, m12, m22)
-    out = []
-    for a, b, c in ((m00, m01, m02), (m10, m11, m12), (m20, m21, m22)):
-        out.append(torch.add(a, dot3(a, b, c, e00, e01, e02), alpha=-0.5))
-        out.append(torch.add(b, dot3(a, b, c, e01, e11, e12), alpha=-0.5))
-        out.append(torch.add(c, dot3(a, b, c, e02, e12, e22), alpha=-0.5))
-    return tuple(out)
-
-
 def _from_matrix_parts(
     R: Tensor | Sequence[Tensor],
 ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
-    """``(cw, cx, cy, cz, sign)``: ``c`` is proportional to the quaternion of ``R``, with
-    ``|c| >= 2`` for a rotation; ``sign * c / |c|`` is the canonical unit quaternion."""
-    m00, m01, m02, m10, m11, m12, m20, m21, m22 = _orthogonalize_step(R)
-    # 4 q_i^2 for i = w, x, y, z, as (1 +- m22) +- (m00 +- m11)
+    """``(cw, cx, cy, cz, sign)``: ``c`` is proportional to the quaternion of the rotation
+    nearest ``R`` (to first order in the distance of ``R`` from SO(3)), with ``|c| >= 8`` for a
+    rotation; ``sign * c / |c|`` is the canonical unit quaternion."""
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = planes(R, 9)
+    # The symmetric K = [[d0, s21, s02, s10], [s21, d1, a01, a02], [s02, a01, d2, a12],
+    # [s10, a02, a12, d3]] is 4 q q^T for a rotation; for any R its top eigenvector is the
+    # quaternion of the nearest rotation (of largest tr(Q^T R)).  Its diagonal 4 q_i^2, as
+    # (1 +- m22) +- (m00 +- m11):
     p22, n22, p01, n01 = 1.0 + m22, 1.0 - m22, m00 + m11, m00 - m11
     d0, d1, d2, d3 = p22 + p01, n22 + n01, n22 - n01, p22 - p01
     s21, s02, s10 = m21 - m12, m02 - m20, m10 - m01  # 4 w (x, y, z)
     a01, a02, a12 = m01 + m10, m02 + m20, m12 + m21  # 4 (xy, xz, yz)
-    # Pivot: the largest d_i (the first on ties).  Candidate i holds 4 q_i q: proportional to q
+    # Pivot: the largest d_i (the first on ties).  Column i of K is 4 q_i q: proportional to q
     # with a positive i-th entry.  The selection is a one-hot sum: f_i in {0, 1} with exactly
-    # one 1, so sum_i f_i c_i is exactly the selected candidate (and so is its gradient); the
+    # one 1, so sum_i f_i c_i is exactly the selected column (and so is its gradient); the
     # f_i from float steps, not comparisons (see _coeffs.step).
     g1 = _coeffs.step(d1 - d0)  # d1 > d0
     dmax = torch.maximum(d0, d1)
@@ -150,17 +130,25 @@ def _from_matrix_parts(
     def pick(c0: Tensor, c1: Tensor, c2: Tensor, c3: Tensor) -> Tensor:
         return fma(fma(fma(c0 * f0, c1, f1), c2, f2), c3, f3)
 
-    cw = pick(d0, s21, s02, s10)
+    K = ((d0, s21, s02, s10), (s21, d1, a01, a02), (s02, a01, d2, a12), (s10, a02, a12, d3))
+    c = [pick(*row) for row in K]
+    # One power step, K c = K^2 e_p: near SO(3) the other eigenvalues of K are of the order of
+    # the distance, so K c is the top eigenvector up to its square.  Its pivot entry |c|^2 is
+    # positive, as c's was.  The term of the largest q_j^2 is the largest: that of the w
+    # column, added last, wherever |w| is the largest entry (the angles up to pi / 2 at least).
+    cw, cx, cy, cz = (
+        fma(fma(fma(k1 * c[1], k2, c[2]), k3, c[3]), k0, c[0]) for k0, k1, k2, k3 in K
+    )
     # Canonical sign: the pivot entry is positive, so flipping on w < 0 gives the canonical
     # representative (at w = 0 the pivot is the largest-magnitude vector component).
     # cw + 0.0 turns -0.0 into +0.0: no flip at w = 0.
     sign = torch.copysign(torch.ones_like(cw), cw + 0.0)
-    return cw, pick(s21, d1, a01, a02), pick(s02, a01, d2, a12), pick(s10, a02, a12, d3), sign
+    return cw, cx, cy, cz, sign
 
 
 def _from_matrix_forward(R: Tensor) -> Tensor:
     cw, cx, cy, cz, sign = _from_matrix_parts(R)
-    # |c| = 4 q_p >= 2 for a rotation: the division is safe, and a NaN element stays in its row.
+    # |c| = 16 q_p >= 8 for a rotation: the division is safe, and a NaN element stays in its row.
     n2 = norm2(cw, cx, cy, cz)
     scale = torch.rsqrt(n2) * sign
     o = _layout.outputs(cw, 4)
@@ -170,9 +158,9 @@ def _from_matrix_forward(R: Tensor) -> Tensor:
 
 def _from_matrix_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:
     # Along a tangent direction R hat(d) the canonical quaternion moves by dq = q (0, d) / 2;
-    # along the normal directions R S (S symmetric) it does not move (the orthogonalisation
-    # step).  So dL/dd = u = vec(conj(q) g) / 2 and G = R hat(u) / 2, the gradient that
-    # autograd gives through the step and Shepperd's formula at a rotation.
+    # along the normal directions R S (S symmetric) it does not move (the power step).  So
+    # dL/dd = u = vec(conj(q) g) / 2 and G = R hat(u) / 2, the gradient that autograd gives
+    # through Shepperd's formula and the power step at a rotation.
     R, q = saved
     w, x, y, z = planes(q, 4)
     gw, gx, gy, gz = planes(g, 4)
@@ -216,7 +204,7 @@ def log(R: Tensor) -> Tensor:
     """Rotation vector of ``R`` (forward of :func:`torchlie.so3.log`; runs without autograd).
 
     ``2 atan2(|c_v|, |c_w|) c_v / |c_v|`` with the sign of the canonical quaternion, straight
-    from the unnormalised Shepperd candidate ``c`` (atan2 is scale-invariant).  At ``c_v = 0``
+    from the unnormalised candidate ``c`` (atan2 is scale-invariant).  At ``c_v = 0``
     (the identity) the quotient's denominator is clamped, which gives exactly 0.
     """
     return _layout.interleave(log_and_cot(R)[0])

@@ -248,8 +248,8 @@ def euler_to_matrix(angles: Float[Tensor, "*b 3"], seq: str) -> Float[Tensor, "*
 def matrix_to_euler(R: Float[Tensor, "*b 3 3"], seq: str) -> Float[Tensor, "*b 3"]:
     """Euler angles of a rotation matrix (conventions and gimbal lock: module docstring).
 
-    Goes through :func:`torchlie.quaternion.from_matrix`, whose one orthogonalisation step makes
-    the result and its gradient those of the nearest rotation to first order.
+    Goes through :func:`torchlie.quaternion.from_matrix`: the result and its gradient are those
+    of the nearest rotation to first order.
 
     Args:
         R: ``(..., 3, 3)`` rotation matrix.

@@ -156,9 +156,10 @@ def from_matrix(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 4"]:
     """Canonical unit quaternion of a rotation matrix (robust at every angle, pi included).
 
     Shepperd's method: of the four equivalent formulas the one dividing by the largest of
-    ``|w|, |x|, |y|, |z|`` is selected per element with ``torch.where`` (no boolean-mask
-    writes, no host sync).  The input first takes one orthogonalisation step
-    ``R (3I - R^T R) / 2``, exact on SO(3), so that the result and its gradient are those of the
+    ``|w|, |x|, |y|, |z|`` is selected per element (no boolean-mask writes, no host sync).  The
+    four are the columns of a symmetric 4x4 matrix ``K`` of ``R``'s entries, ``4 q q^T`` on
+    SO(3), whose top eigenvector is the quaternion of the rotation nearest ``R``; the selected
+    column takes one power step (``K c``), so that the result and its gradient are those of the
     nearest rotation to first order: ``from_matrix(R + eps E)`` equals
     ``from_matrix(polar(R + eps E))`` up to ``O(eps^2)``, whichever formula is selected.  A
     matrix farther from SO(3) (``3 * R``, a reflection, an arbitrary matrix) gives an

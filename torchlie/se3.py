@@ -192,8 +192,8 @@ def log(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 6"]:
     ``T hat(d)`` it is the exact derivative ``Jr(xi)^-1 d``; the translation block's gradient is
     exact (``d rho / d t = so3.jac_left(phi)^-1``); directions that leave SO(3) in the rotation
     block (``R S``, ``S`` symmetric) and the bottom row get zero gradient.  It is finite at
-    ``theta = pi``.  The forward pass agrees with it to first order (so3's orthogonalisation
-    step), so plain ``gradcheck`` on a raw pose matrix passes.  Double backward and forward
+    ``theta = pi``.  The forward pass agrees with it to first order (as so3's), so plain
+    ``gradcheck`` on a raw pose matrix passes.  Double backward and forward
     mode are supported.
 
     The rotation block must be a rotation up to first-order deviations; other matrices give an

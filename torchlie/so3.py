@@ -197,9 +197,9 @@ def log(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3"]:
     every tangent direction ``R hat(d)`` (``Jr(w)^-1 d``) and zero along the normal directions
     ``R S`` (``S`` symmetric).  It is finite at ``theta = pi``, where the naive formula's
     derivative is infinite, and it equals any other correct derivative whenever ``R`` is built
-    by a valid rotation construction.  The forward pass folds in one orthogonalisation step
-    (exact on SO(3)), so it agrees with that gradient to first order and plain ``gradcheck`` on
-    a raw rotation matrix passes.
+    by a valid rotation construction.  The forward pass reads ``R`` as its nearest rotation to
+    first order (see :func:`torchlie.quaternion.from_matrix`), so it agrees with that gradient
+    and plain ``gradcheck`` on a raw rotation matrix passes.
 
     ``R`` must be a rotation up to first-order deviations; other matrices (``2 * I``, a scaled
     or reflected rotation) give an unspecified result: see "Matrices off SO(3)" in
