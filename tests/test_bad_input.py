@@ -472,8 +472,10 @@ LOG_MAPS = [
 @pytest.mark.parametrize("name,f", LOG_MAPS, ids=[n for n, _ in LOG_MAPS])
 def test_log_maps_read_a_nearly_rotation_as_its_nearest_rotation_to_first_order(name, f):
     g = torch.Generator().manual_seed(4)
-    R = so3.exp(torch.tensor([[0.3, -1.1, 0.4], [2.0, 0.5, -0.9], [0.0, 0.1, 3.0]], dtype=F64))
-    E = torch.randn(3, 3, 3, dtype=F64, generator=g)
+    # the largest quaternion entry is w, x, z and y in turn (each of Shepperd's four formulas)
+    w = torch.tensor([[0.3, -1.1, 0.4], [2.0, 0.5, -0.9], [0.0, 0.1, 3.0], [0.2, 2.9, -0.3]])
+    R = so3.exp(w.to(F64))
+    E = torch.randn(4, 3, 3, dtype=F64, generator=g)
     E = E / torch.linalg.matrix_norm(E, keepdim=True)
     for eps in (1e-4, 1e-6):
         M = R + eps * E
