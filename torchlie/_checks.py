@@ -190,6 +190,27 @@ def batch_broadcast(fn: str, *shapes: tuple[torch.Size, str]) -> torch.Size:
     return torch.Size(result)
 
 
+def pair(
+    fn: str,
+    a: object,
+    b: object,
+    na: str,
+    nb: str,
+    ta: tuple[int, ...],
+    tb: tuple[int, ...],
+) -> tuple[Tensor, Tensor, torch.dtype, torch.Size]:
+    """Check the two tensor operands ``a`` (named ``na``, ending in ``ta``) and ``b`` of ``fn``:
+    each as :func:`tensor`, one dtype, batch shapes that broadcast.  Returns both in the
+    compute dtype, the output dtype and the broadcast batch shape."""
+    x, dtype = tensor(a, fn, na, ta)
+    y, _ = tensor(b, fn, nb, tb)
+    same_dtype(fn, **{na: a, nb: b})
+    batch = batch_broadcast(
+        fn, (x.shape[: x.dim() - len(ta)], na), (y.shape[: y.dim() - len(tb)], nb)
+    )
+    return x, y, dtype, batch
+
+
 def _broadcast_error(fn: str, shapes: tuple[tuple[torch.Size, str], ...]) -> ValueError:
     desc = ", ".join(f"{name} batch {tuple(s)}" for s, name in shapes)
     return ValueError(f"{fn}: batch shapes do not broadcast: {desc}")

@@ -368,10 +368,7 @@ def geodesic_loss(
     fn = _NAME + "geodesic_loss"
     _check_choice(fn, "kind", kind, ("angle", "chordal"))
     _check_choice(fn, "reduction", reduction, _REDUCTIONS)
-    a, dtype = _checks.tensor(R_pred, fn, "R_pred", (3, 3))
-    b, _ = _checks.tensor(R_target, fn, "R_target", (3, 3))
-    _checks.same_dtype(fn, R_pred=R_pred, R_target=R_target)
-    _checks.batch_broadcast(fn, (a.shape[:-2], "R_pred"), (b.shape[:-2], "R_target"))
+    a, b, dtype, _ = _checks.pair(fn, R_pred, R_target, "R_pred", "R_target", (3, 3), (3, 3))
     if kind == "angle":
         loss = so3.distance(a, b)
     else:
@@ -414,10 +411,7 @@ def se3_geodesic_loss(
     _check_choice(fn, "reduction", reduction, _REDUCTIONS)
     rotation_weight = _checks.nonnegative(rotation_weight, fn, "rotation_weight")
     translation_weight = _checks.nonnegative(translation_weight, fn, "translation_weight")
-    a, dtype = _checks.tensor(T_pred, fn, "T_pred", (4, 4))
-    b, _ = _checks.tensor(T_target, fn, "T_target", (4, 4))
-    _checks.same_dtype(fn, T_pred=T_pred, T_target=T_target)
-    _checks.batch_broadcast(fn, (a.shape[:-2], "T_pred"), (b.shape[:-2], "T_target"))
+    a, b, dtype, _ = _checks.pair(fn, T_pred, T_target, "T_pred", "T_target", (4, 4), (4, 4))
     if kind == "angle":
         rot, trans = se3.distance(a, b)
     else:

@@ -65,11 +65,7 @@ def multiply(q1: Float[Tensor, "*b1 4"], q2: Float[Tensor, "*b2 4"]) -> Float[Te
         >>> multiply(q, q)
         tensor([-1.,  0.,  0.,  0.])
     """
-    fn = "torchlie.quaternion.multiply"
-    a, dtype = _checks.tensor(q1, fn, "q1", (4,))
-    b, _ = _checks.tensor(q2, fn, "q2", (4,))
-    _checks.same_dtype(fn, q1=q1, q2=q2)
-    _checks.batch_broadcast(fn, (a.shape[:-1], "q1"), (b.shape[:-1], "q2"))
+    a, b, dtype, _ = _checks.pair("torchlie.quaternion.multiply", q1, q2, "q1", "q2", (4,), (4,))
     return _checks.out(_hamilton.multiply(a, b), dtype)
 
 
@@ -292,11 +288,7 @@ def apply(q: Float[Tensor, "*b1 4"], points: Float[Tensor, "*b2 3"]) -> Float[Te
         >>> apply(q, torch.tensor([1.0, 2.0, 3.0]))
         tensor([-1., -2.,  3.])
     """
-    fn = "torchlie.quaternion.apply"
-    a, dtype = _checks.tensor(q, fn, "q", (4,))
-    p, _ = _checks.tensor(points, fn, "points", (3,))
-    _checks.same_dtype(fn, q=q, points=points)
-    _checks.batch_broadcast(fn, (a.shape[:-1], "q"), (p.shape[:-1], "points"))
+    a, p, dtype, _ = _checks.pair("torchlie.quaternion.apply", q, points, "q", "points", (4,), (3,))
     return _checks.out(_ApplyFn(a, p), dtype)
 
 

@@ -213,16 +213,6 @@ def log(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 6"]:
 # ----------------------------------------------------------------------------------------------
 
 
-def _pair(fn: str, a: object, b: object, na: str, nb: str, ta=(4, 4), tb=(4, 4)):
-    x, dtype = _checks.tensor(a, _NAME + fn, na, ta)
-    y, _ = _checks.tensor(b, _NAME + fn, nb, tb)
-    _checks.same_dtype(_NAME + fn, **{na: a, nb: b})
-    batch = _checks.batch_broadcast(
-        _NAME + fn, (x.shape[: x.dim() - len(ta)], na), (y.shape[: y.dim() - len(tb)], nb)
-    )
-    return x, y, dtype, batch
-
-
 def compose(T1: Float[Tensor, "*b1 4 4"], T2: Float[Tensor, "*b2 4 4"]) -> Float[Tensor, "*b 4 4"]:
     """``T1 @ T2`` from blocks (``R1 R2``, ``R1 t2 + t1``); batch shapes broadcast.
 
@@ -233,7 +223,7 @@ def compose(T1: Float[Tensor, "*b1 4 4"], T2: Float[Tensor, "*b2 4 4"]) -> Float
         >>> torch.allclose(compose(T, T), exp(torch.tensor([2.0, 0.0, 0.0, 0.0, 0.0, 1.0])))
         True
     """
-    a, b, dtype, _ = _pair("compose", T1, T2, "T1", "T2")
+    a, b, dtype, _ = _checks.pair(_NAME + "compose", T1, T2, "T1", "T2", (4, 4), (4, 4))
     return _checks.out(_se3_kernels.compose(a, b), dtype)
 
 
@@ -257,7 +247,7 @@ def act(T: Float[Tensor, "*b1 4 4"], points: Float[Tensor, "*b2 3"]) -> Float[Te
         >>> act(T, torch.tensor([1.0, 0.0, 0.0])).round(decimals=6)
         tensor([0., 2., 3.])
     """
-    x, p, dtype, _ = _pair("act", T, points, "T", "points", tb=(3,))
+    x, p, dtype, _ = _checks.pair(_NAME + "act", T, points, "T", "points", (4, 4), (3,))
     return _checks.out(_se3_kernels.act(x, p), dtype)
 
 
@@ -415,7 +405,7 @@ def from_rt(R: Float[Tensor, "*b1 3 3"], t: Float[Tensor, "*b2 3"]) -> Float[Ten
                 [0., 0., 1., 3.],
                 [0., 0., 0., 1.]])
     """
-    r, v, dtype, _ = _pair("from_rt", R, t, "R", "t", ta=(3, 3), tb=(3,))
+    r, v, dtype, _ = _checks.pair(_NAME + "from_rt", R, t, "R", "t", (3, 3), (3,))
     return _checks.out(_assemble(*_broadcast_rt(r, v)), dtype)
 
 
@@ -484,7 +474,7 @@ def interpolate(
         True
     """
     fn = _NAME + "interpolate"
-    a, b, dtype, _ = _pair("interpolate", T0, T1, "T0", "T1")
+    a, b, dtype, _ = _checks.pair(_NAME + "interpolate", T0, T1, "T0", "T1", (4, 4), (4, 4))
     t = _checks.real(t, fn, "t", a, ("T0", T0))
     _checks.batch_broadcast(fn, (a.shape[:-2], "T0"), (b.shape[:-2], "T1"), (t.shape, "t"))
     xi = _se3_kernels.log(_between(a, b))
@@ -506,7 +496,7 @@ def distance(
         >>> distance(identity(), T2)
         (tensor(0.3000), tensor(5.))
     """
-    a, b, dtype, _ = _pair("distance", T1, T2, "T1", "T2")
+    a, b, dtype, _ = _checks.pair(_NAME + "distance", T1, T2, "T1", "T2", (4, 4), (4, 4))
     angle = _rotation_matrix.angle(_rot(a).transpose(-1, -2) @ _rot(b))
     trans = _coeffs.norm(_trans(b) - _trans(a))
     trans = trans.expand(angle.shape)
@@ -526,7 +516,7 @@ def rplus(T: Float[Tensor, "*b1 4 4"], xi: Float[Tensor, "*b2 6"]) -> Float[Tens
         >>> rplus(identity(), xi)[:3, 3]
         tensor([1., 0., 0.])
     """
-    x, v, dtype, _ = _pair("rplus", T, xi, "T", "xi", tb=(6,))
+    x, v, dtype, _ = _checks.pair(_NAME + "rplus", T, xi, "T", "xi", (4, 4), (6,))
     return _checks.out(_se3_kernels.compose(x, _se3_kernels.exp(v)), dtype)
 
 
@@ -539,7 +529,7 @@ def rminus(T1: Float[Tensor, "*b1 4 4"], T0: Float[Tensor, "*b2 4 4"]) -> Float[
         >>> torch.allclose(rminus(rplus(T0, xi), T0), xi, atol=1e-5)
         True
     """
-    a, b, dtype, _ = _pair("rminus", T1, T0, "T1", "T0")
+    a, b, dtype, _ = _checks.pair(_NAME + "rminus", T1, T0, "T1", "T0", (4, 4), (4, 4))
     return _checks.out(_se3_kernels.log(_between(b, a)), dtype)
 
 
@@ -552,7 +542,7 @@ def lplus(T: Float[Tensor, "*b1 4 4"], xi: Float[Tensor, "*b2 6"]) -> Float[Tens
         >>> torch.allclose(lplus(T, xi)[:3, 3], torch.tensor([0.0, 1.0, 0.0]), atol=1e-6)
         True
     """
-    x, v, dtype, _ = _pair("lplus", T, xi, "T", "xi", tb=(6,))
+    x, v, dtype, _ = _checks.pair(_NAME + "lplus", T, xi, "T", "xi", (4, 4), (6,))
     return _checks.out(_se3_kernels.compose(_se3_kernels.exp(v), x), dtype)
 
 
@@ -565,7 +555,7 @@ def lminus(T1: Float[Tensor, "*b1 4 4"], T0: Float[Tensor, "*b2 4 4"]) -> Float[
         >>> torch.allclose(lminus(lplus(T0, xi), T0), xi, atol=1e-5)
         True
     """
-    a, b, dtype, _ = _pair("lminus", T1, T0, "T1", "T0")
+    a, b, dtype, _ = _checks.pair(_NAME + "lminus", T1, T0, "T1", "T0", (4, 4), (4, 4))
     return _checks.out(_se3_kernels.log(_se3_kernels.compose(a, _se3_kernels.inverse(b))), dtype)
 
 
@@ -578,7 +568,7 @@ def between(T0: Float[Tensor, "*b1 4 4"], T1: Float[Tensor, "*b2 4 4"]) -> Float
         >>> between(T0, T1)[:3, 3]
         tensor([0., 2., 0.])
     """
-    a, b, dtype, _ = _pair("between", T0, T1, "T0", "T1")
+    a, b, dtype, _ = _checks.pair(_NAME + "between", T0, T1, "T0", "T1", (4, 4), (4, 4))
     return _checks.out(_between(a, b), dtype)
 
 
@@ -599,7 +589,7 @@ def jac_compose(
         >>> torch.allclose(J1, adjoint(inverse(T2))) and torch.equal(J2, torch.eye(6))
         True
     """
-    a, b, dtype, batch = _pair("jac_compose", T1, T2, "T1", "T2")
+    a, b, dtype, batch = _checks.pair(_NAME + "jac_compose", T1, T2, "T1", "T2", (4, 4), (4, 4))
     J1 = _adjoint(_se3_kernels.inverse(b)).expand(*batch, 6, 6).clone()
     return _checks.out(J1, dtype), _checks.out(_eye6(batch, a), dtype)
 
@@ -628,7 +618,7 @@ def jac_act(
         >>> torch.equal(JT, torch.cat((torch.eye(3), -so3.hat(p)), dim=-1))
         True
     """
-    x, p, dtype, batch = _pair("jac_act", T, points, "T", "points", tb=(3,))
+    x, p, dtype, batch = _checks.pair(_NAME + "jac_act", T, points, "T", "points", (4, 4), (3,))
     R = _rot(x).expand(*batch, 3, 3)
     JT = torch.cat((R, -(R @ _components.hat(p))), dim=-1)
     return _checks.out(JT, dtype), _checks.out(R.clone(), dtype)
@@ -644,7 +634,7 @@ def jac_rplus(
         >>> torch.equal(JT, torch.eye(6)) and torch.equal(Jxi, torch.eye(6))
         True
     """
-    x, v, dtype, batch = _pair("jac_rplus", T, xi, "T", "xi", tb=(6,))
+    x, v, dtype, batch = _checks.pair(_NAME + "jac_rplus", T, xi, "T", "xi", (4, 4), (6,))
     v = v.expand(*batch, 6)
     JT = _adjoint(_se3_kernels.exp(-v))
     return _checks.out(JT, dtype), _checks.out(_se3_jacobian.jac_left(-v), dtype)
@@ -660,7 +650,7 @@ def jac_rminus(
         >>> torch.equal(J1, torch.eye(6)) and torch.equal(J0, -torch.eye(6))
         True
     """
-    a, b, dtype, _ = _pair("jac_rminus", T1, T0, "T1", "T0")
+    a, b, dtype, _ = _checks.pair(_NAME + "jac_rminus", T1, T0, "T1", "T0", (4, 4), (4, 4))
     xi = _se3_kernels.log(_between(b, a))
     J1, J0 = _se3_jacobian.jac_left_inv(-xi), -_se3_jacobian.jac_left_inv(xi)
     return _checks.out(J1, dtype), _checks.out(J0, dtype)
@@ -676,6 +666,6 @@ def jac_between(
         >>> torch.equal(J0, -torch.eye(6)) and torch.equal(J1, torch.eye(6))
         True
     """
-    a, b, dtype, batch = _pair("jac_between", T0, T1, "T0", "T1")
+    a, b, dtype, batch = _checks.pair(_NAME + "jac_between", T0, T1, "T0", "T1", (4, 4), (4, 4))
     J0 = -_adjoint(_between(b, a))
     return _checks.out(J0, dtype), _checks.out(_eye6(batch, a), dtype)

@@ -226,11 +226,7 @@ def compose(R1: Float[Tensor, "*b1 3 3"], R2: Float[Tensor, "*b2 3 3"]) -> Float
         >>> torch.allclose(compose(Rz, Rz), exp(torch.tensor([0.0, 0.0, 1.0])))
         True
     """
-    fn = _NAME + "compose"
-    a, dtype = _checks.tensor(R1, fn, "R1", (3, 3))
-    b, _ = _checks.tensor(R2, fn, "R2", (3, 3))
-    _checks.same_dtype(fn, R1=R1, R2=R2)
-    _checks.batch_broadcast(fn, (a.shape[:-2], "R1"), (b.shape[:-2], "R2"))
+    a, b, dtype, _ = _checks.pair(_NAME + "compose", R1, R2, "R1", "R2", (3, 3), (3, 3))
     return _checks.out(a @ b, dtype)
 
 
@@ -253,11 +249,7 @@ def act(R: Float[Tensor, "*b1 3 3"], points: Float[Tensor, "*b2 3"]) -> Float[Te
         >>> act(exp(torch.tensor([0.0, 0.0, torch.pi / 2])), torch.tensor([1.0, 0.0, 0.0]))
         tensor([-4.3711e-08,  1.0000e+00,  0.0000e+00])
     """
-    fn = _NAME + "act"
-    a, dtype = _checks.tensor(R, fn, "R", (3, 3))
-    p, _ = _checks.tensor(points, fn, "points", (3,))
-    _checks.same_dtype(fn, R=R, points=points)
-    _checks.batch_broadcast(fn, (a.shape[:-2], "R"), (p.shape[:-1], "points"))
+    a, p, dtype, _ = _checks.pair(_NAME + "act", R, points, "R", "points", (3, 3), (3,))
     return _checks.out(_ActFn(a, p), dtype)
 
 
@@ -498,11 +490,7 @@ def distance(R1: Float[Tensor, "*b1 3 3"], R2: Float[Tensor, "*b2 3 3"]) -> Floa
         >>> distance(torch.eye(3), exp(torch.tensor([0.0, 0.3, 0.0])))
         tensor(0.3000)
     """
-    fn = _NAME + "distance"
-    a, dtype = _checks.tensor(R1, fn, "R1", (3, 3))
-    b, _ = _checks.tensor(R2, fn, "R2", (3, 3))
-    _checks.same_dtype(fn, R1=R1, R2=R2)
-    _checks.batch_broadcast(fn, (a.shape[:-2], "R1"), (b.shape[:-2], "R2"))
+    a, b, dtype, _ = _checks.pair(_NAME + "distance", R1, R2, "R1", "R2", (3, 3), (3, 3))
     return _checks.out(_rotation_matrix.angle(a.transpose(-1, -2) @ b), dtype)
 
 
@@ -543,17 +531,6 @@ def interpolate(
 # jac_right(omega) and jac_right_inv(log(R)).
 
 
-def _pair(fn: str, a: object, b: object, na: str, nb: str, ta=(3, 3), tb=(3, 3)):
-    """Check two inputs; return them in the compute dtype, the output dtype and the batch."""
-    x, dtype = _checks.tensor(a, _NAME + fn, na, ta)
-    y, _ = _checks.tensor(b, _NAME + fn, nb, tb)
-    _checks.same_dtype(_NAME + fn, **{na: a, nb: b})
-    batch = _checks.batch_broadcast(
-        _NAME + fn, (x.shape[: x.dim() - len(ta)], na), (y.shape[: y.dim() - len(tb)], nb)
-    )
-    return x, y, dtype, batch
-
-
 def _eye3(batch: torch.Size, like: Tensor) -> Tensor:
     return torch.eye(3, dtype=like.dtype, device=like.device).expand(*batch, 3, 3).clone()
 
@@ -579,7 +556,7 @@ def rplus(R: Float[Tensor, "*b1 3 3"], tau: Float[Tensor, "*b2 3"]) -> Float[Ten
         >>> log(R)
         tensor([0.0000, 0.0000, 0.3000])
     """
-    x, v, dtype, _ = _pair("rplus", R, tau, "R", "tau", tb=(3,))
+    x, v, dtype, _ = _checks.pair(_NAME + "rplus", R, tau, "R", "tau", (3, 3), (3,))
     return _checks.out(x @ _ExpMapFn(v), dtype)
 
 
@@ -594,7 +571,7 @@ def rminus(R1: Float[Tensor, "*b1 3 3"], R0: Float[Tensor, "*b2 3 3"]) -> Float[
         >>> torch.allclose(rminus(rplus(R0, tau), R0), tau, atol=1e-6)
         True
     """
-    a, b, dtype, _ = _pair("rminus", R1, R0, "R1", "R0")
+    a, b, dtype, _ = _checks.pair(_NAME + "rminus", R1, R0, "R1", "R0", (3, 3), (3, 3))
     return _checks.out(_LogFn(b.transpose(-1, -2) @ a), dtype)
 
 
@@ -606,7 +583,7 @@ def lplus(R: Float[Tensor, "*b1 3 3"], tau: Float[Tensor, "*b2 3"]) -> Float[Ten
         >>> torch.allclose(lplus(R, torch.zeros(3)), R)
         True
     """
-    x, v, dtype, _ = _pair("lplus", R, tau, "R", "tau", tb=(3,))
+    x, v, dtype, _ = _checks.pair(_NAME + "lplus", R, tau, "R", "tau", (3, 3), (3,))
     return _checks.out(_ExpMapFn(v) @ x, dtype)
 
 
@@ -619,7 +596,7 @@ def lminus(R1: Float[Tensor, "*b1 3 3"], R0: Float[Tensor, "*b2 3 3"]) -> Float[
         >>> torch.allclose(lminus(lplus(R0, tau), R0), tau, atol=1e-6)
         True
     """
-    a, b, dtype, _ = _pair("lminus", R1, R0, "R1", "R0")
+    a, b, dtype, _ = _checks.pair(_NAME + "lminus", R1, R0, "R1", "R0", (3, 3), (3, 3))
     return _checks.out(_LogFn(a @ b.transpose(-1, -2)), dtype)
 
 
@@ -632,7 +609,7 @@ def between(R0: Float[Tensor, "*b1 3 3"], R1: Float[Tensor, "*b2 3 3"]) -> Float
         >>> log(between(R0, R1))
         tensor([0.0000, 0.0000, 0.3000])
     """
-    a, b, dtype, _ = _pair("between", R0, R1, "R0", "R1")
+    a, b, dtype, _ = _checks.pair(_NAME + "between", R0, R1, "R0", "R1", (3, 3), (3, 3))
     return _checks.out(a.transpose(-1, -2) @ b, dtype)
 
 
@@ -649,7 +626,7 @@ def jac_compose(
         >>> torch.equal(J1, R2.mT) and torch.equal(J2, torch.eye(3))
         True
     """
-    a, b, dtype, batch = _pair("jac_compose", R1, R2, "R1", "R2")
+    a, b, dtype, batch = _checks.pair(_NAME + "jac_compose", R1, R2, "R1", "R2", (3, 3), (3, 3))
     J1 = b.transpose(-1, -2).expand(*batch, 3, 3).clone()
     return _checks.out(J1, dtype), _checks.out(_eye3(batch, a), dtype)
 
@@ -678,7 +655,7 @@ def jac_act(
         >>> torch.equal(JR, -hat(p)) and torch.equal(Jp, torch.eye(3))
         True
     """
-    x, p, dtype, batch = _pair("jac_act", R, points, "R", "points", tb=(3,))
+    x, p, dtype, batch = _checks.pair(_NAME + "jac_act", R, points, "R", "points", (3, 3), (3,))
     x = x.expand(*batch, 3, 3)
     return _checks.out(-(x @ _components.hat(p)), dtype), _checks.out(x.clone(), dtype)
 
@@ -693,7 +670,7 @@ def jac_rplus(
         >>> torch.equal(JR, torch.eye(3)) and torch.equal(Jtau, torch.eye(3))
         True
     """
-    x, v, dtype, batch = _pair("jac_rplus", R, tau, "R", "tau", tb=(3,))
+    x, v, dtype, batch = _checks.pair(_NAME + "jac_rplus", R, tau, "R", "tau", (3, 3), (3,))
     v = v.expand(*batch, 3)
     JR = _ExpMapFn(v).transpose(-1, -2)
     return _checks.out(JR, dtype), _checks.out(_rodrigues.jac_matrix(v, "right"), dtype)
@@ -709,7 +686,7 @@ def jac_rminus(
         >>> torch.equal(J1, torch.eye(3)) and torch.equal(J0, -torch.eye(3))
         True
     """
-    a, b, dtype, _ = _pair("jac_rminus", R1, R0, "R1", "R0")
+    a, b, dtype, _ = _checks.pair(_NAME + "jac_rminus", R1, R0, "R1", "R0", (3, 3), (3, 3))
     tau = _LogFn(b.transpose(-1, -2) @ a)
     J1, J0 = _rodrigues.jac_matrix(tau, "right_inv"), -_rodrigues.jac_matrix(tau, "left_inv")
     return _checks.out(J1, dtype), _checks.out(J0, dtype)
@@ -725,6 +702,6 @@ def jac_between(
         >>> torch.equal(J0, -torch.eye(3)) and torch.equal(J1, torch.eye(3))
         True
     """
-    a, b, dtype, batch = _pair("jac_between", R0, R1, "R0", "R1")
+    a, b, dtype, batch = _checks.pair(_NAME + "jac_between", R0, R1, "R0", "R1", (3, 3), (3, 3))
     J0 = -(b.transpose(-1, -2) @ a)
     return _checks.out(J0, dtype), _checks.out(_eye3(batch, a), dtype)
