@@ -176,7 +176,7 @@ def test_random_configuration_rejects_negative_or_non_integer_sizes(tree):
 @pytest.mark.parametrize("arg", ["samples", "batch"])
 @pytest.mark.parametrize("value", [0, -1])
 def test_validate_rejects_fewer_than_one_sample_or_batch(arg, value):
-    with pytest.raises(ValueError, match=rf"validate: expected {arg} >= 1, got {value}"):
+    with pytest.raises(ValueError, match=rf"validate: expected {arg} >= 1, got {arg}={value}"):
         V.validate("arm7", out=io.StringIO(), **{arg: value})
     with pytest.raises(TypeError, match=rf"validate: expected {arg} to be an integer"):
         V.validate("arm7", out=io.StringIO(), **{arg: 2.5})

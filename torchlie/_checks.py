@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import math
 import numbers
+import operator
+import reprlib
 
 import numpy as np
 import torch
@@ -135,6 +137,23 @@ def real(x: object, fn: str, arg: str, like: Tensor, ref: tuple[str, Tensor]) ->
         f"{fn}: expected {arg} to be a real number, a list or numpy array of them, or a "
         f"floating-point tensor, got {what}"
     )
+
+
+def count(x: object, fn: str, arg: str, least: int) -> int:
+    """An integer argument of at least ``least`` (``bool`` is not one; numpy and 0-d integer
+    tensors are): ``TypeError`` for another type, ``ValueError`` below ``least``."""
+    try:
+        if isinstance(x, bool):
+            raise TypeError
+        n = operator.index(x)  # type: ignore[arg-type]
+    except TypeError:
+        raise TypeError(
+            f"{fn}: expected {arg} to be an integer >= {least}, got {type(x).__name__} "
+            f"{reprlib.repr(x)}"
+        ) from None
+    if n < least:
+        raise ValueError(f"{fn}: expected {arg} >= {least}, got {arg}={n}")
+    return n
 
 
 def nonnegative(x: object, fn: str, arg: str) -> float:

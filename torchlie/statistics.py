@@ -26,7 +26,6 @@ and returned in the input dtype.
 
 from __future__ import annotations
 
-import numbers
 from types import ModuleType
 from typing import NamedTuple
 
@@ -212,12 +211,7 @@ def _set(fn: str, g: _Group, X: Tensor, weights: object, arg: str):
 def _check_method(fn: str, method: str, iterations: int) -> None:
     if method not in _METHODS:
         raise ValueError(f"{fn}: expected method 'chordal' or 'geodesic', got {method!r}")
-    if isinstance(iterations, bool) or not isinstance(iterations, numbers.Integral):
-        raise TypeError(
-            f"{fn}: expected iterations to be an int >= 0, got {type(iterations).__name__}"
-        )
-    if iterations < 0:
-        raise ValueError(f"{fn}: expected iterations to be an int >= 0, got {iterations}")
+    _checks.count(iterations, fn, "iterations", 0)
 
 
 def _wsum(w: Tensor, x: Tensor, k: int) -> Tensor:

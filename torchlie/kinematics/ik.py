@@ -89,7 +89,6 @@ Example:
 from __future__ import annotations
 
 import math
-import operator
 import reprlib
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, NamedTuple
@@ -164,21 +163,6 @@ class _Task(NamedTuple):
 # ----------------------------------------------------------------------------------------------
 # Argument checks (metadata only, except explicit limits: see _limits)
 # ----------------------------------------------------------------------------------------------
-
-
-def _count(value: object, name: str, least: int) -> int:
-    try:
-        if isinstance(value, bool):
-            raise TypeError
-        n = operator.index(value)  # type: ignore[arg-type]
-    except TypeError:
-        raise TypeError(
-            f"{_FN}: expected {name} to be an integer >= {least}, got {type(value).__name__} "
-            f"{reprlib.repr(value)}"
-        ) from None
-    if n < least:
-        raise ValueError(f"{_FN}: expected {name} >= {least}, got {name}={n}")
-    return n
 
 
 def _number(value: object, name: str, positive: bool) -> float:
@@ -618,13 +602,13 @@ def inverse_kinematics(
             name.
     """
     items = _targets(chain, targets, link)
-    restarts = _count(restarts, "restarts", 1)
+    restarts = _checks.count(restarts, _FN, "restarts", 1)
     if max_iterations is None:
         max_iterations = _BUDGET[restarts >= _MANY_STARTS]
-    max_iterations = _count(max_iterations, "max_iterations", 0)
+    max_iterations = _checks.count(max_iterations, _FN, "max_iterations", 0)
     if restart_after is None:
         restart_after = max(1, max_iterations // 3)
-    restart_after = _count(restart_after, "restart_after", 0) or None  # None: never
+    restart_after = _checks.count(restart_after, _FN, "restart_after", 0) or None  # None: never
     wp = _number(position_weight, "position_weight", True)
     wr = _number(rotation_weight, "rotation_weight", False)
     if wr == 0:  # orientations ignored: pose targets are position targets

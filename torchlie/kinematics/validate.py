@@ -80,7 +80,7 @@ from typing import Protocol, runtime_checkable
 import torch
 from torch import Tensor
 
-from .. import so3
+from .. import _checks, so3
 from . import SAMPLE_ROBOTS, sample_robot
 from ._pin_reference import PIN_FRAMES, _Pin, _pin_setup
 from ._pk_reference import _PK, TOL_PK, _pk_setup
@@ -238,18 +238,6 @@ def _worse(a: float, b: float) -> float:
     return math.nan if math.isnan(a) or math.isnan(b) else max(a, b)
 
 
-def _count(value: object, name: str) -> int:
-    """A positive integer argument of :func:`validate`."""
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise TypeError(
-            f"torchlie.kinematics.validate: expected {name} to be an integer >= 1, got "
-            f"{type(value).__name__} {value!r}"
-        )
-    if value < 1:
-        raise ValueError(f"torchlie.kinematics.validate: expected {name} >= 1, got {value}")
-    return value
-
-
 def _pose_errors(T: Tensor, T_ref: Tensor) -> tuple[float, float]:
     T, T_ref = T.to(torch.float64), T_ref.to(torch.float64)
     dp = torch.linalg.vector_norm(T[..., :3, 3] - T_ref[..., :3, 3], dim=-1)
@@ -340,8 +328,8 @@ def validate(
         >>> report.ok, len(report.links), [j.link for j in report.jacobians]
         (True, 12, ['tool_tcp', 'wrist_camera'])
     """
-    samples = _count(samples, "samples")
-    batch = _count(batch, "batch")
+    samples = _checks.count(samples, "torchlie.kinematics.validate", "samples", 1)
+    batch = _checks.count(batch, "torchlie.kinematics.validate", "batch", 1)
     out = sys.stdout if out is None else out
     err = sys.stderr if err is None else err
     source, text, label = _resolve(robot)
