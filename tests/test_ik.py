@@ -444,9 +444,11 @@ def test_bad_input_names_the_argument():
         arm.inverse_kinematics(T, "tool_tcp", q0=torch.zeros(6, dtype=F64))
     with pytest.raises(ValueError, match=rf"{fn}: .*broadcast"):
         arm.inverse_kinematics(T.expand(3, 4, 4), "tool_tcp", q0=torch.zeros(2, 7, dtype=F64))
-    with pytest.raises(ValueError, match=rf"{fn}: expected position_weight to be finite and > 0"):
+    with pytest.raises(
+        ValueError, match=rf"{fn}: expected position_weight to be a positive finite"
+    ):
         arm.inverse_kinematics(T, "tool_tcp", position_weight=0.0)
-    with pytest.raises(ValueError, match=rf"{fn}: expected rotation_weight to be finite and >= 0"):
+    with pytest.raises(ValueError, match=rf"{fn}: expected rotation_weight to be a non-negative"):
         arm.inverse_kinematics(T, "tool_tcp", rotation_weight=-1.0)
     with pytest.raises(ValueError, match=rf"{fn}: expected max_iterations >= 0"):
         arm.inverse_kinematics(T, "tool_tcp", max_iterations=-1)

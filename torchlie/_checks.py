@@ -156,19 +156,21 @@ def count(x: object, fn: str, arg: str, least: int) -> int:
     return n
 
 
-def nonnegative(x: object, fn: str, arg: str) -> float:
-    """A non-negative finite real number (a tolerance or a loss weight), as a ``float``.
+def nonnegative(x: object, fn: str, arg: str, positive: bool = False) -> float:
+    """A non-negative (``positive``: positive) finite real number, such as a tolerance or a
+    weight, as a ``float``.
 
     Python and numpy numbers; ``bool`` and tensors are refused (a tensor's value cannot be
     checked without a device sync).
     """
+    what = "positive" if positive else "non-negative"
     if isinstance(x, bool) or not isinstance(x, numbers.Real):
         raise TypeError(
-            f"{fn}: expected {arg} to be a non-negative finite real number, got {type(x).__name__}"
+            f"{fn}: expected {arg} to be a {what} finite real number, got {type(x).__name__}"
         )
     v = float(x)
-    if not (math.isfinite(v) and v >= 0.0):
-        raise ValueError(f"{fn}: expected {arg} to be a non-negative finite real number, got {v}")
+    if not (math.isfinite(v) and (v > 0.0 if positive else v >= 0.0)):
+        raise ValueError(f"{fn}: expected {arg} to be a {what} finite real number, got {v}")
     return v
 
 

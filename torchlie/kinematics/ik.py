@@ -165,19 +165,6 @@ class _Task(NamedTuple):
 # ----------------------------------------------------------------------------------------------
 
 
-def _number(value: object, name: str, positive: bool) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise TypeError(
-            f"{_FN}: expected {name} to be a number, got {type(value).__name__} "
-            f"{reprlib.repr(value)}"
-        )
-    x = float(value)
-    if not math.isfinite(x) or x < 0 or (positive and x == 0):
-        need = "> 0" if positive else ">= 0"
-        raise ValueError(f"{_FN}: expected {name} to be finite and {need}, got {name}={x!r}")
-    return x
-
-
 def _tensor(chain: Chain, x: object, name: str) -> Tensor:
     if not isinstance(x, Tensor):
         raise TypeError(f"{_FN}: expected {name} to be a torch.Tensor, got {type(x).__name__}")
@@ -609,13 +596,13 @@ def inverse_kinematics(
     if restart_after is None:
         restart_after = max(1, max_iterations // 3)
     restart_after = _checks.count(restart_after, _FN, "restart_after", 0) or None  # None: never
-    wp = _number(position_weight, "position_weight", True)
-    wr = _number(rotation_weight, "rotation_weight", False)
+    wp = _checks.nonnegative(position_weight, _FN, "position_weight", positive=True)
+    wr = _checks.nonnegative(rotation_weight, _FN, "rotation_weight")
     if wr == 0:  # orientations ignored: pose targets are position targets
         items = [(nm, i, False, t[..., :3, 3]) if pose else (nm, i, pose, t)
                  for nm, i, pose, t in items]  # fmt: skip
-    tol_p = _number(position_tolerance, "position_tolerance", False)
-    tol_r = _number(rotation_tolerance, "rotation_tolerance", False)
+    tol_p = _checks.nonnegative(position_tolerance, _FN, "position_tolerance")
+    tol_r = _checks.nonnegative(rotation_tolerance, _FN, "rotation_tolerance")
     lo, hi = _limits(chain, lower, upper)
     dtype, device, n = chain.dtype, chain.device, chain.n_dof
     shapes = [(t.shape[:-2] if pose else t.shape[:-1], f"targets[{name!r}]")
