@@ -334,18 +334,23 @@ class Chain:
         """Internal ``(4, 4, B)`` transposed pose of link ``i``."""
         return _pose(plan, out, i, B, like)
 
-    def _prepare(self, q: Tensor, fn: str) -> tuple[Tensor, torch.dtype, tuple[int, ...]]:
-        x, out_dtype = _checks.tensor(q, _NAME + fn, "q", (self.n_dof,))
+    def _check_like(self, x: Tensor, fn: str, name: str, given: torch.dtype) -> None:
+        """Raise unless ``x`` (computed from an argument ``name`` of dtype ``given`` of the
+        method ``fn``, named in full) has the chain's dtype and device."""
         if x.dtype != self.dtype:
             raise TypeError(
-                f"{_NAME}{fn}: q has dtype {q.dtype} but the chain's constants are "
-                f"{self.dtype}; convert one of them (chain.to(dtype=...))"
+                f"{fn}: {name} has dtype {given} but the chain's constants are {self.dtype}; "
+                "convert one of them (chain.to(dtype=...))"
             )
         if x.device != self.device:
             raise ValueError(
-                f"{_NAME}{fn}: q is on {x.device} but the chain is on {self.device}; "
-                "use chain.to(device=...)"
+                f"{fn}: {name} is on {x.device} but the chain is on {self.device}; use "
+                "chain.to(device=...)"
             )
+
+    def _prepare(self, q: Tensor, fn: str) -> tuple[Tensor, torch.dtype, tuple[int, ...]]:
+        x, out_dtype = _checks.tensor(q, _NAME + fn, "q", (self.n_dof,))
+        self._check_like(x, _NAME + fn, "q", q.dtype)
         batch = tuple(x.shape[:-1])
         return x.reshape(math.prod(batch), self.n_dof), out_dtype, batch
 

@@ -168,16 +168,7 @@ class _Task(NamedTuple):
 def _tensor(chain: Chain, x: object, name: str) -> Tensor:
     if not isinstance(x, Tensor):
         raise TypeError(f"{_FN}: expected {name} to be a torch.Tensor, got {type(x).__name__}")
-    if x.dtype != chain.dtype:
-        raise TypeError(
-            f"{_FN}: {name} has dtype {x.dtype} but the chain's constants are {chain.dtype}; "
-            "convert one of them (chain.to(dtype=...))"
-        )
-    if x.device != chain.device:
-        raise ValueError(
-            f"{_FN}: {name} is on {x.device} but the chain is on {chain.device}; use "
-            "chain.to(device=...)"
-        )
+    chain._check_like(x, _FN, name, x.dtype)
     return x
 
 
