@@ -2,7 +2,7 @@
 
 Every op that has its own derivative (the log maps, whose naive derivative is infinite at
 theta = pi, and the ops whose closed-form backward is much cheaper than autograd's graph of
-their formula) is declared with :func:`custom_function` from four pure functions:
+their formula) is a :class:`CustomFunction` of four pure functions:
 
 * ``forward(*inputs) -> output``       the op's formula, in differentiable torch ops;
 * ``save(inputs, output) -> tuple``     the tensors the derivatives need;
@@ -198,11 +198,16 @@ def _positional(forward: Callable[..., Tensor], n: int) -> Callable[..., Tensor]
         return lambda a, b: forward(a, b)
     if n == 3:
         return lambda a, b, c: forward(a, b, c)
-    raise ValueError(f"custom_function: forward takes 1 to 3 tensors, got {n}")
+    raise ValueError(f"CustomFunction: forward takes 1 to 3 tensors, got {n}")
 
 
 class CustomFunction:
-    """An op with its own derivatives: callable with tensors only.
+    """An op with its own derivatives, from the four pieces of the module docstring: callable
+    with tensors only.
+
+    ``event_dims``: the number of trailing (non-batch) dimensions of each input, e.g. ``(1,)``
+    for a rotation vector, ``(2, 1)`` for a matrix and a point (for :func:`evaluate`).
+    ``guard``: of the first input, which ``save`` then keeps first (see the module docstring).
 
     Two ``torch.autograd.Function`` s are built from the same four pieces: one in the
     ``setup_context`` style (vmap rule generated), which ``torch.func`` transforms and
@@ -214,6 +219,7 @@ class CustomFunction:
     def __init__(
         self,
         name: str,
+        *,
         forward: Callable[..., Tensor],
         save: Callable[[Sequence[Tensor], Tensor], tuple[Tensor, ...]],
         backward: Callable[..., tuple[Tensor | None, ...]],
@@ -288,25 +294,6 @@ class CustomFunction:
         if needs_graph(inputs):
             return self.eager.apply(*inputs)
         return self.forward(*inputs)
-
-
-def custom_function(
-    name: str,
-    *,
-    forward: Callable[..., Tensor],
-    save: Callable[[Sequence[Tensor], Tensor], tuple[Tensor, ...]],
-    backward: Callable[..., tuple[Tensor | None, ...]],
-    jvp: Callable[..., Tensor],
-    event_dims: tuple[int, ...],
-    guard: Guard | None = None,
-) -> CustomFunction:
-    """Build a :class:`CustomFunction` (see the module docstring for the four pieces).
-
-    ``event_dims``: the number of trailing (non-batch) dimensions of each input, e.g. ``(1,)``
-    for a rotation vector, ``(2, 1)`` for a matrix and a point (for :func:`evaluate`).
-    ``guard``: of the first input, which ``save`` then keeps first (see the module docstring).
-    """
-    return CustomFunction(name, forward, save, backward, jvp, event_dims, guard)
 
 
 def blocked(fn: Callable[..., _Out], event_dims: tuple[int, ...]) -> Callable[..., _Out]:

@@ -13,7 +13,7 @@ import torch
 from torch import Tensor
 
 from . import _layout
-from ._autograd import blocked, custom_function, fma
+from ._autograd import CustomFunction, blocked, fma
 from ._components import planes
 
 #: The Hamilton product: component ``i`` of ``a b`` is the sum of ``sign a_j b_k`` over row ``i``.
@@ -87,7 +87,7 @@ def _multiply_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Te
     return da.sum_to_size(a.shape), db.sum_to_size(b.shape)
 
 
-_MultiplyFn = custom_function(
+_MultiplyFn = CustomFunction(
     "QuaternionMultiply",
     forward=_multiply_values,
     save=lambda inputs, out: (inputs[0], inputs[1]),

@@ -17,7 +17,7 @@ import torch
 from torch import Tensor
 
 from . import _coeffs, _layout
-from ._autograd import blocked, custom_function, fma
+from ._autograd import CustomFunction, blocked, fma
 from ._components import cross_planes, norm2, planes, r_hat, rt_g_vee, skew_vee, vee
 from ._hamilton import conj_product_vec, multiply
 
@@ -77,7 +77,7 @@ def _to_matrix_jvp(saved: tuple[Tensor, ...], dq: Tensor) -> Tensor:
     return torch.linalg.cross(R, d.unsqueeze(-2).expand_as(R), dim=-1)
 
 
-_ToMatrixFn = custom_function(
+_ToMatrixFn = CustomFunction(
     "QuaternionToMatrix",
     forward=lambda q: _to_matrix_forward(_coeffs.rescaled_planes(q, 4)),
     save=lambda inputs, out: (inputs[0], out),
@@ -179,7 +179,7 @@ def _from_matrix_jvp(saved: tuple[Tensor, ...], dR: Tensor) -> Tensor:
     return multiply(q, torch.nn.functional.pad(0.25 * d, (1, 0)))
 
 
-_FromMatrixFn = custom_function(
+_FromMatrixFn = CustomFunction(
     "QuaternionFromMatrix",
     forward=_from_matrix_forward,
     save=lambda inputs, out: (inputs[0], out),

@@ -15,7 +15,7 @@ import torch
 from torch import Tensor
 
 from . import _coeffs, _layout, _rodrigues, _rotation_matrix, _se3_jacobian
-from ._autograd import blocked, custom_function, fma
+from ._autograd import CustomFunction, blocked, fma
 from ._components import cross_planes, hat, mv, planes, rt_g_vee, vee
 
 # ----------------------------------------------------------------------------------------------
@@ -154,7 +154,7 @@ def _compose_jvp(saved: tuple[Tensor, ...], dA: Tensor, dB: Tensor) -> Tensor:
     return _pad_row(top)
 
 
-_ComposeFn = custom_function(
+_ComposeFn = CustomFunction(
     "Se3Compose",
     forward=_compose_entries,
     save=lambda inputs, out: (inputs[0], inputs[1]),
@@ -198,7 +198,7 @@ def _inverse_jvp(saved: tuple[Tensor, ...], dT: Tensor) -> Tensor:
     return _pad_row(torch.cat((dRt, -dt), dim=-1))
 
 
-_InverseFn = custom_function(
+_InverseFn = CustomFunction(
     "Se3Inverse",
     forward=_inverse_entries,
     save=lambda inputs, out: (inputs[0],),
@@ -243,7 +243,7 @@ def _act_jvp(saved: tuple[Tensor, ...], dT: Tensor, dp: Tensor) -> Tensor:
     return (out + torch.matmul(T[..., :3, :3], dp.unsqueeze(-1))).squeeze(-1)
 
 
-_ActFn = custom_function(
+_ActFn = CustomFunction(
     "Se3Act",
     forward=_act_fwd,
     save=lambda inputs, out: (inputs[0], inputs[1]),
@@ -346,7 +346,7 @@ def _guard(xi: Tensor) -> tuple[Tensor, Callable[[Tensor], Tensor]]:
     return torch.stack(_reduction(f, x, along), dim=-1), derivative
 
 
-_ExpMapFn = custom_function(
+_ExpMapFn = CustomFunction(
     "Se3Exp",
     forward=_exp_forward,
     save=lambda inputs, out: (inputs[0], out),
@@ -407,7 +407,7 @@ def _log_jvp(saved, dT: Tensor) -> Tensor:
     return _se3_jacobian.jl_inv_apply(-xi, v)  # Jr(xi)^-1 v
 
 
-_LogFn = custom_function(
+_LogFn = CustomFunction(
     "Se3Log",
     forward=_log_forward,
     save=lambda inputs, out: (inputs[0], out),

@@ -24,7 +24,7 @@ import torch
 from torch import Tensor
 
 from . import _checks, _coeffs, _components, _hamilton, _layout, _rotation_matrix
-from ._autograd import blocked, custom_function, fma
+from ._autograd import CustomFunction, blocked, fma
 from ._typing import Bool, Float, Shaped
 
 __all__ = [
@@ -353,7 +353,7 @@ def _apply_jvp(saved: tuple[Tensor, ...], dq: Tensor | None, dp: Tensor | None) 
     return _apply_values(q, u)
 
 
-_ApplyFn = custom_function(
+_ApplyFn = CustomFunction(
     "QuaternionApply",
     forward=lambda q, p: _apply_values(_coeffs.rescaled_planes(q, 4), p),
     save=lambda inputs, out: (inputs[0], inputs[1]),

@@ -32,7 +32,7 @@ import torch
 from torch import Tensor
 
 from . import _checks, _coeffs, _components, _layout, _rodrigues, _rotation_matrix
-from ._autograd import blocked, custom_function
+from ._autograd import CustomFunction, blocked
 from ._typing import Bool, Float
 
 __all__ = [
@@ -99,7 +99,7 @@ def _exp_jvp(saved, dw: Tensor) -> Tensor:
     return R @ _components.hat(_rodrigues.jl_apply(w, dw, sign=-1.0))
 
 
-_ExpMapFn = custom_function(
+_ExpMapFn = CustomFunction(
     "So3Exp",
     forward=lambda w: _exp(_coeffs.reduced_planes_of(w)),
     save=lambda inputs, out: (inputs[0], out),
@@ -132,7 +132,7 @@ def _log_jvp(saved, dR: Tensor) -> Tensor:
     return _rodrigues.jl_apply(w, d, sign=-1.0, inverse=True)
 
 
-_LogFn = custom_function(
+_LogFn = CustomFunction(
     "So3Log",
     forward=_log,
     save=lambda inputs, out: (inputs[0], out),
@@ -267,7 +267,7 @@ def _act_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor, Tensor]
     return dR.sum_to_size(R.shape), dp.sum_to_size(p.shape)
 
 
-_ActFn = custom_function(
+_ActFn = CustomFunction(
     "So3Act",
     forward=_components.mv,
     save=lambda inputs, out: (inputs[0], inputs[1]),
@@ -447,7 +447,7 @@ def _project_jvp(saved, dM: Tensor) -> Tensor:
     return torch.where(finite, out, torch.full_like(out, float("nan")))
 
 
-_ProjectFn = custom_function(
+_ProjectFn = CustomFunction(
     "So3Project",
     forward=_project_forward,
     save=lambda inputs, out: (inputs[0], out),
