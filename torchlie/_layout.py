@@ -92,6 +92,12 @@ def broadcast(*shapes: torch.Size) -> torch.Size:
     return _checks.batch_broadcast("torchlie", *((s, f"operand {i}") for i, s in enumerate(shapes)))
 
 
+def _in_place(M: Tensor, rows: int) -> bool:
+    """Whether the planes of a vector ``M`` over ``rows`` elements are read where they are
+    (strided views): small CPU batches, where any copy costs more than the reads it saves."""
+    return rows < MIN_ROWS and M.device.type == "cpu"
+
+
 def _use_product(x: Tensor, rows: int) -> bool:
     if not large(x, rows):
         return False
@@ -112,7 +118,7 @@ def planes(M: Tensor, n: int | tuple[int, int]) -> tuple[Tensor, ...]:
     if isinstance(n, tuple):
         if _is_compiling():
             return tuple(M[..., i, j] for i in range(n[0]) for j in range(n[1]))
-    elif _is_compiling() or (M.numel() < MIN_ROWS * n and M.device.type == "cpu"):
+    elif _is_compiling() or _in_place(M, M.numel() // n):
         return M.unbind(-1)  # the views of :func:`stacked`, taken in one call
     return stacked(M, n).unbind(0)
 
@@ -124,7 +130,7 @@ def stacked(M: Tensor, n: int | tuple[int, int]) -> Tensor:
     batch = M.shape[: M.dim() - (2 if matrix else 1)]
     rows = batch.numel()
     count = n[0] * n[1] if matrix else n
-    if not matrix and rows < MIN_ROWS and M.device.type == "cpu":
+    if not matrix and _in_place(M, rows):
         return M.movedim(-1, 0)
     if _use_product(M, rows) and (matrix or n > 3):
         flat = M.reshape((rows,) + M.shape[len(batch) :])
