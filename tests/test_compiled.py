@@ -125,7 +125,8 @@ def _loops(code: str) -> int:
 )
 def test_compiled_pose_ops_are_one_loop(name, make):
     # The (0, 0, 0, 1) row shares the loop that computes the rest (FUSION), compose and inverse
-    # are written entry by entry there (no batched matmul): one pass over the result.
+    # are written element-wise there (no batched matmul, no concatenation or in-place update
+    # of an intermediate): one pass over the result.
     args = make(torch.Generator().manual_seed(40))
     fn = getattr(se3, name)
     out, loops, code = _batch_loops(fn, *args, options=compiled.inductor_options("se3", name))
@@ -149,7 +150,7 @@ def test_compiled_compose_inverse_entries_ignore_bottom_rows_and_broadcast():
     torch.testing.assert_close(got, se3.compose(A, B), rtol=0, atol=1e-15)
     assert bool((got[..., 3, :] == torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=got.dtype)).all())
     torch.testing.assert_close(compiled.se3.inverse(bad_A), se3.inverse(A), rtol=0, atol=1e-15)
-    # gradients through the compiled forward (entry by entry) and the custom backward
+    # gradients through the compiled forward (element-wise) and the custom backward
     Ag = bad_A.clone().requires_grad_()
     W = torch.randn(2, 3, 4, 4, generator=g, dtype=torch.float64)
     (gc,) = torch.autograd.grad((compiled.se3.compose(Ag, bad_B) * W).sum(), Ag)

@@ -3,7 +3,10 @@
 Each forward works from components (the 12 entries of the top 3x4 block read as planes, the
 result's entries written into its columns), with a closed-form backward in the same style and a
 forward-mode rule; autograd's own graph of the slices and concatenations costs about twice as
-many passes over memory.  exp and log take their coefficients from :mod:`torchlie._rodrigues`
+many passes over memory.  compose, a sum of products over the entries of both blocks, takes the
+block as one tensor, entries first (:func:`_top`): each term of the sum is the broadcast of a
+column against a row, a few operations for all twelve entries, each entry summed in the same
+order as one written out alone.  exp and log take their coefficients from :mod:`torchlie._rodrigues`
 and :mod:`torchlie._se3_jacobian`.  :mod:`torchlie.se3` checks the inputs and calls these.
 """
 
@@ -26,6 +29,22 @@ from ._components import cross_planes, hat, mv, planes, rt_g_vee, vee
 def _pad_row(top: Tensor) -> Tensor:
     """``(..., 3, 4) -> (..., 4, 4)`` with a zero last row."""
     return torch.nn.functional.pad(top, (0, 0, 0, 1))
+
+
+def _top(T: Tensor, ndim: int = 0) -> Tensor:
+    """The top 3x4 block of ``T`` entries first, ``(3, 4, *batch)``: one transposition
+    (:func:`_layout.stacked`; a strided view while compiling), the batch padded with leading
+    ones to ``ndim`` dimensions (so that the blocks of operands whose batches broadcast
+    broadcast alike)."""
+    M = T[..., :3, :]
+    if torch.compiler.is_compiling():
+        x = M.movedim((-2, -1), (0, 1))
+    else:
+        x = _layout.stacked(M, (3, 4)).unflatten(0, (3, 4))
+    batch = x.shape[2:]
+    if ndim > len(batch):
+        x = x.reshape((3, 4) + (1,) * (ndim - len(batch)) + batch)
+    return x
 
 
 def _top_entries(T: Tensor) -> list[list[Tensor]]:
@@ -52,29 +71,31 @@ def _top_outputs(
 
 
 def _stack_top(
-    rows: Sequence[Sequence[Tensor]],
+    entries: Sequence[Tensor] | Tensor,
     corner: float = 1.0,
     out: Sequence[Tensor | None] | None = None,
 ) -> Tensor:
-    """``[[rows], [0, 0, 0, corner]]``: a 4x4 matrix from the 12 entries of its top block (row by
-    row, all of one shape; written to the columns ``out`` of :func:`_top_outputs` or not)."""
+    """``[[top], [0, 0, 0, corner]]``: a 4x4 matrix from the 12 entries of its top block (row by
+    row, all of one shape, or as one ``(3, 4, *batch)`` tensor; written to the columns ``out``
+    of :func:`_top_outputs` or not)."""
+    if isinstance(entries, Tensor):
+        entries = entries.flatten(0, 1).unbind(0)
     if isinstance(out, _layout.Columns):
         bottom = out.result[..., 12:]
         bottom[..., :3].zero_()
         bottom[..., 3].fill_(corner)
         zero, last = out[12:15], out[15]
     else:
-        zero = (torch.zeros_like(rows[0][0]),) * 3
+        zero = (torch.zeros_like(entries[0]),) * 3
         last = zero[0] if corner == 0.0 else torch.full_like(zero[0], corner)
-    entries = (*rows[0], *rows[1], *rows[2], *zero, last)
-    return _layout.interleave(entries, out).unflatten(-1, (4, 4))
+    return _layout.interleave((*entries, *zero, last), out).unflatten(-1, (4, 4))
 
 
 def _stack_rows(
-    rows: Sequence[Sequence[Tensor]], out: Sequence[Tensor | None] | None = None
+    entries: Sequence[Tensor] | Tensor, out: Sequence[Tensor | None] | None = None
 ) -> Tensor:
     """:func:`_stack_top` with a zero last row (a gradient: the bottom row is not read)."""
-    return _stack_top(rows, 0.0, out)
+    return _stack_top(entries, 0.0, out)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -82,30 +103,32 @@ def _stack_rows(
 # ----------------------------------------------------------------------------------------------
 
 
+def _columns_last(x: Tensor) -> Tensor:
+    """``x`` of shape ``(3, 1, *batch)`` in the last of four columns: ``(3, 4, *batch)``, zeros
+    before it (the first term of a sum over the columns of a 3x4 block)."""
+    return torch.nn.functional.pad(x, (0, 0) * (x.dim() - 2) + (3, 0))
+
+
 def _compose_entries(A: Tensor, B: Tensor) -> Tensor:
-    """``A B`` entry by entry."""
-    a, b = _top_entries(A), _top_entries(B)
-    o, top = _top_outputs((a[0][0], b[0][0]))  # batches may broadcast
-    rows = []
-    for ai, oi in zip(a, top, strict=True):
-        row = [
-            fma(fma(ai[0] * b[0][j], ai[1], b[1][j]), ai[2], b[2][j], out=oi[j]) for j in range(3)
-        ]
-        t = fma(fma(ai[0] * b[0][3], ai[1], b[1][3]), ai[2], b[2][3])
-        rows.append([*row, torch.add(t, ai[3], out=oi[3])])
-    return _stack_top(rows, out=o)
+    """``A B`` from the blocks entries first: entry ``(i, j)`` is
+    ``((A_i3 [j = 3] + A_i0 B_0j) + A_i1 B_1j) + A_i2 B_2j``, each term the broadcast of a column
+    of ``A`` against a row of ``B``."""
+    ndim = len(_layout.broadcast(A.shape[:-2], B.shape[:-2]))
+    a0, a1, a2, a3 = _top(A, ndim).unsqueeze(2).unbind(1)  # columns of A: (3, 1, *batch)
+    b0, b1, b2 = _top(B, ndim).unbind(0)  # rows of B: (4, *batch)
+    return _stack_top(fma(fma(fma(_columns_last(a3), a0, b0), a1, b1), a2, b2))
 
 
 def _inverse_entries(T: Tensor) -> Tensor:
     """``T^-1 = [[R^T, -R^T t], [0, 1]]`` entry by entry."""
     r = _top_entries(T)
     o, top = _top_outputs(r[0][0])
-    rows = []
+    entries = []
     for i in range(3):
         col = [r[0][i], r[1][i], r[2][i]]
         t = fma(fma(col[0] * r[0][3], col[1], r[1][3]), col[2], r[2][3])
-        rows.append([*col, torch.neg(t, out=top[i][3])])
-    return _stack_top(rows, out=o)
+        entries += [*col, torch.neg(t, out=top[i][3])]
+    return _stack_top(entries, out=o)
 
 
 def _compose_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor, Tensor]:
@@ -115,32 +138,18 @@ def _compose_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor, Tensor]:
 
 
 def _compose_bwd_entries(A: Tensor, B: Tensor, G: Tensor) -> tuple[Tensor, Tensor]:
-    """The backward of ``A B`` entry by entry: ``dA_ij = sum_k G_ik B_jk`` (``j < 3``),
-    ``dA_i3 = G_i3``, ``dB_kj = sum_i A_ik G_ij``."""
-    a, b, g = _top_entries(A), _top_entries(B), _top_entries(G)
-    oa, top_a = _top_outputs(g[0][0])
-    ob, top_b = _top_outputs(g[0][0])
-    da = [
-        [
-            fma(
-                fma(fma(gi[0] * b[j][0], gi[1], b[j][1]), gi[2], b[j][2]),
-                gi[3],
-                b[j][3],
-                out=oi[j],
-            )
-            for j in range(3)
-        ]
-        + [gi[3]]
-        for gi, oi in zip(g, top_a, strict=True)
-    ]
-    db = [
-        [
-            fma(fma(a[0][k] * g[0][j], a[1][k], g[1][j]), a[2][k], g[2][j], out=ok[j])
-            for j in range(4)
-        ]
-        for k, ok in zip(range(3), top_b, strict=True)
-    ]
-    return _stack_rows(da, oa), _stack_rows(db, ob)
+    """The backward of ``A B`` from the blocks entries first: ``dA_ij = sum_k G_ik B_jk``
+    (``j < 3``), ``dA_i3 = G_i3``, ``dB_kj = sum_i A_ik G_ij``."""
+    ndim = G.dim() - 2
+    g = _top(G)
+    g0, g1, g2, g3 = g.unsqueeze(2).unbind(1)  # columns of G: (3, 1, *batch)
+    b0, b1, b2, b3 = _top(B, ndim).unsqueeze(0).unbind(2)  # columns of B: (1, 3, *batch)
+    dR = fma(fma(fma(g0 * b0, g1, b1), g2, b2), g3, b3).flatten(0, 1).unbind(0)
+    dt = g3.flatten(0, 1).unbind(0)
+    dA = _stack_rows([x for i in range(3) for x in (*dR[3 * i : 3 * i + 3], dt[i])])
+    a0, a1, a2 = _top(A, ndim)[:, :3, None].unbind(0)  # rows of A's rotation: (3, 1, *batch)
+    h0, h1, h2 = g.unbind(0)  # rows of G: (4, *batch)
+    return dA, _stack_rows(fma(fma(a0 * h0, a1, h1), a2, h2))
 
 
 _compose_grads = blocked(_compose_bwd_entries, (2, 2, 2))
@@ -179,12 +188,12 @@ def _inverse_bwd_entries(T: Tensor, G: Tensor) -> Tensor:
     ``dR_ij = G_ji - t_i G_j3``, ``dt_i = -sum_j R_ij G_j3``."""
     r, g = _top_entries(T), _top_entries(G)
     o, top = _top_outputs(g[0][0])
-    rows = []
+    entries = []
     for i, oi in zip(range(3), top, strict=True):
         dR = [fma(g[j][i], r[i][3], g[j][3], value=-1.0, out=oi[j]) for j in range(3)]
         dt = fma(fma(r[i][0] * g[0][3], r[i][1], g[1][3]), r[i][2], g[2][3])
-        rows.append([*dR, torch.neg(dt, out=oi[3])])
-    return _stack_rows(rows, o)
+        entries += [*dR, torch.neg(dt, out=oi[3])]
+    return _stack_rows(entries, o)
 
 
 _inverse_grads = blocked(_inverse_bwd_entries, (2, 2))
@@ -274,7 +283,7 @@ def _exp_forward(xi: Tensor) -> Tensor:
     o, top = _top_outputs(xyz[0])
     R = _rodrigues.exp_entries(xyz, a, b, d, [e for row in top for e in row[:3]])
     t = _rodrigues.jl_components(xyz, x[:3], a, b, c, [r[3] for r in top])
-    return _stack_top([(*R[0:3], t[0]), (*R[3:6], t[1]), (*R[6:9], t[2])], out=o)
+    return _stack_top((*R[0:3], t[0], *R[3:6], t[1], *R[6:9], t[2]), out=o)
 
 
 def _exp_grad(xi: Tensor, T: Tensor, G: Tensor) -> Tensor:
@@ -394,7 +403,7 @@ def _log_grad(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
         fma(fma(r[i] * h_rho[0], r[i + 1], h_rho[1]), r[i + 2], h_rho[2], out=oi[3])
         for i, oi in zip((0, 3, 6), top, strict=True)
     ]
-    return _stack_rows([(*G_R[i], G_t[i]) for i in range(3)], o)
+    return _stack_rows([x for i in range(3) for x in (*G_R[i], G_t[i])], o)
 
 
 _log_grad_blocked = blocked(_log_grad, (2, 1, 1))
