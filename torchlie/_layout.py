@@ -124,9 +124,11 @@ def planes(M: Tensor, n: int | tuple[int, int]) -> tuple[Tensor, ...]:
 
 
 def stacked(M: Tensor, n: int | tuple[int, int]) -> Tensor:
-    """:func:`planes` as one ``(count, *batch)`` tensor (eager mode; the same transposition):
-    contiguous, or a view of ``M`` for small CPU batches of vectors."""
+    """:func:`planes` as one ``(count, *batch)`` tensor (the same transposition): contiguous, or
+    a view of ``M`` for small CPU batches of vectors and while compiling."""
     matrix = isinstance(n, tuple)
+    if _is_compiling():
+        return M.movedim((-2, -1), (0, 1)).flatten(0, 1) if matrix else M.movedim(-1, 0)
     batch = M.shape[: M.dim() - (2 if matrix else 1)]
     rows = batch.numel()
     count = n[0] * n[1] if matrix else n

@@ -33,14 +33,9 @@ def _pad_row(top: Tensor) -> Tensor:
 
 def _top(T: Tensor, ndim: int = 0) -> Tensor:
     """The top 3x4 block of ``T`` entries first, ``(3, 4, *batch)``: one transposition
-    (:func:`_layout.stacked`; a strided view while compiling), the batch padded with leading
-    ones to ``ndim`` dimensions (so that the blocks of operands whose batches broadcast
-    broadcast alike)."""
-    M = T[..., :3, :]
-    if torch.compiler.is_compiling():
-        x = M.movedim((-2, -1), (0, 1))
-    else:
-        x = _layout.stacked(M, (3, 4)).unflatten(0, (3, 4))
+    (:func:`_layout.stacked`), the batch padded with leading ones to ``ndim`` dimensions (so
+    that the blocks of operands whose batches broadcast broadcast alike)."""
+    x = _layout.stacked(T[..., :3, :], (3, 4)).unflatten(0, (3, 4))
     batch = x.shape[2:]
     if ndim > len(batch):
         x = x.reshape((3, 4) + (1,) * (ndim - len(batch)) + batch)
@@ -145,7 +140,7 @@ def _compose_bwd_entries(A: Tensor, B: Tensor, G: Tensor) -> tuple[Tensor, Tenso
     g0, g1, g2, g3 = g.unsqueeze(2).unbind(1)  # columns of G: (3, 1, *batch)
     b0, b1, b2, b3 = _top(B, ndim).unsqueeze(0).unbind(2)  # columns of B: (1, 3, *batch)
     dR = fma(fma(fma(g0 * b0, g1, b1), g2, b2), g3, b3).flatten(0, 1).unbind(0)
-    dt = g3.flatten(0, 1).unbind(0)
+    dt = g[:, 3].unbind(0)  # dA's last column is G's
     dA = _stack_rows([x for i in range(3) for x in (*dR[3 * i : 3 * i + 3], dt[i])])
     a0, a1, a2 = _top(A, ndim)[:, :3, None].unbind(0)  # rows of A's rotation: (3, 1, *batch)
     h0, h1, h2 = g.unbind(0)  # rows of G: (4, *batch)
