@@ -3,11 +3,12 @@
 Each forward works from components (the 12 entries of the top 3x4 block read as planes, the
 result's entries written into its columns), with a closed-form backward in the same style and a
 forward-mode rule; autograd's own graph of the slices and concatenations costs about twice as
-many passes over memory.  compose, a sum of products over the entries of both blocks, takes the
-block as one tensor, entries first (:func:`_top`): each term of the sum is the broadcast of a
-column against a row, a few operations for all twelve entries, each entry summed in the same
-order as one written out alone.  exp and log take their coefficients from :mod:`torchlie._rodrigues`
-and :mod:`torchlie._se3_jacobian`.  :mod:`torchlie.se3` checks the inputs and calls these.
+many passes over memory.  compose and inverse, sums of products over the entries of the blocks,
+take each block as one tensor, entries first (:func:`_top`): each term of a sum is the broadcast
+of a column against a row, a few operations for all twelve entries, each entry summed in the
+same order as one written out alone.  exp and log take their coefficients from
+:mod:`torchlie._rodrigues` and :mod:`torchlie._se3_jacobian`.  :mod:`torchlie.se3` checks the
+inputs and calls these.
 """
 
 from __future__ import annotations
@@ -42,18 +43,11 @@ def _top(T: Tensor, ndim: int = 0) -> Tensor:
     return x
 
 
-def _top_entries(T: Tensor) -> list[list[Tensor]]:
-    """The entries of the top 3x4 block of ``T``, row by row (contiguous planes; strided views
-    while compiling)."""
-    e = _layout.planes(T[..., :3, :], (3, 4))
-    return [list(e[4 * i : 4 * i + 4]) for i in range(3)]
-
-
 def _rotation_and_translation(T: Tensor) -> tuple[list[Tensor], list[Tensor]]:
-    """:func:`_top_entries` as the 9 entries of the rotation (row by row) and the 3 of the
-    translation."""
-    e = _top_entries(T)
-    return [x for row in e for x in row[:3]], [row[3] for row in e]
+    """The 9 entries of the rotation block of ``T`` (row by row) and the 3 of its translation,
+    as planes (one transposition of the top block; strided views while compiling)."""
+    e = _layout.planes(T[..., :3, :], (3, 4))
+    return [e[4 * i + j] for i in range(3) for j in range(3)], [e[4 * i + 3] for i in range(3)]
 
 
 def _top_outputs(
@@ -66,15 +60,25 @@ def _top_outputs(
 
 
 def _stack_top(
-    entries: Sequence[Tensor] | Tensor,
+    entries: Sequence[Tensor],
     corner: float = 1.0,
     out: Sequence[Tensor | None] | None = None,
 ) -> Tensor:
     """``[[top], [0, 0, 0, corner]]``: a 4x4 matrix from the 12 entries of its top block (row by
-    row, all of one shape, or as one ``(3, 4, *batch)`` tensor; written to the columns ``out``
-    of :func:`_top_outputs` or not)."""
-    if isinstance(entries, Tensor):
-        entries = entries.flatten(0, 1).unbind(0)
+    row, all of one shape; written to the columns ``out`` of :func:`_top_outputs` or not), or
+    from its columns in blocks entries first (``(3, k, *batch)`` tensors, ``k`` summing to 4)."""
+    if len(entries) < 12:
+        first = entries[0]
+        rows = first.numel() // (3 * first.shape[1])
+        if not (torch.compiler.is_compiling() or _layout.large(first, rows)):
+            # one transposing copy: cheaper than interleaving sixteen planes on small batches
+            # (compiled, the stack of planes keeps the op one loop; a concatenation would not)
+            top = first if len(entries) == 1 else torch.cat(tuple(entries), dim=1)
+            row = _layout.constant(((0.0, 0.0, 0.0, corner),), top, dims=top.dim())
+            whole = torch.cat((top, row.expand((1, 4) + top.shape[2:])))
+            return whole.movedim((0, 1), (-2, -1)).contiguous()
+        by_row = zip(*(block.unbind(0) for block in entries), strict=True)
+        entries = [x for row in by_row for part in row for x in part.unbind(0)]
     if isinstance(out, _layout.Columns):
         bottom = out.result[..., 12:]
         bottom[..., :3].zero_()
@@ -86,9 +90,7 @@ def _stack_top(
     return _layout.interleave((*entries, *zero, last), out).unflatten(-1, (4, 4))
 
 
-def _stack_rows(
-    entries: Sequence[Tensor] | Tensor, out: Sequence[Tensor | None] | None = None
-) -> Tensor:
+def _stack_rows(entries: Sequence[Tensor], out: Sequence[Tensor | None] | None = None) -> Tensor:
     """:func:`_stack_top` with a zero last row (a gradient: the bottom row is not read)."""
     return _stack_top(entries, 0.0, out)
 
@@ -111,19 +113,19 @@ def _compose_entries(A: Tensor, B: Tensor) -> Tensor:
     ndim = len(_layout.broadcast(A.shape[:-2], B.shape[:-2]))
     a0, a1, a2, a3 = _top(A, ndim).unsqueeze(2).unbind(1)  # columns of A: (3, 1, *batch)
     b0, b1, b2 = _top(B, ndim).unbind(0)  # rows of B: (4, *batch)
-    return _stack_top(fma(fma(fma(_columns_last(a3), a0, b0), a1, b1), a2, b2))
+    return _stack_top([fma(fma(fma(_columns_last(a3), a0, b0), a1, b1), a2, b2)])
 
 
 def _inverse_entries(T: Tensor) -> Tensor:
-    """``T^-1 = [[R^T, -R^T t], [0, 1]]`` entry by entry."""
-    r = _top_entries(T)
-    o, top = _top_outputs(r[0][0])
-    entries = []
-    for i in range(3):
-        col = [r[0][i], r[1][i], r[2][i]]
-        t = fma(fma(col[0] * r[0][3], col[1], r[1][3]), col[2], r[2][3])
-        entries += [*col, torch.neg(t, out=top[i][3])]
-    return _stack_top(entries, out=o)
+    """``T^-1 = [[R^T, -R^T t], [0, 1]]`` from the block entries first: ``-R^T t`` as the sum
+    over the rows of ``R``, each term a row broadcast against an entry of ``t`` (negated as it
+    enters the sum: the same bits as negating the sum, one plane instead of three)."""
+    x = _top(T)
+    R = x[:, :3]
+    r0, r1, r2 = R.unbind(0)  # rows of R: (3, *batch)
+    t0, t1, t2 = x[:, 3].unbind(0)
+    t = fma(fma(r0 * torch.neg(t0), r1, t1, value=-1.0), r2, t2, value=-1.0)
+    return _stack_top((R.transpose(0, 1), t.unsqueeze(1)))
 
 
 def _compose_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor, Tensor]:
@@ -139,12 +141,11 @@ def _compose_bwd_entries(A: Tensor, B: Tensor, G: Tensor) -> tuple[Tensor, Tenso
     g = _top(G)
     g0, g1, g2, g3 = g.unsqueeze(2).unbind(1)  # columns of G: (3, 1, *batch)
     b0, b1, b2, b3 = _top(B, ndim).unsqueeze(0).unbind(2)  # columns of B: (1, 3, *batch)
-    dR = fma(fma(fma(g0 * b0, g1, b1), g2, b2), g3, b3).flatten(0, 1).unbind(0)
-    dt = g[:, 3].unbind(0)  # dA's last column is G's
-    dA = _stack_rows([x for i in range(3) for x in (*dR[3 * i : 3 * i + 3], dt[i])])
+    dR = fma(fma(fma(g0 * b0, g1, b1), g2, b2), g3, b3)
+    dA = _stack_rows((dR, g[:, 3:]))  # dA's last column is G's
     a0, a1, a2 = _top(A, ndim)[:, :3, None].unbind(0)  # rows of A's rotation: (3, 1, *batch)
     h0, h1, h2 = g.unbind(0)  # rows of G: (4, *batch)
-    return dA, _stack_rows(fma(fma(a0 * h0, a1, h1), a2, h2))
+    return dA, _stack_rows([fma(fma(a0 * h0, a1, h1), a2, h2)])
 
 
 _compose_grads = blocked(_compose_bwd_entries, (2, 2, 2))
@@ -179,16 +180,16 @@ def _inverse_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor]:
 
 
 def _inverse_bwd_entries(T: Tensor, G: Tensor) -> Tensor:
-    """The backward of ``T^-1`` entry by entry (``out = [R^T, -R^T t]``):
-    ``dR_ij = G_ji - t_i G_j3``, ``dt_i = -sum_j R_ij G_j3``."""
-    r, g = _top_entries(T), _top_entries(G)
-    o, top = _top_outputs(g[0][0])
-    entries = []
-    for i, oi in zip(range(3), top, strict=True):
-        dR = [fma(g[j][i], r[i][3], g[j][3], value=-1.0, out=oi[j]) for j in range(3)]
-        dt = fma(fma(r[i][0] * g[0][3], r[i][1], g[1][3]), r[i][2], g[2][3])
-        entries += [*dR, torch.neg(dt, out=oi[3])]
-    return _stack_rows(entries, o)
+    """The backward of ``T^-1`` from the blocks entries first (``out = [R^T, -R^T t]``):
+    ``dR_ij = G_ji - t_i G_j3``, ``dt_i = -sum_j R_ij G_j3`` (the sum over the columns of ``R``,
+    each term a column broadcast against an entry of ``G``'s last column, negated as it enters)."""
+    x, g = _top(T), _top(G)
+    g3 = g[:, 3]
+    dR = fma(g[:, :3].transpose(0, 1), x[:, 3].unsqueeze(1), g3.unsqueeze(0), value=-1.0)
+    c0, c1, c2 = x[:, :3].unbind(1)  # columns of R: (3, *batch)
+    g03, g13, g23 = g3.unbind(0)
+    dt = fma(fma(c0 * torch.neg(g03), c1, g13, value=-1.0), c2, g23, value=-1.0)
+    return _stack_rows((dR, dt.unsqueeze(1)))
 
 
 _inverse_grads = blocked(_inverse_bwd_entries, (2, 2))

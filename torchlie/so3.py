@@ -169,11 +169,10 @@ def vee(Omega: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3"]:
 def exp(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     """Rotation matrix of the rotation vector ``omega`` (Rodrigues' formula).
 
-    ``R = cos(t) I + sin(t)/t hat(w) + (1 - cos t)/t^2 w w^T`` with ``t = |w|``, within about
-    one ulp at every angle (half-angle forms, no cancellation; float32 input takes its
-    coefficients in float64, float64 input compensated arithmetic).  The backward pass is the
-    closed form ``dL/dw = Jl(w) vee(R^T G - G^T R)``; double backward and forward mode are
-    supported.
+    ``R = cos(t) I + sin(t)/t hat(w) + (1 - cos t)/t^2 w w^T`` with ``t = |w|``, exact to a few
+    ulp at every angle (half-angle forms, no cancellation; float32 input takes its coefficients
+    in float64).  The backward pass is the closed form ``dL/dw = Jl(w) vee(R^T G - G^T R)``;
+    double backward and forward mode are supported.
 
     Example:
         >>> exp(torch.tensor([0.0, 0.0, torch.pi / 2])).round(decimals=6) + 0.0
