@@ -87,6 +87,8 @@ def fma(x: Tensor, t1: Tensor, t2: Tensor, value: float = 1.0, out: Tensor | Non
     docstring); Inductor generates the same fused code from either spelling.
     """
     if _is_compiling():
+        if value == -1.0:  # no product of -1 and one operand alone, which AOTAutograd could
+            return x - t1 * t2  # compute in the forward (a loop of its own) and save
         return x + t1 * t2 if value == 1.0 else x + value * t1 * t2
     if out is None:  # keyword arguments cost torch's argument parser more than the product
         return _addcmul(x, t1, t2) if value == 1.0 else _addcmul(x, t1, t2, value=value)
