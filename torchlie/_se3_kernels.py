@@ -294,9 +294,12 @@ def _exp_grad(xi: Tensor, T: Tensor, G: Tensor) -> Tensor:
     R, t = _rotation_and_translation(T)
     G_R, g_t = _rotation_and_translation(G)
     o = _layout.outputs((x[0], R[0], g_t[0]), 6)
-    g_rho = _rodrigues.jl_components(xyz, g_t, a, -b, c, o[:3])
-    g_phi = _rodrigues.jl_components(xyz, rt_g_vee(R, G_R), a, b, c)
-    g_tx = _rodrigues.jl_components(xyz, cross_planes(t, g_t), a, -b, c)
+    # Jr g_t, Jl vee(R^T G_R - G_R^T R) and Jr (t x g_t) at once: each component of the three
+    # vectors stacked, (3, *batch), Jr's b negated (Jr(phi) = Jl(-phi))
+    vs = [torch.stack(k) for k in zip(g_t, rt_g_vee(R, G_R), cross_planes(t, g_t), strict=True)]
+    sign = _layout.constant((-1.0, 1.0, -1.0), b, dims=b.dim() + 1)
+    jl = _rodrigues.jl_components(xyz, vs, a, b * sign, c)
+    g_rho, g_phi, g_tx = zip(*(k.unbind(0) for k in jl), strict=True)
     neg = [-v for v in x]
     q = _se3_jacobian.q_components(neg[:3], neg[3:], g_t, *qc)
     g_phi = [
