@@ -395,14 +395,17 @@ def _log_grad(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
     q = _se3_jacobian.q_components(x[:3], x[3:], h_rho, *qc)
     v = [(gi - qi).mul_(0.5) for gi, qi in zip(gs[3:], q, strict=True)]
     u = _rodrigues.jl_components(x[3:], v, e, minus_half, f)  # h_phi / 2
-    r = planes(T[..., :3, :3], 9)
-    o, top = _top_outputs((r[0], x[0], gs[0]))
-    G_R = [cross_planes(r[3 * i : 3 * i + 3], u, top[i][:3]) for i in range(3)]  # rows of R hat(u)
-    G_t = [
-        fma(fma(r[i] * h_rho[0], r[i + 1], h_rho[1]), r[i + 2], h_rho[2], out=oi[3])
-        for i, oi in zip((0, 3, 6), top, strict=True)
-    ]
-    return _stack_rows([x for i in range(3) for x in (*G_R[i], G_t[i])], o)
+    # G_R's rows R_i x u and G_t's entries R_i . h_rho for all rows at once, from the block
+    # entries first (each term a column of R broadcast against an entry of u or h_rho)
+    r0, r1, r2 = _top(T)[:, :3].unbind(1)  # columns of R: (3, *batch)
+    u0, u1, u2 = u
+    G_R = (
+        fma(r1 * u2, r2, u1, value=-1.0),
+        fma(r2 * u0, r0, u2, value=-1.0),
+        fma(r0 * u1, r1, u0, value=-1.0),
+    )
+    G_t = fma(fma(r0 * h_rho[0], r1, h_rho[1]), r2, h_rho[2])
+    return _stack_rows([c.unsqueeze(1) for c in (*G_R, G_t)])
 
 
 _log_grad_blocked = blocked(_log_grad, (2, 1, 1))
