@@ -73,18 +73,15 @@ def eye(dtype: torch.dtype, n: int) -> Tensor:
     return eye
 
 
-def constant(
-    values: tuple[object, ...], like: Tensor, dtype: torch.dtype | None = None, dims: int = 0
-) -> Tensor:
-    """``values`` (numbers, or nested tuples of them) as a tensor of ``like``'s device and dtype
-    (or ``dtype``), with trailing dimensions of size one up to ``dims`` dimensions (to broadcast
-    against a batch): built once per device, dtype and shape in eager mode, in the traced graph
-    while compiling."""
-    dtype = like.dtype if dtype is None else dtype
-    key = (values, dtype, like.device, dims)
+def constant(values: tuple[object, ...], like: Tensor, dims: int = 0) -> Tensor:
+    """``values`` (numbers, or nested tuples of them) as a tensor of ``like``'s device and dtype,
+    with trailing dimensions of size one up to ``dims`` dimensions (to broadcast against a
+    batch): built once per device, dtype and shape in eager mode, in the traced graph while
+    compiling."""
+    key = (values, like.dtype, like.device, dims)
     out = None if _is_compiling() else _CONSTANTS.get(key)
     if out is None:
-        out = torch.tensor(values, dtype=dtype, device=like.device)
+        out = torch.tensor(values, dtype=like.dtype, device=like.device)
         out = out.reshape(out.shape + (1,) * (dims - out.dim()))
         if not _is_compiling():
             _CONSTANTS[key] = out
