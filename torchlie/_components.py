@@ -48,9 +48,19 @@ def cross_planes(
 
 def mv(M: Tensor, v: Tensor) -> Tensor:
     """``M @ v`` for a batch of matrices and vectors (batch shapes broadcast), column by
-    column: each element's result is summed alike whatever the batch around it."""
-    m0, m1, m2 = M.unbind(-1)
+    column: each element's result is summed alike whatever the batch around it.  A 3x4 block
+    ``M = [A, t]`` gives ``A v + t`` (the sum, then ``t``)."""
+    m0, m1, m2, *t = M.unbind(-1)
     v0, v1, v2 = v.unsqueeze(-2).unbind(-1)
+    out = fma(fma(m0 * v0, m1, v1), m2, v2)
+    return torch.add(out, t[0]) if t else out
+
+
+def mtv(M: Tensor, v: Tensor) -> Tensor:
+    """``M^T @ v`` (batch shapes broadcast) row by row: the same sums as :func:`mv` of the
+    transpose, without transposing."""
+    m0, m1, m2 = M.unbind(-2)
+    v0, v1, v2 = v.unsqueeze(-1).unbind(-2)
     return fma(fma(m0 * v0, m1, v1), m2, v2)
 
 

@@ -20,7 +20,7 @@ from torch import Tensor
 
 from . import _coeffs, _layout, _rodrigues, _rotation_matrix, _se3_jacobian
 from ._autograd import CustomFunction, blocked, fma
-from ._components import cross_planes, hat, mv, planes, rt_g_vee, vee
+from ._components import cross_planes, hat, mtv, mv, planes, rt_g_vee, vee
 
 # ----------------------------------------------------------------------------------------------
 # The top block, entry by entry
@@ -223,14 +223,14 @@ def _homogeneous(p: Tensor) -> Tensor:
 
 
 def _act_fwd(T: Tensor, p: Tensor) -> Tensor:
-    """``R p + t``, column by column (as :func:`torchlie.so3.act`)."""
-    return torch.add(mv(T[..., :3, :3], p), T[..., :3, 3])
+    """``R p + t``, column by column (as :func:`torchlie.so3.act`, then ``t``)."""
+    return mv(T[..., :3, :], p)
 
 
 def _act_grads(T: Tensor, p: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
     # out = [R, t] (p, 1): d[R, t] = g (p, 1)^T and dp = R^T g.
     dT = _pad_row(g.unsqueeze(-1) * _homogeneous(p).unsqueeze(-2))
-    return dT, mv(T[..., :3, :3].transpose(-1, -2), g)
+    return dT, mtv(T[..., :3, :3], g)
 
 
 _act_grads_blocked = blocked(_act_grads, (2, 1, 1))
@@ -413,8 +413,8 @@ _log_grad_blocked = blocked(_log_grad, (2, 1, 1))
 
 def _log_jvp(saved, dT: Tensor) -> Tensor:
     T, xi = saved
-    Rt = T[..., :3, :3].transpose(-1, -2)
-    v = torch.cat((mv(Rt, dT[..., :3, 3]), vee(Rt @ dT[..., :3, :3])), dim=-1)
+    R = T[..., :3, :3]
+    v = torch.cat((mtv(R, dT[..., :3, 3]), vee(R.transpose(-1, -2) @ dT[..., :3, :3])), dim=-1)
     return _se3_jacobian.jl_inv_apply(-xi, v)  # Jr(xi)^-1 v
 
 

@@ -124,9 +124,9 @@ def _ad(xi: Tensor) -> Tensor:
 
 def _between(A: Tensor, B: Tensor) -> Tensor:
     """``A^-1 B`` from components."""
-    Rt = _rot(A).transpose(-1, -2)
-    R = Rt @ _rot(B)
-    t = _components.mv(Rt, _trans(B) - _trans(A))
+    RA = _rot(A)
+    R = RA.transpose(-1, -2) @ _rot(B)
+    t = _components.mtv(RA, _trans(B) - _trans(A))
     return _assemble(R, t.expand(*R.shape[:-2], 3))
 
 

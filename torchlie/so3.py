@@ -254,7 +254,7 @@ def act(R: Float[Tensor, "*b1 3 3"], points: Float[Tensor, "*b2 3"]) -> Float[Te
 
 def _act_grads(R: Tensor, p: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
     """``dR = g p^T``, ``dp = R^T g``."""
-    return g.unsqueeze(-1) * p.unsqueeze(-2), _components.mv(R.transpose(-1, -2), g)
+    return g.unsqueeze(-1) * p.unsqueeze(-2), _components.mtv(R, g)
 
 
 _act_grads_blocked = blocked(_act_grads, (2, 1, 1))
