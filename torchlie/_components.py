@@ -108,7 +108,7 @@ def r_hat(R: Tensor, u: Sequence[Tensor]) -> Tensor:
     """``R hat(u)`` from components: row ``i`` is ``cross(R_i, u)``, for all rows at once (the
     columns of ``R`` entries first, ``(3, *batch)``, each term a column against an entry of
     ``u``)."""
-    c = _layout.stacked(R, (3, 3)).unflatten(0, (3, 3)).unbind(1)
+    c = _layout.stacked(R, (3, 3)).unbind(1)
     g = [x.unbind(0) for x in cross_planes(c, u)]  # column j of the result, row by row
     return _layout.interleave([g[j][i] for i in range(3) for j in range(3)]).unflatten(-1, (3, 3))
 

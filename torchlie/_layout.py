@@ -136,18 +136,19 @@ def planes(M: Tensor, n: int | tuple[int, int]) -> tuple[Tensor, ...]:
             return tuple(M[..., i, j] for i in range(n[0]) for j in range(n[1]))
     elif _is_compiling() or _in_place(M, M.numel() // n):
         return M.unbind(-1)  # the views of :func:`stacked`, taken in one call
-    return stacked(M, n).unbind(0)
+    S = stacked(M, n)
+    return (S.flatten(0, 1) if isinstance(n, tuple) else S).unbind(0)
 
 
 def stacked(M: Tensor, n: int | tuple[int, int]) -> Tensor:
-    """:func:`planes` as one ``(count, *batch)`` tensor (the same transposition): contiguous, or
-    a view of ``M`` for small CPU batches of vectors and while compiling."""
+    """:func:`planes` as one tensor (the same transposition), ``(n, *batch)`` or for a matrix
+    ``(rows, cols, *batch)``: contiguous, or a view of ``M`` for small CPU batches of vectors
+    and while compiling."""
     matrix = isinstance(n, tuple)
     if _is_compiling():
-        return M.movedim((-2, -1), (0, 1)).flatten(0, 1) if matrix else M.movedim(-1, 0)
+        return M.movedim((-2, -1), (0, 1)) if matrix else M.movedim(-1, 0)
     batch = M.shape[: M.dim() - (2 if matrix else 1)]
     rows = batch.numel()
-    count = n[0] * n[1] if matrix else n
     if not matrix and _in_place(M, rows):
         return M.movedim(-1, 0)
     if _use_product(M, rows) and (matrix or n > 3):
@@ -157,9 +158,9 @@ def stacked(M: Tensor, n: int | tuple[int, int]) -> Tensor:
             select = selection(M.dtype, flat.shape[1], tuple(columns))
         else:
             select = eye(M.dtype, n)
-        return torch.mm(select, flat.T).reshape((count,) + batch)
+        return torch.mm(select, flat.T).reshape((n if matrix else (n,)) + batch)
     if matrix:  # one copy even when M is a strided block
-        return M.movedim((-2, -1), (0, 1)).contiguous().flatten(0, 1)
+        return M.movedim((-2, -1), (0, 1)).contiguous()
     if large(M, rows) and not _autograd.needs_graph((M,)):
         # column by column: faster than the transposing copy below, and than the product for
         # 3-vectors

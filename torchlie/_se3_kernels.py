@@ -36,7 +36,7 @@ def _top(T: Tensor, ndim: int = 0) -> Tensor:
     """The top 3x4 block of ``T`` entries first, ``(3, 4, *batch)``: one transposition
     (:func:`_layout.stacked`), the batch padded with leading ones to ``ndim`` dimensions (so
     that the blocks of operands whose batches broadcast broadcast alike)."""
-    x = _layout.stacked(T[..., :3, :], (3, 4)).unflatten(0, (3, 4))
+    x = _layout.stacked(T[..., :3, :], (3, 4))
     batch = x.shape[2:]
     if ndim > len(batch):
         x = x.reshape((3, 4) + (1,) * (ndim - len(batch)) + batch)
