@@ -358,14 +358,14 @@ def reduction(w: Tensor) -> tuple[Tensor, Tensor, Tensor]:
 
     Beyond those magnitudes the angle ``t = |w|`` is known only to far more than ``2 pi`` (its
     rounding), so its residue modulo ``2 pi`` is not determined by ``w``: the one taken is
-    ``r = |w'|``, with ``w' = lam w`` and ``lam = 2 fmod(m / 2, pi) / m`` (``m`` the largest
-    ``|w_i|``; half of it reduced, so that nothing overflows).  Every function of the rotation
-    vector then sees ``t`` with ``sin t = sin r`` and ``cos t = cos r``: ``Exp(w) = Exp(w')``, a
-    valid rotation about ``u``, and the left Jacobian follows from the reduced one,
-    ``Jl(w) = lam Jl(w') + (1 - lam) u u^T``.  Derivatives: ``d w' / d w`` is ``I`` along ``u``
-    (``d|w| / d w = u``, as for the true angle) and ``lam`` across, so gradients are those of the
-    functions at ``t`` and finite (``u`` and ``lam`` are held constant: their own derivatives are
-    of order ``1 / |w|``, below the rounding of the rest).
+    ``r = |w'|``, with ``w' = lam w`` and ``lam = fmod(m, 2 pi) / m`` (``m`` the largest
+    ``|w_i|``; ``fmod`` is exact).  Every function of the rotation vector then sees ``t`` with
+    ``sin t = sin r`` and ``cos t = cos r``: ``Exp(w) = Exp(w')``, a valid rotation about ``u``,
+    and the left Jacobian follows from the reduced one, ``Jl(w) = lam Jl(w') + (1 - lam) u u^T``.
+    Derivatives: ``d w' / d w`` is ``I`` along ``u`` (``d|w| / d w = u``, as for the true angle)
+    and ``lam`` across, so gradients are those of the functions at ``t`` and finite (``u`` and
+    ``lam`` are held constant: their own derivatives are of order ``1 / |w|``, below the rounding
+    of the rest).
     """
     x = w.unbind(-1)
     lam, big, u = f = reduction_planes(x)
@@ -382,7 +382,7 @@ def _lam(w: Sequence[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
 def _lam_of(m: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """:func:`_lam` from the largest ``|w_i|``."""
     big = m > _HUGE[m.dtype]
-    return torch.where(big, torch.fmod(0.5 * m, math.pi).mul_(2.0).div_(m), 1.0), big, m
+    return torch.where(big, torch.fmod(m, 2.0 * math.pi).div_(m), 1.0), big, m
 
 
 def reduced_planes(
