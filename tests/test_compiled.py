@@ -54,6 +54,8 @@ def _agreement_cases(dtype):
         ("quaternion", "apply", (q, p)),
         ("se3", "exp", (xi,)),
         ("se3", "log", (se3.exp(xi[unique]),)),
+        ("so3", "act", (so3.exp(w), p)),
+        ("se3", "act", (se3.exp(xi), p)),
     ]
 
 
@@ -113,6 +115,30 @@ def _batch_loops(fn, *args, options):
 def _loops(code: str) -> int:
     """Loops over the batch (the outermost index ``x0``) in one generated C++ module."""
     return len(re.findall(r"for\s*\(\s*int64_t x0\s*=", code))
+
+
+def _batch_steps(code: str) -> list[int]:
+    """How many elements each loop over the batch advances by (the vector width where the loop
+    is vectorised along the batch, 1 where it is not)."""
+    loop = r"for\s*\(\s*int64_t x0\s*=[^;]*;[^;]*;\s*x0\s*\+=\s*static_cast<int64_t>\((\d+)L\)"
+    return [int(step) for step in re.findall(loop, code)]
+
+
+@pytest.mark.parametrize("module", ["so3", "se3"])
+def test_compiled_actions_are_vectorised_along_the_batch(module):
+    # Written entry by entry while compiling: a broadcast over (..., 3) vectors would be
+    # vectorised along the 3 (masked loads, several times slower than eager).
+    torch._dynamo.reset()
+    _, probe = run_and_get_code(torch.compile(lambda x: 2.0 * x), torch.randn(1000))
+    if max(_batch_steps("".join(probe)), default=1) == 1:
+        pytest.skip("Inductor does not vectorise on this CPU")
+    mod = {"so3": so3, "se3": se3}[module]
+    g = torch.Generator().manual_seed(43)
+    X, p = mod.random(1000, generator=g), torch.randn(1000, 3, generator=g)
+    out, loops, code = _batch_loops(mod.act, X, p, options=compiled.inductor_options(module, "act"))
+    assert loops == 1
+    assert min(_batch_steps("".join(code))) > 1
+    torch.testing.assert_close(out, mod.act(X, p), rtol=0, atol=1e-5)
 
 
 @pytest.mark.parametrize(

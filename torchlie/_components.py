@@ -51,17 +51,30 @@ def mv(M: Tensor, v: Tensor) -> Tensor:
     column: each element's result is summed alike whatever the batch around it.  A 3x4 block
     ``M = [A, t]`` gives ``A v + t`` (the sum, then ``t``)."""
     m0, m1, m2, *t = M.unbind(-1)
-    v0, v1, v2 = v.unsqueeze(-2).unbind(-1)
-    out = fma(fma(m0 * v0, m1, v1), m2, v2)
-    return torch.add(out, t[0]) if t else out
+    return _combine((m0, m1, m2), v, t[0] if t else None)
 
 
 def mtv(M: Tensor, v: Tensor) -> Tensor:
     """``M^T @ v`` (batch shapes broadcast) row by row: the same sums as :func:`mv` of the
     transpose, without transposing."""
-    m0, m1, m2 = M.unbind(-2)
-    v0, v1, v2 = v.unsqueeze(-1).unbind(-2)
-    return fma(fma(m0 * v0, m1, v1), m2, v2)
+    return _combine(M.unbind(-2), v)
+
+
+def _combine(c: Sequence[Tensor], v: Tensor, t: Tensor | None = None) -> Tensor:
+    """``((c0 v0 + c1 v1) + c2 v2) (+ t)`` for vectors ``c_k`` and ``t`` ``(..., 3)``: whole
+    vectors in eager mode; while compiling entry by entry, stacked, the same sums (Inductor's
+    loop over a broadcast of ``(..., 3)`` vectors runs along the 3; over planes, along the
+    batch)."""
+    if not torch.compiler.is_compiling():
+        v0, v1, v2 = v.unsqueeze(-1).unbind(-2)
+        out = fma(fma(c[0] * v0, c[1], v1), c[2], v2)
+        return out if t is None else torch.add(out, t)
+    v0, v1, v2 = v.unbind(-1)
+    c0, c1, c2 = (x.unbind(-1) for x in c)
+    out = [fma(fma(c0[i] * v0, c1[i], v1), c2[i], v2) for i in range(3)]
+    if t is not None:
+        out = [o + ti for o, ti in zip(out, t.unbind(-1), strict=True)]
+    return torch.stack(out, -1)
 
 
 def hat(w: Tensor) -> Tensor:
