@@ -194,6 +194,8 @@ def test_compiled_compose_inverse_entries_ignore_bottom_rows_and_broadcast():
         ("quaternion", "apply", lambda g: (torch.randn(37, 4, generator=g), torch.randn(37, 3)), 3),
         ("so3", "log", lambda g: (so3.random(37, generator=g),), 1),
         ("se3", "log", lambda g: (se3.random(37, generator=g),), 1),
+        # the three Rodrigues applications of the backward one by one (no stack of them)
+        ("se3", "exp", lambda g: (torch.randn(1000, 6, generator=g),), 2),
     ],
 )
 def test_compiled_forward_and_backward_loops(module, name, make, most_backward_loops):
