@@ -147,10 +147,13 @@ def evaluate(fn: Callable[..., _Out], inputs: Sequence[Tensor], event_dims: Sequ
 
 
 #: A map of an op's first input into its formula's range that leaves the op unchanged:
-#: ``guard(x)`` is the guarded input (``x`` itself, bit for bit, inside the range) and the map's
-#: derivative at ``x``, a function of a tangent; it is symmetric, so it also transposes a
-#: gradient.  The guarded input has that derivative under autograd.
-Guard = Callable[[Tensor], tuple[Tensor, Callable[[Tensor], Tensor]]]
+#: ``guard(x)`` is the guarded input (``x`` itself, bit for bit, inside the range), as a tensor
+#: or as its planes (the components along the last dimension), and the map's derivative at
+#: ``x``, a function of a tangent given either way; it is symmetric, so it also transposes a
+#: gradient.  The guarded input has that derivative under autograd.  Planes go to the op's
+#: backward as they are (no stack of them to read back: a buffer and a loop of its own in
+#: Inductor's code), stacked to its ``jvp``.
+Guard = Callable[[Tensor], tuple[Tensor | Sequence[Tensor], Callable[..., Tensor]]]
 
 
 def _guarded(
@@ -166,7 +169,7 @@ def _guarded(
     block by block (:func:`evaluate`), the saved tensors and the gradient taken with the batch
     shape of the input."""
 
-    def inner(saved: Sequence[Tensor]) -> tuple[tuple[Tensor, ...], Callable[[Tensor], Tensor]]:
+    def inner(saved: Sequence[Tensor]) -> tuple[tuple, Callable[..., Tensor]]:
         x, derivative = guard(saved[0])
         return (x, *saved[1:]), derivative
 
@@ -185,8 +188,9 @@ def _guarded(
         )
 
     def guarded_jvp(saved: Sequence[Tensor], dx: Tensor | None, *rest: Tensor | None) -> Tensor:
-        guarded, derivative = inner(saved)
-        return jvp(guarded, None if dx is None else derivative(dx), *rest)
+        (x, *others), derivative = inner(saved)
+        x = x if isinstance(x, Tensor) else torch.stack(tuple(x), dim=-1)
+        return jvp((x, *others), None if dx is None else derivative(dx), *rest)
 
     return guarded_backward, guarded_jvp
 

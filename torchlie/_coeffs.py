@@ -443,14 +443,18 @@ def reduced(w: Tensor) -> Tensor:
     return torch.stack(reduced_planes(w.unbind(-1)), dim=-1)
 
 
-def _reduce_guard(w: Tensor) -> tuple[Tensor, Callable[[Tensor], Tensor]]:
+def _reduce_guard(w: Tensor) -> tuple[list[Tensor], Callable[..., Tensor]]:
     x = w.unbind(-1)
     f = reduction_planes(x)
-    guarded = torch.stack(reduced_planes(x, f), dim=-1)
-    return guarded, lambda t: torch.stack(reduce_planes(f, t.unbind(-1), t.unbind(-1)), -1)
+
+    def derivative(t: Tensor | Sequence[Tensor]) -> Tensor:
+        tt = t.unbind(-1) if isinstance(t, Tensor) else t
+        return _layout.interleave(reduce_planes(f, tt, tt))
+
+    return reduced_planes(x, f), derivative
 
 
-#: :func:`reduced` as the guard of a custom Function (on planes, stacked: one loop compiled).
+#: :func:`reduced` as the guard of a custom Function (on planes: one loop compiled).
 REDUCE: Guard = _reduce_guard
 
 

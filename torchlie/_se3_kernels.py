@@ -282,18 +282,18 @@ def _exp_forward(xi: Tensor) -> Tensor:
     return _stack_top((*R[0:3], t[0], *R[3:6], t[1], *R[6:9], t[2]), out=o)
 
 
-def _exp_grad(xi: Tensor, T: Tensor, G: Tensor) -> Tensor:
+def _exp_grad(xi: Sequence[Tensor], T: Tensor, G: Tensor) -> list[Tensor]:
     # T = [[R, t], [0, 1]], R = Exp(phi), t = Jl(phi) rho.  With a left perturbation,
     # dt = (Q(rho, phi) - t^ Jl(phi)) dphi + Jl(phi) drho, so
     #     g_rho = Jr(phi) g_t,
     #     g_phi = Jl(phi) vee(R^T G_R - G_R^T R) + Jr(phi) (t x g_t) + Q(-rho, -phi) g_t.
+    # on the planes of the guarded xi, to the guard's derivative as planes
     x = planes(xi, 6)
     xyz = x[3:]
     # coefficients that differentiate under create_graph
     (a, b, c), qc = _se3_jacobian.jl_and_q_coefficients(xyz, "abc", torch.is_grad_enabled())
     R, t = _rotation_and_translation(T)
     G_R, g_t = _rotation_and_translation(G)
-    o = _layout.outputs((x[0], R[0], g_t[0]), 6)
     # Jr g_t, Jl vee(R^T G_R - G_R^T R) and Jr (t x g_t), Jr's b negated (Jr(phi) = Jl(-phi)):
     # in eager mode at once, each component of the three vectors stacked, (3, *batch); while
     # compiling one by one (a stack would be a buffer and a loop of its own)
@@ -311,13 +311,8 @@ def _exp_grad(xi: Tensor, T: Tensor, G: Tensor) -> Tensor:
         g_rho, g_phi, g_tx = zip(*(k.unbind(0) for k in jl), strict=True)
     neg = [-v for v in x]
     q = _se3_jacobian.q_components(neg[:3], neg[3:], g_t, *qc)
-    g_phi = [
-        torch.add(p, r, out=oi).add_(s) for p, r, s, oi in zip(g_phi, g_tx, q, o[3:], strict=True)
-    ]
-    return _layout.interleave((*g_rho, *g_phi), o)
-
-
-_exp_grad_blocked = blocked(_exp_grad, (1, 2, 2))
+    g_phi = [torch.add(p, r).add_(s) for p, r, s in zip(g_phi, g_tx, q, strict=True)]
+    return [*g_rho, *g_phi]
 
 
 def _exp_jvp(saved, dxi: Tensor) -> Tensor:
@@ -348,26 +343,27 @@ def _reduction(
     return _coeffs.reduce_planes(f, t[:3], t[:3]) + _coeffs.reduce_planes(f, t[3:], along_phi)
 
 
-def _guard(xi: Tensor) -> tuple[Tensor, Callable[[Tensor], Tensor]]:
-    """:func:`_reduction` of ``xi`` itself (with its derivative ``P`` under autograd), and that
-    derivative, ``P`` on both halves, as a function of a tangent."""
+def _guard(xi: Tensor) -> tuple[list[Tensor], Callable[..., Tensor]]:
+    """:func:`_reduction` of ``xi`` itself, as planes (with its derivative ``P`` under
+    autograd), and that derivative, ``P`` on both halves, as a function of a tangent (a tensor
+    or its planes)."""
     x = xi.unbind(-1)
     f = _coeffs.reduction_planes(x[3:])
     graph = torch.is_grad_enabled() and xi.requires_grad
     along = [c - c.detach() for c in x[3:]] if graph else None  # an exact 0: derivative 1
 
-    def derivative(t: Tensor) -> Tensor:
-        tt = t.unbind(-1)
-        return torch.stack(_reduction(f, tt, tt[3:]), dim=-1)
+    def derivative(t: Tensor | Sequence[Tensor]) -> Tensor:
+        tt = t.unbind(-1) if isinstance(t, Tensor) else t
+        return _layout.interleave(_reduction(f, tt, tt[3:]))
 
-    return torch.stack(_reduction(f, x, along), dim=-1), derivative
+    return _reduction(f, x, along), derivative
 
 
 _ExpMapFn = CustomFunction(
     "Se3Exp",
     forward=_exp_forward,
     save=lambda inputs, out: (inputs[0], out),
-    backward=lambda saved, G: (_exp_grad_blocked(*saved, G),),
+    backward=lambda saved, G: (_exp_grad(*saved, G),),
     jvp=_exp_jvp,
     event_dims=(1,),
     guard=_guard,

@@ -84,14 +84,12 @@ def _exp(w: Tensor | Sequence[Tensor]) -> Tensor:
     return _layout.interleave(_rodrigues.exp_entries(xyz, a, b, d, o), o).unflatten(-1, (3, 3))
 
 
-def _exp_grad(w: Tensor, R: Tensor, g: Tensor) -> Tensor:
-    # dL/dw = Jl(w) vee(R^T G - G^T R) (full vee, i.e. twice the skew part's); coefficients
-    # that differentiate under create_graph
+def _exp_grad(w: Sequence[Tensor], R: Tensor, g: Tensor) -> list[Tensor]:
+    # dL/dw = Jl(w) vee(R^T G - G^T R) (full vee, i.e. twice the skew part's), on the planes of
+    # the guarded w, to the guard's derivative as planes; coefficients that differentiate
+    # under create_graph
     v = _components.rt_g_vee(R, g)
-    return _rodrigues.jl_apply(w, v, differentiable=torch.is_grad_enabled())
-
-
-_exp_grad_blocked = blocked(_exp_grad, (1, 2, 2))
+    return _rodrigues.jl_apply(w, v, stacked=False, differentiable=torch.is_grad_enabled())
 
 
 def _exp_jvp(saved, dw: Tensor) -> Tensor:
@@ -103,7 +101,7 @@ _ExpMapFn = CustomFunction(
     "So3Exp",
     forward=lambda w: _exp(_coeffs.reduced_planes_of(w)),
     save=lambda inputs, out: (inputs[0], out),
-    backward=lambda saved, g: (_exp_grad_blocked(*saved, g),),
+    backward=lambda saved, g: (_exp_grad(*saved, g),),
     jvp=_exp_jvp,
     event_dims=(1,),
     guard=_coeffs.REDUCE,  # the angle reduced modulo 2 pi where it is too large for the formulas
