@@ -114,21 +114,16 @@ def _from_matrix_parts(
     s21, s02, s10 = m21 - m12, m02 - m20, m10 - m01  # 4 w (x, y, z)
     a01, a02, a12 = m01 + m10, m02 + m20, m12 + m21  # 4 (xy, xz, yz)
     # Pivot: the largest d_i (the first on ties).  Column i of K is 4 q_i q: proportional to q
-    # with a positive i-th entry.  The selection is a one-hot sum: f_i in {0, 1} with exactly
-    # one 1, so sum_i f_i c_i is exactly the selected column (and so is its gradient); the
-    # f_i from float steps, not comparisons (see _coeffs.step).
+    # with a positive i-th entry, selected entry by entry by steps g_i in {0, 1} (float steps,
+    # not comparisons: see _coeffs.step), as lerp(a, b, g): exactly a at g = 0 and b at g = 1.
     g1 = _coeffs.step(d1 - d0)  # d1 > d0
     dmax = torch.maximum(d0, d1)
     g2 = _coeffs.step(d2 - dmax)
-    f3 = _coeffs.step(d3 - torch.maximum(dmax, d2))
-    rest = 1.0 - f3  # not 3
-    f2 = g2 * rest
-    rest = rest.sub_(f2)  # neither 3 nor 2
-    f1 = g1 * rest
-    f0 = rest.sub_(f1)
+    g3 = _coeffs.step(d3 - torch.maximum(dmax, d2))
+    lerp = torch.lerp
 
     def pick(c0: Tensor, c1: Tensor, c2: Tensor, c3: Tensor) -> Tensor:
-        return fma(fma(fma(c0 * f0, c1, f1), c2, f2), c3, f3)
+        return lerp(lerp(lerp(c0, c1, g1), c2, g2), c3, g3)
 
     K = ((d0, s21, s02, s10), (s21, d1, a01, a02), (s02, a01, d2, a12), (s10, a02, a12, d3))
     c = [pick(*row) for row in K]
