@@ -224,11 +224,11 @@ def pair(
     each as :func:`tensor`, one dtype, batch shapes that broadcast.  Returns both in the
     compute dtype, the output dtype and the broadcast batch shape."""
     x, dtype = tensor(a, fn, na, ta)
-    y, _ = tensor(b, fn, nb, tb)
-    same_dtype(fn, **{na: a, nb: b})
-    batch = batch_broadcast(
-        fn, (x.shape[: x.dim() - len(ta)], na), (y.shape[: y.dim() - len(tb)], nb)
-    )
+    y, other = tensor(b, fn, nb, tb)
+    if other != dtype:
+        same_dtype(fn, **{na: a, nb: b})
+    sx, sy = x.shape, y.shape
+    batch = batch_broadcast(fn, (sx[: len(sx) - len(ta)], na), (sy[: len(sy) - len(tb)], nb))
     return x, y, dtype, batch
 
 

@@ -36,7 +36,6 @@ the premise about torch's loops included.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import torch
@@ -92,7 +91,7 @@ def eager_cpu(x: Tensor) -> bool:
     """Whether ``x`` is on CPU and the op runs in eager mode outside ``torch.func`` transforms:
     where the CPU-specific eager kernels (blocks, transpositions by product, the large-batch
     kernels and the matrix forms of small batches) apply."""
-    return x.device.type == "cpu" and not (_is_compiling() or _autograd.transforms_active())
+    return x.is_cpu and not (_is_compiling() or _autograd.transforms_active())
 
 
 def large(x: Tensor, rows: int) -> bool:
@@ -111,7 +110,7 @@ def broadcast(*shapes: torch.Size) -> torch.Size:
 def _in_place(M: Tensor, rows: int) -> bool:
     """Whether the planes of a vector ``M`` over ``rows`` elements are read where they are
     (strided views): small CPU batches, where any copy costs more than the reads it saves."""
-    return rows < MIN_ROWS and M.device.type == "cpu"
+    return rows < MIN_ROWS and M.is_cpu
 
 
 def _use_product(x: Tensor, rows: int) -> bool:
@@ -210,10 +209,15 @@ def outputs(like: Tensor | Sequence[Tensor], n: int) -> tuple[Tensor | None, ...
     strided, where they belong, and no pass over the result interleaves them afterwards.  ``n``
     Nones (new tensors) elsewhere, and where autograd records the kernel (``out=`` is not
     differentiable)."""
-    likes = (like,) if isinstance(like, Tensor) else tuple(like)
+    if _is_compiling():
+        return (None,) * n
+    likes = (like,) if isinstance(like, Tensor) else like
+    size = 1  # the product bounds the size of the broadcast
+    for x in likes:
+        size *= x.numel()
     first = likes[0]
-    if not eager_cpu(first) or math.prod([x.numel() for x in likes]) < MIN_ROWS:
-        return (None,) * n  # (the product bounds the size of the broadcast)
+    if size < MIN_ROWS or not eager_cpu(first):
+        return (None,) * n
     batch = broadcast(*(x.shape for x in likes))
     if batch.numel() < MIN_ROWS or _autograd.needs_graph(likes):
         return (None,) * n
