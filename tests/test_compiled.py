@@ -217,3 +217,27 @@ def test_compiled_forward_and_backward_loops(module, name, make, most_backward_l
     want = torch.autograd.grad(fn(*args), args, G)
     for a, b in zip(got, want, strict=True):
         torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize(
+    "module, name, make",
+    [
+        ("se3", "compose", lambda g: se3.random(6, generator=g, dtype=torch.float64)),
+        ("se3", "between", lambda g: se3.random(6, generator=g, dtype=torch.float64)),
+        ("so3", "compose", lambda g: so3.random(6, generator=g, dtype=torch.float64)),
+        ("quaternion", "multiply", lambda g: torch.randn(6, 4, generator=g, dtype=torch.float64)),
+    ],
+)
+def test_compiled_op_given_one_tensor_twice(module, name, make):
+    # compose(T, T): one tensor as both operands of an op with its own backward (which Dynamo
+    # does not trace as it is); the value and gradient are eager's
+    X = make(torch.Generator().manual_seed(44)).requires_grad_()
+    eager = getattr({"so3": so3, "se3": se3, "quaternion": quaternion}[module], name)
+    fn = getattr(getattr(compiled, module), name)
+    got = fn(X, X)
+    want = eager(X, X)
+    torch.testing.assert_close(got, want)
+    W = torch.randn(want.shape, generator=torch.Generator().manual_seed(45), dtype=want.dtype)
+    (g_got,) = torch.autograd.grad((got * W).sum(), X)
+    (g_want,) = torch.autograd.grad((want * W).sum(), X)
+    torch.testing.assert_close(g_got, g_want)

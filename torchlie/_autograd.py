@@ -298,12 +298,21 @@ class CustomFunction:
             # derivatives are traced as plain ops instead (see ``linearized``).
             if transforms_active() or forward_ad_active():
                 return self.linearized(*inputs)
-            return self.compiled.apply(*inputs)
+            return self.compiled.apply(*_distinct(inputs))
         if transforms_active():
             return self.transform.apply(*inputs)
         if needs_graph(inputs):
             return self.eager.apply(*inputs)
         return self.forward(*inputs)
+
+
+def _distinct(inputs: Sequence[Tensor]) -> list[Tensor]:
+    """``inputs`` with each repeat of a tensor replaced by a view of it (the same values and
+    gradient): Dynamo refuses to trace a Function given one tensor twice (``compose(T, T)``)."""
+    out: list[Tensor] = []
+    for x in inputs:
+        out.append(x.view_as(x) if any(x is y for y in out) else x)
+    return out
 
 
 def blocked(fn: Callable[..., _Out], event_dims: tuple[int, ...]) -> Callable[..., _Out]:
