@@ -294,21 +294,12 @@ def _exp_grad(xi: Sequence[Tensor], T: Tensor, G: Tensor) -> list[Tensor]:
     (a, b, c), qc = _se3_jacobian.jl_and_q_coefficients(xyz, "abc", torch.is_grad_enabled())
     R, t = _rotation_and_translation(T)
     G_R, g_t = _rotation_and_translation(G)
-    # Jr g_t, Jl vee(R^T G_R - G_R^T R) and Jr (t x g_t), Jr's b negated (Jr(phi) = Jl(-phi)):
-    # in eager mode at once, each component of the three vectors stacked, (3, *batch); while
-    # compiling one by one (a stack would be a buffer and a loop of its own)
+    # Jr g_t, Jl vee(R^T G_R - G_R^T R) and Jr (t x g_t), Jr's b negated (Jr(phi) = Jl(-phi))
     vs = (g_t, rt_g_vee(R, G_R), cross_planes(t, g_t))
-    if torch.compiler.is_compiling():
-        nb = -b
-        g_rho, g_phi, g_tx = (
-            _rodrigues.jl_components(xyz, v, a, bi, c)
-            for v, bi in zip(vs, (nb, b, nb), strict=True)
-        )
-    else:
-        sign = _layout.constant((-1.0, 1.0, -1.0), b, dims=b.dim() + 1)
-        stacked = [torch.stack(k) for k in zip(*vs, strict=True)]
-        jl = _rodrigues.jl_components(xyz, stacked, a, b * sign, c)
-        g_rho, g_phi, g_tx = zip(*(k.unbind(0) for k in jl), strict=True)
+    nb = -b
+    g_rho, g_phi, g_tx = (
+        _rodrigues.jl_components(xyz, v, a, bi, c) for v, bi in zip(vs, (nb, b, nb), strict=True)
+    )
     neg = [-v for v in x]
     q = _se3_jacobian.q_components(neg[:3], neg[3:], g_t, *qc)
     g_phi = [torch.add(p, r).add_(s) for p, r, s in zip(g_phi, g_tx, q, strict=True)]
