@@ -38,6 +38,7 @@ from torch import Tensor
 
 from . import _layout
 from ._autograd import Guard, fma
+from ._components import planes
 
 # --------------------------------------------------------------------------------------------
 # Series coefficients (exact rationals, converted to float once).
@@ -448,7 +449,7 @@ def _reduce_guard(w: Tensor) -> tuple[list[Tensor], Callable[..., Tensor]]:
     f = reduction_planes(x)
 
     def derivative(t: Tensor | Sequence[Tensor]) -> Tensor:
-        tt = t.unbind(-1) if isinstance(t, Tensor) else t
+        tt = planes(t, 3)
         return _layout.interleave(reduce_planes(f, tt, tt))
 
     return reduced_planes(x, f), derivative

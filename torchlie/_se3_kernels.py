@@ -344,7 +344,7 @@ def _guard(xi: Tensor) -> tuple[list[Tensor], Callable[..., Tensor]]:
     along = [c - c.detach() for c in x[3:]] if graph else None  # an exact 0: derivative 1
 
     def derivative(t: Tensor | Sequence[Tensor]) -> Tensor:
-        tt = t.unbind(-1) if isinstance(t, Tensor) else t
+        tt = planes(t, 6)
         return _layout.interleave(_reduction(f, tt, tt[3:]))
 
     return _reduction(f, x, along), derivative

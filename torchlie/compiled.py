@@ -60,9 +60,9 @@ _EAGER_ONLY = frozenset({"identity", "random"})
 #: of a result among them) are fused into one loop too, the C++ backend's limit of 16 such
 #: computations per loop is raised to 64, and the limit of 64 nodes per fused loop to 256 (the
 #: backward of ``se3.exp`` has more: its components, each a node, would take loops of their
-#: own).  An intermediate of more than 25 operations that is
-#: used twice is kept in a variable of the loop instead of being re-expanded into each use
-#: (``realize_opcount_threshold``, 50 by default on CPU): the same code, generated faster.
+#: own).  An intermediate of more than 25 operations that is used twice is kept in a variable of
+#: the loop instead of being re-expanded into each use (``realize_opcount_threshold``, 50 by
+#: default on CPU): the same code, generated faster.
 FUSION: dict[str, bool | int] = {
     "aggressive_fusion": True,
     "score_fusion_memory_threshold": 0,
