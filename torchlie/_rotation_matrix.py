@@ -101,9 +101,10 @@ def from_quaternion(q: Tensor) -> Tensor:
 def _from_matrix_parts(
     R: Tensor | Sequence[Tensor],
 ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
-    """``(cw, cx, cy, cz, sign)``: ``c`` is proportional to the quaternion of the rotation
+    """``(cw, cx, cy, cz, s)``: ``c`` is proportional to the quaternion of the rotation
     nearest ``R`` (to first order in the distance of ``R`` from SO(3)), with ``|c| >= 8`` for a
-    rotation; ``sign * c / |c|`` is the canonical unit quaternion."""
+    rotation; ``c / |c|`` with the sign of ``s`` (``copysign``) is the canonical unit
+    quaternion."""
     m00, m01, m02, m10, m11, m12, m20, m21, m22 = planes(R, 9)
     # The symmetric K = [[d0, s21, s02, s10], [s21, d1, a01, a02], [s02, a01, d2, a12],
     # [s10, a02, a12, d3]] is 4 q q^T for a rotation; for any R its top eigenvector is the
@@ -137,15 +138,13 @@ def _from_matrix_parts(
     # Canonical sign: the pivot entry is positive, so flipping on w < 0 gives the canonical
     # representative (at w = 0 the pivot is the largest-magnitude vector component).
     # cw + 0.0 turns -0.0 into +0.0: no flip at w = 0.
-    sign = torch.copysign(torch.ones_like(cw), cw + 0.0)
-    return cw, cx, cy, cz, sign
+    return cw, cx, cy, cz, cw + 0.0
 
 
 def _from_matrix_forward(R: Tensor) -> Tensor:
-    cw, cx, cy, cz, sign = _from_matrix_parts(R)
+    cw, cx, cy, cz, s = _from_matrix_parts(R)
     # |c| = 16 q_p >= 8 for a rotation: the division is safe, and a NaN element stays in its row.
-    n2 = norm2(cw, cx, cy, cz)
-    scale = torch.rsqrt(n2) * sign
+    scale = torch.copysign(torch.rsqrt(norm2(cw, cx, cy, cz)), s)
     o = _layout.outputs(cw, 4)
     parts = [torch.mul(c, scale, out=oi) for c, oi in zip((cw, cx, cy, cz), o, strict=True)]
     return _layout.interleave(parts, o)
@@ -209,17 +208,17 @@ def log_and_cot(
     R: Tensor | Sequence[Tensor], cot: bool = False
 ) -> tuple[tuple[Tensor, Tensor, Tensor], Tensor | None, Tensor | None]:
     """The three components of :func:`log` (not stacked; ``R`` as a tensor or its 9 planes, row
-    by row), and with ``cot`` the angle ``theta`` and
-    ``(theta/2) cot(theta/2)`` (the coefficients of ``Jl^-1``).  The rotation vector is
-    ``sign 2 atan2(|c_v|, |c_w|) c_v / |c_v|``, ``|c_v|`` clamped at ``_coeffs.H_MIN`` before
-    the angle and the quotient (which tends to ``2 / |c_w|``; ``phi`` is exactly 0 at
-    ``c_v = 0``) and ``cot(theta/2) = |c_w| / |c_v|``."""
-    cw, cx, cy, cz, sign = _from_matrix_parts(R)
+    by row), and with ``cot`` the angle ``theta`` and ``(theta/2) cot(theta/2)`` (the
+    coefficients of ``Jl^-1``).  The rotation vector is ``2 atan2(|c_v|, |c_w|) c_v / |c_v|``
+    with the sign of ``s`` (:func:`_from_matrix_parts`), ``|c_v|`` clamped at
+    ``_coeffs.H_MIN`` before the angle and the quotient (which tends to ``2 / |c_w|``; ``phi``
+    is exactly 0 at ``c_v = 0``) and ``cot(theta/2) = |c_w| / |c_v|``."""
+    cw, cx, cy, cz, s = _from_matrix_parts(R)
     nv = fma(fma(cx * cx, cy, cy), cz, cz).sqrt_()
     nv = nv.clamp_min_(_coeffs.H_MIN[nv.dtype])
     a = cw.abs()
     theta = _coeffs.atan2_nonneg(nv, a).mul_(2.0)
-    f = torch.div(theta, nv).mul_(sign)
+    f = torch.copysign(torch.div(theta, nv), s)
     phi = (f * cx, f * cy, f * cz)
     if not cot:
         return phi, None, None
