@@ -5,33 +5,21 @@ their results by interleaving planes again, one mechanism for every op.  The pla
 the input where that is cheapest, copies where the kernels' arithmetic then runs faster; the
 kernels never write into them.
 
-Planes from rows (:func:`planes`): torch's copy kernel splits a ``(N, n)`` tensor into planes
-with strided element loads, which costs more than the arithmetic of the cheap ops after it.  A
-matrix product with an identity (or selection) matrix is the same transposition done by the
-BLAS packing routines, several times faster, and exact: each output is one input times 1 plus
-exact zeros.  Differences from a copy, confined to the element concerned: a NaN or an infinity
-in one component makes the element's other components NaN (``0 * inf``), and ``-0.0`` comes
-back as ``+0.0``.  The product is taken only where it is exact: CPU tensors of float64, or of
-float32 while float32 matrix products are full precision (no bfloat16 or TF32 setting), in eager
-mode outside ``torch.func`` transforms, and for batches of at least :data:`MIN_ROWS` elements.
-Large batches of 3-vectors, and of vectors where the product is not taken, are split by one copy
-per column instead.  Vectors of smaller CPU batches are read where they are (strided views: any
-copy costs more than the strided reads it saves there); matrices of smaller batches, and
-everything on CUDA, by the plain transposing copy; while compiling, strided views.
+Planes from rows (:func:`planes`): vectors of small CPU batches are read where they are
+(strided views: any copy costs more than the strided reads it saves there); vectors of large
+batches are split by one copy per column, faster than torch's transposing copy; matrices by the
+plain transposing copy; while compiling, strided views.  Every way holds the input's numbers
+exactly, so a non-finite component stays in its element.
 
 Rows from planes (:func:`outputs`, :func:`interleave`): on large eager CPU batches a kernel's
 last operations write their values straight into the columns of its result (``out=`` a strided
 view), so no pass over the result interleaves them afterwards.
 
-Bits.  The same numbers give the same bits whatever their layout, batch size or broadcast: the
-planes hold the input's numbers exactly (the product's differences above aside: the sign of a
-zero, and non-finite components), and the formulas are written only in element-wise
-operations that round alike in torch's vectorised loop, its scalar loop (the tail of an array,
-strided operands) and into strided outputs.  Two kinds of operation do not, and are not used: CPU
-``torch.atan2`` (:func:`torchlie._coeffs.atan2` takes its place) and reductions, whose order of
-summation follows the layout (sums over a few components are written out one by one; sums
-over a set are taken over contiguous copies).  ``tests/test_layout_bits.py`` pins all of it,
-the premise about torch's loops included.
+Results.  The same numbers give the same results whatever their layout, batch size or
+broadcast, within the rounding that torch's kernels do differently in their vectorised and
+scalar loops and BLAS by CPU: the planes hold the input's numbers exactly, sums over a few
+components are written out one by one, and sums over a set are taken over contiguous copies.
+``tests/test_layout_agreement.py`` holds every op to it.
 """
 
 from __future__ import annotations
@@ -43,33 +31,12 @@ from torch import Tensor
 
 from torchlie import _autograd, _checks
 
-#: Smallest batch (number of elements) that takes the transpositions and the writes into
-#: columns (below it the extra kernel launches cost more than they save).
+#: Smallest batch (number of elements) that takes the copies column by column and the writes
+#: into columns (below it the extra kernel launches cost more than they save).
 MIN_ROWS = 8192
 
 _is_compiling = torch.compiler.is_compiling
-_EYES: dict[tuple[torch.dtype, int], Tensor] = {}
 _CONSTANTS: dict[tuple[object, torch.dtype, torch.device, int], Tensor] = {}
-_SELECTIONS: dict[tuple[int, tuple[int, ...], torch.dtype], Tensor] = {}
-
-
-def _fp32_full_precision() -> bool:
-    """Whether CPU float32 matrix products are computed in float32 (no reduced-precision mode)."""
-    try:
-        if torch.get_float32_matmul_precision() != "highest":
-            return False
-    except RuntimeError:  # a mix of the legacy and the per-backend precision settings
-        return False
-    mkldnn = getattr(torch.backends.mkldnn, "matmul", None)
-    return getattr(mkldnn, "fp32_precision", "none") in ("none", "ieee")
-
-
-def eye(dtype: torch.dtype, n: int) -> Tensor:
-    """The ``n x n`` identity (CPU, built once per dtype and size)."""
-    eye = _EYES.get((dtype, n))
-    if eye is None:
-        eye = _EYES[(dtype, n)] = torch.eye(n, dtype=dtype)
-    return eye
 
 
 def constant(values: tuple[object, ...], like: Tensor, dims: int = 0) -> Tensor:
@@ -89,7 +56,7 @@ def constant(values: tuple[object, ...], like: Tensor, dims: int = 0) -> Tensor:
 
 def eager_cpu(x: Tensor) -> bool:
     """Whether ``x`` is on CPU and the op runs in eager mode outside ``torch.func`` transforms:
-    where the CPU-specific eager kernels (blocks, transpositions by product, the large-batch
+    where the CPU-specific eager kernels (blocks, copies column by column, the large-batch
     kernels and the matrix forms of small batches) apply."""
     return x.is_cpu and not (_is_compiling() or _autograd.transforms_active())
 
@@ -111,14 +78,6 @@ def _in_place(M: Tensor, rows: int) -> bool:
     """Whether the planes of a vector ``M`` over ``rows`` elements are read where they are
     (strided views): small CPU batches, where any copy costs more than the reads it saves."""
     return rows < MIN_ROWS and M.is_cpu
-
-
-def _use_product(x: Tensor, rows: int) -> bool:
-    if not large(x, rows):
-        return False
-    if x.dtype == torch.float64:
-        return True
-    return x.dtype == torch.float32 and _fp32_full_precision()
 
 
 def planes(M: Tensor, n: int | tuple[int, int]) -> tuple[Tensor, ...]:
@@ -150,48 +109,15 @@ def stacked(M: Tensor, n: int | tuple[int, int]) -> Tensor:
     rows = batch.numel()
     if not matrix and _in_place(M, rows):
         return M.movedim(-1, 0)
-    if _use_product(M, rows) and (matrix or n > 3):
-        flat = M.reshape((rows,) + M.shape[len(batch) :])
-        if matrix:
-            flat, columns = _rows_of_matrices(flat)
-            select = selection(M.dtype, flat.shape[1], tuple(columns))
-        else:
-            select = eye(M.dtype, n)
-        return torch.mm(select, flat.T).reshape((n if matrix else (n,)) + batch)
     if matrix:  # one copy even when M is a strided block
         return M.movedim((-2, -1), (0, 1)).contiguous()
     if large(M, rows) and not _autograd.needs_graph((M,)):
-        # column by column: faster than the transposing copy below, and than the product for
-        # 3-vectors
+        # column by column: faster than the transposing copy below
         out = M.new_empty((n,) + batch)
         for plane, column in zip(out.unbind(0), M.unbind(-1), strict=True):
             plane.copy_(column)
         return out
     return M.movedim(-1, 0).contiguous()
-
-
-def selection(dtype: torch.dtype, k: int, columns: tuple[int, ...]) -> Tensor:
-    """The rows ``columns`` of the ``k x k`` identity: picks those columns of a matrix."""
-    key = (k, columns, dtype)
-    out = _SELECTIONS.get(key)
-    if out is None:
-        out = _SELECTIONS[key] = eye(dtype, k)[list(columns)]
-    return out
-
-
-def _rows_of_matrices(flat: Tensor) -> tuple[Tensor, list[int]]:
-    """``(B, r, c)`` as a ``(B, k)`` view holding its entries, and their columns in it, row by row.
-
-    A contiguous matrix is its ``r c`` entries; a block with row stride ``s`` and unit column
-    stride is the span of ``(r - 1) s + c`` entries from its first (the ones between the rows
-    are skipped by the selection).  Anything else is copied to contiguous first.
-    """
-    r, c = flat.shape[1:]
-    if flat.stride(-1) != 1 or flat.stride(-2) < c:
-        flat = flat.contiguous()
-    s = flat.stride(-2)
-    view = flat.as_strided((flat.shape[0], (r - 1) * s + c), (flat.stride(0), 1))
-    return view, [i * s + j for i in range(r) for j in range(c)]
 
 
 class Columns(tuple):
