@@ -379,62 +379,32 @@ def test_blocked_forward_equals_unblocked(dtype, monkeypatch):
         torch.testing.assert_close(a, b, rtol=4 * eps, atol=4 * eps)
 
 
-def test_blocked_splits_large_batches_only():
+@pytest.mark.parametrize("threads", [1, 2])
+def test_blocked_equals_the_whole_batch(threads):
+    """The driver's result is the function's on the whole batch, for one result or a tuple, in
+    every dtype and thread count; each row is evaluated once; small batches, broadcast batches
+    and other devices are evaluated whole."""
     calls = []
 
     def fwd(a, b):
         calls.append(a.shape[0])
-        return a.sum(-1) + b
+        return a * 2.0 + b.unsqueeze(-1), a.sum(-1)
 
     run = _autograd.blocked(fwd, (1, 0))
-    a, b = torch.randn(2 * _autograd.BLOCK + 5, 3), torch.randn(2 * _autograd.BLOCK + 5)
-    torch.testing.assert_close(run(a, b), fwd(a, b))
-    assert calls[:3] == [_autograd.BLOCK, _autograd.BLOCK, 5]
-    calls.clear()
-    run(a[:100], b[:100])  # small batch
-    run(a, b[:1])  # broadcast batch
-    run(a.to("meta"), b.to("meta"))  # not on CPU (a GPU's caches are not what blocks are for)
-    assert calls == [100, 2 * _autograd.BLOCK + 5, 2 * _autograd.BLOCK + 5]
-
-
-def test_blocks_hold_the_same_bytes_in_every_dtype():
-    calls = []
-
-    def fwd(a):
-        calls.append((a.dtype, a.shape[0]))
-        return a * 2.0, a.sum(-1)  # a tuple of results: each joined
-
-    run = _autograd.blocked(fwd, (1,))
-    n = 2 * _autograd.BLOCK + 5
-    for dtype, rows in ((torch.float32, _autograd.BLOCK), (torch.float64, _autograd.BLOCK // 2)):
-        a = torch.randn(n, 3, dtype=dtype)
-        calls.clear()
-        doubled, summed = run(a)
-        assert torch.equal(doubled, a * 2.0) and torch.equal(summed, a.sum(-1))
-        assert calls[0] == (dtype, rows) and sum(c[1] for c in calls) == n
-
-
-def test_blocks_scale_with_the_threads():
-    """A block of BLOCK rows per intra-op thread (torch splits a kernel between its threads only
-    above 32 768 elements), and the same result."""
-    calls = []
-
-    def fwd(a):
-        calls.append(a.shape[0])
-        return a * 2.0
-
-    run = _autograd.blocked(fwd, (1,))
-    n = 4 * _autograd.BLOCK + 5
-    a = torch.randn(n, 3)
-    threads = torch.get_num_threads()
+    before = torch.get_num_threads()
     try:
-        for k in (1, 2):
-            torch.set_num_threads(k)
-            calls.clear()
-            assert torch.equal(run(a), a * 2.0)
-            assert calls[0] == k * _autograd.BLOCK and sum(calls) == n
-    finally:
         torch.set_num_threads(threads)
+        for dtype in (torch.float32, torch.float64):
+            n = 4 * _autograd.BLOCK * threads + 5
+            a, b = torch.randn(n, 3, dtype=dtype), torch.randn(n, dtype=dtype)
+            for args in ((a, b), (a[:100], b[:100]), (a, b[:1]), (a.to("meta"), b.to("meta"))):
+                calls.clear()
+                got, want = run(*args), fwd(*args)
+                if args[0].device.type != "meta":
+                    assert all(torch.equal(x, y) for x, y in zip(got, want, strict=True))
+                assert sum(calls[:-1]) == args[0].shape[0]  # the last call: fwd above
+    finally:
+        torch.set_num_threads(before)
 
 
 def test_blocked_plain_backward_equals_unblocked(monkeypatch):

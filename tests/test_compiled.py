@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import math
-import re
 
 import pytest
 import torch
 from samplers import ANGLES, rotvecs
-from torch._inductor.utils import run_and_get_code
 
 from torchlie import compiled, conversions, quaternion, se3, so3
 
@@ -89,79 +87,11 @@ def test_compiled_gradients_and_errors():
     assert set(dir(compiled.so3)) == set(so3.__all__)
 
 
-def test_inductor_options():
-    vectorised = {**compiled.FUSION, "cpp.enable_tiling_heuristics": False}
-    assert compiled.FUSION["aggressive_fusion"] is True
-    assert compiled.FUSION["score_fusion_memory_threshold"] == 0
-    assert compiled.FUSION["realize_opcount_threshold"] == 25
-    assert compiled.inductor_options("so3", "exp") == vectorised
-    assert compiled.inductor_options("se3", "log") == vectorised
-    assert compiled.inductor_options("conversions", "matrix_to_euler") == vectorised
-    assert compiled.inductor_options("se3", "compose") == vectorised
+def test_inductor_options_errors():
     with pytest.raises(ValueError, match=r"inductor_options: expected module to be one of"):
         compiled.inductor_options("so2", "exp")
     with pytest.raises(ValueError, match=r"torchlie\.so3 has no public function '_exp'"):
         compiled.inductor_options("so3", "_exp")
-
-
-def _batch_loops(fn, *args, options):
-    """The outputs of ``fn`` compiled with ``options`` and the number of loops over the batch in
-    the C++ code Inductor generated for it (each a pass over the result's memory)."""
-    torch._dynamo.reset()
-    out, code = run_and_get_code(torch.compile(fn, fullgraph=True, options=options), *args)
-    return out, sum(_loops(c) for c in code), code
-
-
-def _loops(code: str) -> int:
-    """Loops over the batch (the outermost index ``x0``) in one generated C++ module."""
-    return len(re.findall(r"for\s*\(\s*int64_t x0\s*=", code))
-
-
-def _batch_steps(code: str) -> list[int]:
-    """How many elements each loop over the batch advances by (the vector width where the loop
-    is vectorised along the batch, 1 where it is not)."""
-    loop = r"for\s*\(\s*int64_t x0\s*=[^;]*;[^;]*;\s*x0\s*\+=\s*static_cast<int64_t>\((\d+)L\)"
-    return [int(step) for step in re.findall(loop, code)]
-
-
-@pytest.mark.parametrize("module", ["so3", "se3"])
-def test_compiled_actions_are_vectorised_along_the_batch(module):
-    # Written entry by entry while compiling: a broadcast over (..., 3) vectors would be
-    # vectorised along the 3 (masked loads, several times slower than eager).
-    torch._dynamo.reset()
-    _, probe = run_and_get_code(torch.compile(lambda x: 2.0 * x), torch.randn(1000))
-    if max(_batch_steps("".join(probe)), default=1) == 1:
-        pytest.skip("Inductor does not vectorise on this CPU")
-    mod = {"so3": so3, "se3": se3}[module]
-    g = torch.Generator().manual_seed(43)
-    X, p = mod.random(1000, generator=g), torch.randn(1000, 3, generator=g)
-    out, loops, code = _batch_loops(mod.act, X, p, options=compiled.inductor_options(module, "act"))
-    assert loops == 1
-    assert min(_batch_steps("".join(code))) > 1
-    torch.testing.assert_close(out, mod.act(X, p), rtol=0, atol=1e-5)
-
-
-@pytest.mark.parametrize(
-    "name, make",
-    [
-        ("exp", lambda g: (torch.randn(37, 6, generator=g),)),
-        ("compose", lambda g: (se3.random(37, generator=g), se3.random(37, generator=g))),
-        ("inverse", lambda g: (se3.random(37, generator=g),)),
-    ],
-)
-def test_compiled_pose_ops_are_one_loop(name, make):
-    # The (0, 0, 0, 1) row shares the loop that computes the rest (FUSION), compose and inverse
-    # are written element-wise there (no batched matmul, no concatenation or in-place update
-    # of an intermediate): one pass over the result.
-    args = make(torch.Generator().manual_seed(40))
-    fn = getattr(se3, name)
-    out, loops, code = _batch_loops(fn, *args, options=compiled.inductor_options("se3", name))
-    assert loops == 1, f"{loops} loops"
-    assert not any("extern_kernels." in c for c in code)  # no library call (bmm)
-    torch.testing.assert_close(out, fn(*args), rtol=0, atol=2e-6)
-    # without FUSION, the constant entries take loops of their own
-    _, default_loops, _ = _batch_loops(fn, *args, options={})
-    assert default_loops > 1
 
 
 def test_compiled_compose_inverse_entries_ignore_bottom_rows_and_broadcast():
@@ -185,36 +115,32 @@ def test_compiled_compose_inverse_entries_ignore_bottom_rows_and_broadcast():
 
 
 @pytest.mark.parametrize(
-    "module, name, make, most_backward_loops",
+    "module, name, make",
     [
-        ("se3", "compose", lambda g: (se3.random(37, generator=g), se3.random(37, generator=g)), 1),
-        ("se3", "inverse", lambda g: (se3.random(37, generator=g),), 1),
-        # the guard of q's scale (any finite |q|): the backward reads q rescaled, written once
-        # and read by the gradient's formula (2 loops with torch 2.13's Inductor, 3 with 2.14's)
-        ("quaternion", "apply", lambda g: (torch.randn(37, 4, generator=g), torch.randn(37, 3)), 3),
-        ("so3", "log", lambda g: (so3.random(37, generator=g),), 1),
-        ("se3", "log", lambda g: (se3.random(37, generator=g),), 1),
-        # the guarded twist and the gradient before the guard's derivative as planes (no stack
-        # read back), the three Rodrigues applications one by one (no stack of them)
-        ("so3", "exp", lambda g: (torch.randn(1000, 3, generator=g),), 1),
-        ("se3", "exp", lambda g: (torch.randn(1000, 6, generator=g),), 1),
+        ("se3", "compose", lambda g: (se3.random(37, generator=g), se3.random(37, generator=g))),
+        ("se3", "inverse", lambda g: (se3.random(37, generator=g),)),
+        ("quaternion", "apply", lambda g: (torch.randn(37, 4, generator=g), torch.randn(37, 3))),
+        ("so3", "log", lambda g: (so3.random(37, generator=g),)),
+        ("se3", "log", lambda g: (se3.random(37, generator=g),)),
+        ("so3", "exp", lambda g: (torch.randn(1000, 3, generator=g),)),
+        ("se3", "exp", lambda g: (torch.randn(1000, 6, generator=g),)),
+        ("so3", "act", lambda g: (so3.random(1000, generator=g), torch.randn(1000, 3))),
+        ("se3", "act", lambda g: (se3.random(1000, generator=g), torch.randn(1000, 3))),
     ],
 )
-def test_compiled_forward_and_backward_loops(module, name, make, most_backward_loops):
-    # Entry by entry while compiling (no batched matmul, no linalg.cross gathers, no transposed
-    # copies of the components for AOTAutograd to save, no stacked intermediate read again by
-    # components): one loop for the forward; the gradients are eager's.
+def test_compiled_forward_and_backward_agree_with_eager(module, name, make):
+    """With the options of :func:`torchlie.compiled.inductor_options` (how many loops Inductor
+    makes of them is reported by ``benchmarks/loops.py``, not asserted)."""
     args = [x.requires_grad_() for x in make(torch.Generator().manual_seed(42))]
     fn = getattr({"so3": so3, "se3": se3, "quaternion": quaternion}[module], name)
     torch._dynamo.reset()
     cfn = torch.compile(fn, fullgraph=True, options=compiled.inductor_options(module, name))
-    G = torch.randn_like(fn(*args))
-    got, code = run_and_get_code(lambda: torch.autograd.grad(cfn(*args), args, G))
-    assert len(code) == 2  # forward, backward
-    assert _loops(code[0]) == 1
-    assert 1 <= _loops(code[1]) <= most_backward_loops
-    assert not any("extern_kernels." in c for c in code)
-    want = torch.autograd.grad(fn(*args), args, G)
+    out = cfn(*args)
+    G = torch.randn_like(out)
+    got = torch.autograd.grad(out, args, G)
+    want_out = fn(*args)
+    want = torch.autograd.grad(want_out, args, G)
+    torch.testing.assert_close(out, want_out, rtol=1e-5, atol=1e-5)
     for a, b in zip(got, want, strict=True):
         torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-5)
 
