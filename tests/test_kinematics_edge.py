@@ -260,6 +260,95 @@ def test_mimic_multipliers_whose_product_overflows_are_rejected():
     assert "the multiplier composed along its chain of mimic joints, inf" in info.value.problem
 
 
+MAX64 = torch.finfo(F64).max
+MAX32 = float(torch.finfo(torch.float32).max)
+
+
+def limited(lower: float, upper: float, jtype: str = "prismatic") -> str:
+    """A one-joint robot with limits written as the doubles ``lower`` and ``upper``."""
+    return robot(
+        joint("j", jtype).replace('lower="-1" upper="1"', f'lower="{lower!r}" upper="{upper!r}"')
+    )
+
+
+@pytest.mark.parametrize(
+    ("lower", "upper"),
+    [(-MAX64, MAX64), (-1e300, 1e308), (1e308, MAX64), (-MAX64, -1e308), (MAX64, MAX64),
+     (-MAX64, -MAX64), (0.5, 0.5)],
+)  # fmt: skip
+def test_random_configuration_is_finite_and_uniform_for_every_finite_pair_of_limits(lower, upper):
+    # hi - lo overflows for the first pair; the draw never forms it.
+    chain = Chain.from_urdf(limited(lower, upper), dtype=F64)
+    q = chain.random_configuration(20_000, generator=torch.Generator().manual_seed(0))[:, 0]
+    assert bool(torch.isfinite(q).all())
+    assert bool(((q >= lower) & (q <= upper)).all())
+    if lower == upper:
+        assert bool((q == lower).all())
+    else:  # where in [lower, upper], as a fraction: uniform, mean 1/2 and spread 1/sqrt(12)
+        f = (q / 2 - lower / 2) / (upper / 2 - lower / 2)
+        assert abs(f.mean().item() - 0.5) < 0.01 and abs(f.std().item() - 12**-0.5) < 0.01
+
+
+def test_ik_starts_are_finite_within_bounds_near_the_float64_range():
+    chain = Chain.from_urdf(limited(-1.0, 1.0), dtype=F64)
+    res = chain.inverse_kinematics(
+        torch.zeros(50, 3, dtype=F64), "b", restarts=4, max_iterations=0, lower=-MAX64,
+        upper=MAX64, generator=torch.Generator().manual_seed(0),
+    )  # fmt: skip
+    # Uniform in [-MAX64, MAX64] (not all at one bound, as inf * u clamped would be).
+    assert bool(torch.isfinite(res.q).all()) and res.q.unique().numel() == 50
+    assert 0.2 < (res.q > 0).double().mean().item() < 0.8 and res.q.abs().max().item() > 1e307
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, F64], ids=str)
+def test_limits_at_the_edge_of_the_dtype_are_kept_and_sampled_finite(dtype):
+    top = MAX32 if dtype == torch.float32 else MAX64
+    chain = Chain.from_urdf(limited(-top, top), dtype=dtype)
+    assert chain.lower.tolist() == [-top] and chain.upper.tolist() == [top]
+    q = chain.random_configuration(1000, generator=torch.Generator().manual_seed(1))
+    assert bool(torch.isfinite(q).all()) and bool(((q >= -top) & (q <= top)).all())
+    # 3.4028235e38 is above float32's largest value but rounds to it, so it fits float32.
+    chain = Chain.from_urdf(limited(0.0, 3.4028235e38))
+    assert chain.upper.tolist() == [MAX32]
+    q = chain.random_configuration(1000, generator=torch.Generator().manual_seed(2))
+    assert bool(torch.isfinite(q).all()) and bool((q <= MAX32).all())
+
+
+ONE_RULE = [  # (robot, element, attribute, written value): every number the chain stores
+    (robot(joint(inner='<origin xyz="0 1e39 0"/>')), "origin", "xyz", "1e+39"),
+    (limited(-1e39, 1.0, "revolute"), "limit", "lower", "-1e+39"),
+    (limited(0.0, 3.5e38), "limit", "upper", "3.5e+38"),
+]
+
+
+@pytest.mark.parametrize(
+    ("text", "sub", "key", "value"), ONE_RULE, ids=["origin", "lower", "upper"]
+)
+def test_numbers_beyond_float32_are_rejected_alike_naming_file_element_and_value(
+    tmp_path, text, sub, key, value
+):
+    # Origins and limits follow one rule: computed in float64, an error in float32 (a limit
+    # would otherwise become inf, read as "no limit"), from a file, a string or Chain.to.
+    path = tmp_path / "big.urdf"
+    path.write_text(text)
+    problem = (
+        f"attribute '{key}' value {value} overflows torch.float32 (largest finite 3.40282e+38); "
+        "use dtype=torch.float64"
+    )
+    for source, label in ((path, str(path)), (text, "<string>")):
+        with pytest.raises(URDFError) as info:
+            Chain.from_urdf(source)
+        e = info.value
+        assert (e.source, e.element, e.problem) == (label, f"<joint name='j'> <{sub}>", problem)
+        assert str(e) == f"{label}: <joint name='j'> <{sub}>: {problem}"
+    chain = Chain.from_urdf(path, dtype=F64)
+    q = chain.random_configuration(100, generator=torch.Generator().manual_seed(0))
+    assert bool(torch.isfinite(chain.forward_kinematics(q)["b"]).all())
+    with pytest.raises(URDFError) as info:
+        chain.to(torch.float32)
+    assert info.value.problem == problem
+
+
 # ----------------------------------------------------------------------------------------------
 # Number syntax: XML Schema double, nothing else
 # ----------------------------------------------------------------------------------------------
