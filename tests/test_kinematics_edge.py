@@ -88,6 +88,33 @@ def test_no_links_asked_for_gives_an_empty_result(tree):
     assert tree.forward_kinematics(q, [], stacked=True).shape == (2, 0, 4, 4)
 
 
+def test_batches_of_up_to_sixty_dimensions_and_no_more(tree):
+    # The batch limit of every torchlie op (torchlie._checks.MAX_BATCH_DIMS), with the same
+    # message; the chain flattens the batch, so the limit is the library's rule, not torch's.
+    ok, more = (1,) * 60, (1,) * 61
+    q = tree.random_configuration(*ok, generator=torch.Generator().manual_seed(0))
+    assert q.shape == (*ok, tree.n_dof)
+    assert tree.forward_kinematics(q, "right_index")["right_index"].shape == (*ok, 4, 4)
+    J = tree.jacobian(q, "right_index", point=torch.zeros(*ok, 3, dtype=F64))
+    assert J.shape == (*ok, 6, tree.n_dof)
+    p = tree.forward_kinematics(q, "right_index")["right_index"][..., :3, 3]
+    res = tree.inverse_kinematics(p, "right_index", max_iterations=0)
+    assert res.q.shape == (*ok, tree.n_dof)
+    in_q = rf"in q \(before its trailing \({tree.n_dof},\)\)"
+    point = torch.zeros(*more, 3, dtype=F64)
+    sizes, ik = r"\(one per batch size\)", r"in targets\['right_index'\]"
+    for fn, call, where in (
+        ("random_configuration", lambda: tree.random_configuration(*more), sizes),
+        ("forward_kinematics", lambda: tree.forward_kinematics(q[None]), in_q),
+        ("jacobian", lambda: tree.jacobian(q[None], "drone"), in_q),
+        ("jacobian", lambda: tree.jacobian(q, "drone", point=point), "in point .*"),
+        ("inverse_kinematics", lambda: tree.inverse_kinematics(p[None], "right_index"), ik),
+    ):  # fmt: skip
+        head = rf"^torchlie\.kinematics\.Chain\.{fn}: expected at most 60 batch dimensions"
+        with pytest.raises(ValueError, match=rf"{head} {where}, got 61$"):
+            call()
+
+
 # ----------------------------------------------------------------------------------------------
 # Robots without degrees of freedom
 # ----------------------------------------------------------------------------------------------

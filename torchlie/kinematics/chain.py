@@ -38,8 +38,9 @@ Conventions
 
 Deliberate conventions at the edges:
 
-* Every batch shape is accepted, empty ones included: ``q`` of shape ``(0, n_dof)`` gives
-  poses ``(0, 4, 4)`` and Jacobians ``(0, 6, n_dof)``, like every torchlie op.
+* Every batch shape of up to 60 dimensions is accepted, empty ones included: ``q`` of shape
+  ``(0, n_dof)`` gives poses ``(0, 4, 4)`` and Jacobians ``(0, 6, n_dof)``, like every
+  torchlie op (more batch dimensions raise ``ValueError``, as there).
 * A robot without degrees of freedom (one link, or fixed joints only) takes ``q`` of shape
   ``(..., 0)``; its poses are constants and its Jacobians have no columns, ``(..., 6, 0)``.
 * Numbers: one rule for every number of the URDF the chain stores in its dtype (``<origin>``
@@ -279,8 +280,8 @@ class Chain:
         ``[-pi/sqrt(3), pi/sqrt(3)]`` per rotation-vector component (floating rotations).
         Drawn on the CPU in float64 (with ``generator`` if given), then converted; the values are
         finite for every pair of limits, those near the float64 range included.  Each batch
-        size is a non-negative integer (0 gives an empty batch); anything else raises
-        ``TypeError``/``ValueError``.
+        size is a non-negative integer (0 gives an empty batch), at most 60 of them (the batch
+        limit of every torchlie op); anything else raises ``TypeError``/``ValueError``.
 
         Example:
             >>> from torchlie.kinematics import sample_robot
@@ -304,6 +305,7 @@ class Chain:
             if size < 0:
                 raise ValueError(f"{fn}: expected batch sizes >= 0, got batch={batch!r}")
             sizes.append(size)
+        _checks.batch_dims(fn, len(sizes), "(one per batch size)")
         lo, hi = self._sampling_bounds()
         u = torch.rand(*sizes, self.n_dof, generator=generator, dtype=torch.float64)
         return _uniform_within(lo, hi, u).to(dtype=self.dtype, device=self.device)
