@@ -459,6 +459,86 @@ def test_names_in_error_messages_cannot_forge_log_lines(tmp_path):
 # ----------------------------------------------------------------------------------------------
 
 
+def _big_error(tmp_path, text: str) -> URDFError:
+    """The URDFError of ``text`` read from a file: it names the file and stays short."""
+    path = tmp_path / "big.urdf"
+    path.write_text(text)
+    with pytest.raises(URDFError) as info:
+        parse_urdf(path)
+    e = info.value
+    assert e.source == str(path) and str(e) == f"{path}: {e.element}: {e.problem}"
+    assert len(e.problem) < 160
+    return e
+
+
+def test_eighty_thousand_root_links_are_counted_and_five_named(tmp_path):
+    e = _big_error(tmp_path, robot("", tuple(f"l{i}" for i in range(80_000))))
+    assert e.element == "<robot>"
+    assert e.problem == (
+        "80000 root links ('l0', 'l1', 'l2', 'l3', 'l4' and 79995 more); exactly one link may "
+        "be without a parent joint"
+    )
+
+
+def test_a_five_thousand_joint_cycle_is_counted_and_five_named(tmp_path):
+    n = 5_000  # l0 -> l1 -> ... -> l4999 -> l0 by joints j0 ... j4999, below no root
+    body = "".join(joint(f"j{i}", "fixed", f"l{i}", f"l{(i + 1) % n}") for i in range(n))
+    e = _big_error(tmp_path, robot(body, ("root", *(f"l{i}" for i in range(n)))))
+    assert e.element == "<joint name='j4999'>"
+    assert e.problem == (
+        "cycle through 5000 joints 'j0' -> 'j1' -> 'j2' -> 'j3' -> 'j4' and 4995 more (links "
+        "'l0', 'l1', 'l2', 'l3', 'l4' and 4995 more)"
+    )
+
+
+def test_a_five_thousand_joint_mimic_cycle_is_counted_and_five_named(tmp_path):
+    n = 5_000  # j{i} mimics j{i+1}, and j4999 mimics j0
+    text = serial(n, mimic=True, reverse=True).replace(
+        '<limit lower="-1" upper="1"/></joint></robot>',
+        '<limit lower="-1" upper="1"/><mimic joint="j0"/></joint></robot>',
+    )
+    e = _big_error(tmp_path, text)
+    assert e.element == "<joint name='j0'> <mimic>"
+    assert e.problem == (
+        "mimic cycle of 5000 joints: 'j0' -> 'j1' -> 'j2' -> 'j3' -> 'j4' and 4996 more"
+    )
+
+
+def test_chain_errors_list_five_of_two_thousand_links():
+    n = 2_000
+    chain = Chain.from_urdf(serial(n))
+    q = torch.zeros(chain.n_dof)
+    with pytest.raises(ValueError) as info:
+        chain.forward_kinematics(q, "nope")
+    assert str(info.value) == (
+        "torchlie.kinematics.Chain.forward_kinematics: unknown link 'nope' (the links are 'l0', "
+        "'l1', 'l2', 'l3', 'l4' and 1996 more)"
+    )
+    links = [f"l{i}" for i in range(1, n + 1)]
+    with pytest.raises(ValueError) as info:
+        chain.jacobian(q, links, point={"l0": torch.zeros(3)})
+    assert str(info.value) == (
+        "torchlie.kinematics.Chain.jacobian: point has an entry for 'l0', which is not among the "
+        "links asked for ('l1', 'l2', 'l3', 'l4', 'l5' and 1995 more)"
+    )
+
+
+def test_validate_notes_list_five_joints_and_count_the_rest():
+    pytest.importorskip("pytorch_kinematics")
+    n = 12  # every joint without <axis>, every other one a mimic joint
+    body = "".join(
+        joint(f"j{i}", "revolute", f"l{i}", f"l{i + 1}", f'<mimic joint="j{i - 1}"/>' * (i % 2))
+        for i in range(n)
+    )
+    text = robot(body, tuple(f"l{i}" for i in range(n + 1)))
+    text = text.replace('upper="1"/>', 'upper="1" effort="1" velocity="1"/>')  # pk needs them
+    report = V.validate(text, samples=2, batch=2, compare_pin=False, out=io.StringIO())
+    dev = "\n".join(report.deviations)
+    assert "written out for j0, j1, j2, j3, j4 and 7 more" in dev
+    assert "expanded values j1 = 1 * j0 + 0, j3 = 1 * j2 + 0, j5 = 1 * j4 + 0, " in dev
+    assert "j9 = 1 * j8 + 0 and 1 more," in dev
+
+
 def test_parses_twenty_thousand_links():
     n = 20_000
     links = "".join(f'<link name="l{i}"/>' for i in range(n))

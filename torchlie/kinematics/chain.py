@@ -98,7 +98,7 @@ from ._joints import (
 )
 from .ik import IKResult
 from .ik import inverse_kinematics as _inverse_kinematics
-from .urdf import RobotSpec, parse_urdf
+from .urdf import RobotSpec, _some, parse_urdf
 
 __all__ = ["Chain", "rpy_matrix"]
 
@@ -384,13 +384,10 @@ class Chain:
             )
         for n in names:
             if n not in self._index:
-                raise ValueError(f"{_NAME}{fn}: unknown link {n!r} ({self._some_links()})")
+                raise ValueError(
+                    f"{_NAME}{fn}: unknown link {n!r} (the links are {_some(self.link_names)})"
+                )
         return tuple(self._index[n] for n in names)
-
-    def _some_links(self, shown: int = 12) -> str:
-        names = ", ".join(repr(n) for n in self.link_names[:shown])
-        more = len(self.link_names) - shown
-        return f"the links are {names}" + (f" and {more} more" if more > 0 else "")
 
     def forward_kinematics(
         self,
@@ -620,7 +617,7 @@ class Chain:
                 if k not in names:
                     raise ValueError(
                         f"{fn}: point has an entry for {reprlib.repr(k)}, which is not among "
-                        f"the links asked for ({', '.join(map(repr, names))})"
+                        f"the links asked for ({_some(names)})"
                     )
             items = {k: (v, f"point[{k!r}]") for k, v in point.items()}
         else:
