@@ -376,6 +376,15 @@ def test_numbers_beyond_float32_are_rejected_alike_naming_file_element_and_value
     assert info.value.problem == problem
 
 
+def test_a_mimic_joints_own_limits_are_not_stored_so_not_checked():
+    mimic = joint("j2", "revolute", "b", "c", '<mimic joint="j1"/>')
+    text = robot(
+        joint("j1", "revolute", "a", "b") + mimic.replace('"1"', '"1e39"'), ("a", "b", "c")
+    )
+    chain = Chain.from_urdf(text)  # float32: j2 has no DoF, its limits are not in chain.upper
+    assert chain.joint_names == ("j1",) and chain.upper.tolist() == [1.0]
+
+
 # ----------------------------------------------------------------------------------------------
 # Number syntax: XML Schema double, nothing else
 # ----------------------------------------------------------------------------------------------

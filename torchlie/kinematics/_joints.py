@@ -212,7 +212,8 @@ def _check_representable(
     if k is not None:
         j = spec.joints[k // 3]
         raise fail(j, "origin", f"attribute 'xyz' value {j.xyz[k % 3]!r} overflows {big}")
-    limited = [j for j in spec.joints if j.lower is not None and j.upper is not None]
+    # The limits of the DoFs (a mimic joint's own limits are not stored: it has no DoF).
+    limited = [j for j in spec.joints if j.lower is not None and j.mimic is None]
     k = first_overflow([x for j in limited for x in (j.lower, j.upper)])  # type: ignore[misc]
     if k is not None:
         j = limited[k // 2]
