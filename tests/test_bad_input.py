@@ -15,7 +15,8 @@ import pytest
 import torch
 from torch.nn.utils import parametrize
 
-from torchlie import SE3, SO3, conversions, se3, so3
+import torchlie
+from torchlie import SE3, SO3, _checks, conversions, se3, so3
 from torchlie import nn as tnn
 from torchlie import quaternion as quat
 from torchlie import statistics as st
@@ -547,3 +548,236 @@ def test_group_method_errors_keep_their_own_name():
         _X.compose(_Y)
     with pytest.raises(ValueError, match=r"^torchlie\.SO3: expected tensor of shape"):
         SO3(torch.eye(4))
+
+
+# ----------------------------------------------------------------------------------------------
+# Batch dimensions: at most _checks.MAX_BATCH_DIMS, one check shared by every entry point
+# ----------------------------------------------------------------------------------------------
+
+LIMIT = _checks.MAX_BATCH_DIMS
+_R1 = _rz(0.3)
+_T1 = se3.exp(torch.tensor([0.1, 0.2, 0.3, 0.3, -0.2, 0.1], dtype=F64))
+_Q1 = quat.normalize(torch.tensor([0.9, 0.1, -0.2, 0.3], dtype=F64))
+_P1 = torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 3.0]], dtype=F64)
+_ELEMENTS = {  # kind -> (an element, its trailing dimensions)
+    "R": (_R1, 2),
+    "T": (_T1, 2),
+    "q": (_Q1, 1),
+    "v3": (torch.tensor([0.1, -0.2, 0.3], dtype=F64), 1),
+    "v4": (_Q1, 1),
+    "v5": (torch.linspace(-1.0, 1.0, 5, dtype=F64), 1),
+    "v6": (torch.tensor([0.1, -0.2, 0.3, 0.2, 0.1, -0.3], dtype=F64), 1),
+    "v7": (torch.cat((torch.tensor([1.0, 2.0, 3.0], dtype=F64), _Q1)), 1),
+    "v9": (_R1.reshape(9), 1),
+    "s": (torch.tensor(0.3, dtype=F64), 0),  # a real parameter: t, dt, angle, std, query time
+}
+# Sets (means, align: the set last) and keyframes (first): that dimension is a batch dimension.
+_SETS = {
+    "Rset": (_R1, lambda b: (*b[1:], 2)),
+    "Tset": (_T1, lambda b: (*b[1:], 2)),
+    "wset": (torch.tensor(1.0, dtype=F64), lambda b: (*b[1:], 2)),
+    "Pset": (_P1, lambda b: b[1:]),
+    "Qset": (2 * _P1 + 1, lambda b: b[1:]),
+    "Rkeys": (_R1, lambda b: (2, *b[1:])),
+    "Tkeys": (_T1, lambda b: (2, *b[1:])),
+}
+
+
+def _arg(kind: object, b: tuple[int, ...]) -> object:
+    """The operand ``kind`` with the batch ``b``: ``"R"`` a rotation, ``"R0"`` one alone,
+    ``"SO3:R0"`` it as an SO3, ...; any other value is passed as it is."""
+    if not isinstance(kind, str):
+        return kind
+    if kind[:4] in ("SO3:", "SE3:"):
+        return (SO3 if kind[:3] == "SO3" else SE3)(_arg(kind[4:], b))
+    if kind[-1:] == "0" and kind[:-1] in _ELEMENTS.keys() | _SETS.keys():
+        kind, b = kind[:-1], ()
+    if kind in _ELEMENTS:
+        x, n = _ELEMENTS[kind]
+        return x.expand(*b, *x.shape[x.dim() - n :]).clone()
+    if kind in _SETS:
+        x, lead = _SETS[kind]
+        return x.expand(*lead(b), *x.shape).clone()
+    return kind
+
+
+_OWNERS = {"so3": so3, "se3": se3, "quaternion": quat, "conversions": conversions,
+           "statistics": st, "nn": tnn, "SO3": SO3, "SE3": SE3, "": torchlie}  # fmt: skip
+
+
+def _on(path: str, *args: object, **kwargs: object) -> tuple[str, object]:
+    """``(torchlie.<path>, a call of it with every operand batched by b)``; ``"*b"`` is the
+    batch sizes of a factory."""
+    owner, _, attr = path.rpartition(".")
+    f = getattr(_OWNERS[owner], attr)
+
+    def call(b: tuple[int, ...]) -> object:
+        pos = [x for a in args for x in (b if a == "*b" else (_arg(a, b),))]
+        return f(*pos, **{k: _arg(v, b) for k, v in kwargs.items()})
+
+    return f"torchlie.{path}", call
+
+
+def _head(cls: type, rep: str) -> tuple[str, object]:
+    # A head applies a linear layer, then representation_to_matrix checks and names itself.
+    return "torchlie.nn.representation_to_matrix", lambda b: cls(5, rep, dtype=F64)(_arg("v5", b))
+
+
+def _param(cls: type, rep: str, kind: str) -> tuple[str, object]:
+    return f"torchlie.nn.{cls.__name__}", lambda b: cls(rep)(_arg(kind, b))
+
+
+# Every public function of so3, se3, quaternion, conversions, statistics and nn, and the SO3 /
+# SE3 constructors and methods that take tensors; each tensor argument batched.
+BATCHED: list[tuple[str, object]] = []
+for _m, _E, _tan in (("so3", "R", "v3"), ("se3", "T", "v6")):
+    _G, _g0 = _m.upper(), f"{_m.upper()}:{_E}0"
+    _jacs = ("jac_left", "jac_right", "jac_left_inv", "jac_right_inv")
+    BATCHED += [_on(f"{_m}.{f}", _tan) for f in ("hat", "exp", "ad", *_jacs)]
+    BATCHED += [_on(f"{_m}.{f}", _E) for f in ("vee", "log", "inverse", "adjoint", "is_valid")]
+    _pairs = ("compose", "distance", "rminus", "lminus", "between")
+    BATCHED += [_on(f"{_m}.{f}", _E, _E) for f in (*_pairs, "jac_compose", "jac_rminus")]
+    BATCHED += [_on(f"{_m}.jac_between", _E, _E), _on(f"{_m}.jac_inverse", _E)]
+    BATCHED += [_on(f"{_m}.{f}", _E, _tan) for f in ("rplus", "lplus", "jac_rplus")]
+    BATCHED += [_on(f"{_m}.{f}", _E, "v3") for f in ("act", "jac_act")]
+    BATCHED += [_on(f"{p}.{f}", "*b", dtype=F64) for p in (_m, _G) for f in ("identity", "random")]
+    BATCHED += [
+        _on(f"{_m}.interpolate", _E, _E, 0.3),
+        _on(f"{_m}.interpolate", f"{_E}0", f"{_E}0", "s"),
+        _on(_G, _E, check=True),
+        _on(f"{_G}.exp", _tan),
+        _on(f"{_G}.apply", _g0, "v3"),
+        _on(f"{_G}.rplus", _g0, _tan),
+        _on(f"{_G}.lplus", _g0, _tan),
+        _on(f"{_G}.interpolate", _g0, _g0, "s"),
+    ]
+BATCHED += [
+    _on("so3.project", "R"),
+    _on("se3.from_rt", "R", "v3"),
+    _on("se3.to_rt", "T"),
+    _on("se3.from_pos_quat", "v7"),
+    _on("se3.to_pos_quat", "T"),
+    _on("SO3.from_quaternion", "q", check=True),
+    _on("SE3.from_rt", "R", "v3", check=True),
+    _on("SE3.from_pos_quat", "v7", check=True),
+    *(_on(f"quaternion.{f}", "q") for f in ("conjugate", "inverse", "normalize", "canonicalize",
+                                            "exp", "log", "to_matrix", "to_rotvec", "is_unit",
+                                            "to_xyzw", "from_xyzw", "to_jpl", "from_jpl",
+                                            "left_matrix", "right_matrix", "to_su2")),
+    *(_on(f"quaternion.{f}", "*b", dtype=F64) for f in ("identity", "random")),
+    _on("quaternion.multiply", "q", "q"),
+    _on("quaternion.apply", "q", "v3"),
+    _on("quaternion.slerp", "q", "q", 0.3),
+    _on("quaternion.slerp", "q0", "q0", "s"),
+    _on("quaternion.from_matrix", "R"),
+    _on("quaternion.from_rotvec", "v3"),
+    _on("quaternion.derivative", "q", "v3"),
+    _on("quaternion.integrate", "q", "v3", 0.1),
+    _on("quaternion.integrate", "q0", "v30", "s"),
+    _on("conversions.euler_to_quaternion", "v3", "xyz"),
+    _on("conversions.quaternion_to_euler", "q", "XYZ"),
+    _on("conversions.euler_to_matrix", "v3", "zyx"),
+    _on("conversions.matrix_to_euler", "R", "xyz"),
+    _on("conversions.axis_angle_to_matrix", "v3", 0.3),
+    _on("conversions.axis_angle_to_matrix", "v30", "s"),
+    _on("conversions.matrix_to_axis_angle", "R"),
+    _on("conversions.rot6d_to_matrix", "v6"),
+    _on("conversions.matrix_to_rot6d", "R"),
+    _on("conversions.rot9d_to_matrix", "v9"),
+    _on("statistics.so3_randn", "R", 0.1),
+    _on("statistics.so3_randn", "R0", "s"),
+    _on("statistics.se3_randn", "T", scale_tril=0.1 * torch.eye(6, dtype=F64)),
+    _on("statistics.so3_mean", "Rset"),
+    _on("statistics.se3_mean", "Tset", "wset"),
+    _on("statistics.so3_interpolate_keyframes", torch.tensor([0.0, 1.0], dtype=F64), "Rkeys", 0.5),
+    _on("statistics.se3_interpolate_keyframes", torch.tensor([0.0, 1.0], dtype=F64), "Tkeys0", "s"),
+    _on("statistics.align", "Pset", "Qset", scale=True),
+    _on("statistics.so3_integrate", "R", "v3", 0.1),
+    _on("statistics.se3_integrate", "T", "v6", 0.1),
+    _on("nn.geodesic_loss", "R", "R", reduction="none"),
+    _on("nn.se3_geodesic_loss", "T", "T"),
+    *(_on("nn.representation_to_matrix", f"v{k}", rep) for rep, k in tnn.REPRESENTATIONS.items()),
+    *(_head(cls, rep) for cls in (tnn.RotationHead, tnn.PoseHead) for rep in tnn.REPRESENTATIONS),
+    *(_param(tnn.SO3Parametrization, rep, k) for rep, k in (("quaternion", "q"), ("matrix", "R"),
+                                                            ("rotvec", "v3"))),
+    *(_param(tnn.SE3Parametrization, rep, k) for rep, k in (("pos_quat", "v7"), ("matrix", "T"),
+                                                            ("twist", "v6"))),
+]  # fmt: skip
+_BATCHED_IDS = [f"{n}-{i}" for i, (n, _) in enumerate(BATCHED)]
+
+
+def _outputs(out: object) -> list[torch.Tensor]:
+    if isinstance(out, (SO3, SE3)):
+        return [out.tensor]
+    if isinstance(out, torch.Tensor):
+        return [out]
+    return [t for o in out for t in _outputs(o)]  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize("name,call", BATCHED, ids=_BATCHED_IDS)
+def test_every_op_computes_with_the_most_batch_dimensions(name, call):
+    outs = _outputs(call((1,) * LIMIT))
+    for out in outs:
+        assert bool(out.all()) if out.dtype == torch.bool else bool(torch.isfinite(out).all())
+    if not any(k in name for k in ("mean", "align", "loss", "keyframes")):  # they reduce
+        assert outs[0].shape[:LIMIT] == (1,) * LIMIT
+
+
+@pytest.mark.parametrize("name,call", BATCHED, ids=_BATCHED_IDS)
+def test_one_batch_dimension_more_raises_value_error_naming_function_limit_and_count(name, call):
+    with pytest.raises(ValueError) as info:
+        call((1,) * (LIMIT + 1))
+    msg = str(info.value)
+    assert msg.startswith((f"{name}: ", f"{name} (through torchlie.")), msg
+    where = r"in \w+ \(before its trailing \([\d, ]+\)\)|in \w+|\(one per batch size\)"
+    assert re.search(
+        rf": expected at most {LIMIT} batch dimensions ({where}), got {LIMIT + 1}$", msg
+    )
+
+
+def test_the_batch_limit_covers_every_public_function():
+    tested = {name for name, _ in BATCHED}
+    # Not calls: a table and a result type.  quaternion.from_su2 takes complex (..., 2, 2)
+    # tensors through a check of its own and computes elementwise at any batch; the heads are
+    # covered through the representation_to_matrix they call.
+    exempt = {"nn.REPRESENTATIONS", "statistics.Alignment", "quaternion.from_su2",
+              "nn.RotationHead", "nn.PoseHead"}  # fmt: skip
+    missing = [
+        f"{owner}.{f}"
+        for owner in ("so3", "se3", "quaternion", "conversions", "statistics", "nn")
+        for f in _OWNERS[owner].__all__
+        if f"torchlie.{owner}.{f}" not in tested and f"{owner}.{f}" not in exempt
+    ]
+    assert missing == []
+
+
+def test_the_message_names_the_argument_and_its_trailing_shape():
+    # The two functions issue 49 found failing inside torch with 62 leading dimensions.
+    with pytest.raises(ValueError) as info:
+        so3.project(torch.eye(3).expand(*(1,) * 62, 3, 3))
+    assert str(info.value) == (
+        "torchlie.so3.project: expected at most 60 batch dimensions in M (before its trailing "
+        "(3, 3)), got 62"
+    )
+    with pytest.raises(ValueError) as info:
+        conversions.rot9d_to_matrix(torch.ones(*(1,) * 62, 9))
+    assert str(info.value) == (
+        "torchlie.conversions.rot9d_to_matrix: expected at most 60 batch dimensions in x "
+        "(before its trailing (9,)), got 62"
+    )
+
+
+def _nested(n: int) -> object:
+    return 0.5 if n == 0 else [_nested(n - 1)]
+
+
+@pytest.mark.parametrize(
+    "make",
+    [lambda n: torch.full((1,) * n, 0.5, dtype=F64), lambda n: np.full((1,) * n, 0.5), _nested],
+    ids=["tensor", "numpy", "list"],
+)
+def test_real_parameters_count_every_dimension_as_a_batch_dimension(make):
+    assert so3.interpolate(_R1, _R1, make(LIMIT)).shape == (*(1,) * LIMIT, 3, 3)
+    msg = rf"^torchlie\.so3\.interpolate: expected at most {LIMIT} batch dimensions in t, got 61$"
+    with pytest.raises(ValueError, match=msg):
+        so3.interpolate(_R1, _R1, make(LIMIT + 1))

@@ -88,6 +88,33 @@ def test_no_links_asked_for_gives_an_empty_result(tree):
     assert tree.forward_kinematics(q, [], stacked=True).shape == (2, 0, 4, 4)
 
 
+def test_batches_of_up_to_sixty_dimensions_and_no_more(tree):
+    # The batch limit of every torchlie op (torchlie._checks.MAX_BATCH_DIMS), with the same
+    # message; the chain flattens the batch, so the limit is the library's rule, not torch's.
+    ok, more = (1,) * 60, (1,) * 61
+    q = tree.random_configuration(*ok, generator=torch.Generator().manual_seed(0))
+    assert q.shape == (*ok, tree.n_dof)
+    assert tree.forward_kinematics(q, "right_index")["right_index"].shape == (*ok, 4, 4)
+    J = tree.jacobian(q, "right_index", point=torch.zeros(*ok, 3, dtype=F64))
+    assert J.shape == (*ok, 6, tree.n_dof)
+    p = tree.forward_kinematics(q, "right_index")["right_index"][..., :3, 3]
+    res = tree.inverse_kinematics(p, "right_index", max_iterations=0)
+    assert res.q.shape == (*ok, tree.n_dof)
+    in_q = rf"in q \(before its trailing \({tree.n_dof},\)\)"
+    point = torch.zeros(*more, 3, dtype=F64)
+    sizes, ik = r"\(one per batch size\)", r"in targets\['right_index'\]"
+    for fn, call, where in (
+        ("random_configuration", lambda: tree.random_configuration(*more), sizes),
+        ("forward_kinematics", lambda: tree.forward_kinematics(q[None]), in_q),
+        ("jacobian", lambda: tree.jacobian(q[None], "drone"), in_q),
+        ("jacobian", lambda: tree.jacobian(q, "drone", point=point), "in point .*"),
+        ("inverse_kinematics", lambda: tree.inverse_kinematics(p[None], "right_index"), ik),
+    ):  # fmt: skip
+        head = rf"^torchlie\.kinematics\.Chain\.{fn}: expected at most 60 batch dimensions"
+        with pytest.raises(ValueError, match=rf"{head} {where}, got 61$"):
+            call()
+
+
 # ----------------------------------------------------------------------------------------------
 # Robots without degrees of freedom
 # ----------------------------------------------------------------------------------------------
@@ -260,6 +287,104 @@ def test_mimic_multipliers_whose_product_overflows_are_rejected():
     assert "the multiplier composed along its chain of mimic joints, inf" in info.value.problem
 
 
+MAX64 = torch.finfo(F64).max
+MAX32 = float(torch.finfo(torch.float32).max)
+
+
+def limited(lower: float, upper: float, jtype: str = "prismatic") -> str:
+    """A one-joint robot with limits written as the doubles ``lower`` and ``upper``."""
+    return robot(
+        joint("j", jtype).replace('lower="-1" upper="1"', f'lower="{lower!r}" upper="{upper!r}"')
+    )
+
+
+@pytest.mark.parametrize(
+    ("lower", "upper"),
+    [(-MAX64, MAX64), (-1e300, 1e308), (1e308, MAX64), (-MAX64, -1e308), (MAX64, MAX64),
+     (-MAX64, -MAX64), (0.5, 0.5)],
+)  # fmt: skip
+def test_random_configuration_is_finite_and_uniform_for_every_finite_pair_of_limits(lower, upper):
+    # hi - lo overflows for the first pair; the draw never forms it.
+    chain = Chain.from_urdf(limited(lower, upper), dtype=F64)
+    q = chain.random_configuration(20_000, generator=torch.Generator().manual_seed(0))[:, 0]
+    assert bool(torch.isfinite(q).all())
+    assert bool(((q >= lower) & (q <= upper)).all())
+    if lower == upper:
+        assert bool((q == lower).all())
+    else:  # where in [lower, upper], as a fraction: uniform, mean 1/2 and spread 1/sqrt(12)
+        f = (q / 2 - lower / 2) / (upper / 2 - lower / 2)
+        assert abs(f.mean().item() - 0.5) < 0.01 and abs(f.std().item() - 12**-0.5) < 0.01
+
+
+def test_ik_starts_are_finite_within_bounds_near_the_float64_range():
+    chain = Chain.from_urdf(limited(-1.0, 1.0), dtype=F64)
+    res = chain.inverse_kinematics(
+        torch.zeros(50, 3, dtype=F64), "b", restarts=4, max_iterations=0, lower=-MAX64,
+        upper=MAX64, generator=torch.Generator().manual_seed(0),
+    )  # fmt: skip
+    # Uniform in [-MAX64, MAX64] (not all at one bound, as inf * u clamped would be).
+    assert bool(torch.isfinite(res.q).all()) and res.q.unique().numel() == 50
+    assert 0.2 < (res.q > 0).double().mean().item() < 0.8 and res.q.abs().max().item() > 1e307
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, F64], ids=str)
+def test_limits_at_the_edge_of_the_dtype_are_kept_and_sampled_finite(dtype):
+    top = MAX32 if dtype == torch.float32 else MAX64
+    chain = Chain.from_urdf(limited(-top, top), dtype=dtype)
+    assert chain.lower.tolist() == [-top] and chain.upper.tolist() == [top]
+    q = chain.random_configuration(1000, generator=torch.Generator().manual_seed(1))
+    assert bool(torch.isfinite(q).all()) and bool(((q >= -top) & (q <= top)).all())
+    # 3.4028235e38 is above float32's largest value but rounds to it, so it fits float32.
+    chain = Chain.from_urdf(limited(0.0, 3.4028235e38))
+    assert chain.upper.tolist() == [MAX32]
+    q = chain.random_configuration(1000, generator=torch.Generator().manual_seed(2))
+    assert bool(torch.isfinite(q).all()) and bool((q <= MAX32).all())
+
+
+ONE_RULE = [  # (robot, element, attribute, written value): every number the chain stores
+    (robot(joint(inner='<origin xyz="0 1e39 0"/>')), "origin", "xyz", "1e+39"),
+    (limited(-1e39, 1.0, "revolute"), "limit", "lower", "-1e+39"),
+    (limited(0.0, 3.5e38), "limit", "upper", "3.5e+38"),
+]
+
+
+@pytest.mark.parametrize(
+    ("text", "sub", "key", "value"), ONE_RULE, ids=["origin", "lower", "upper"]
+)
+def test_numbers_beyond_float32_are_rejected_alike_naming_file_element_and_value(
+    tmp_path, text, sub, key, value
+):
+    # Origins and limits follow one rule: computed in float64, an error in float32 (a limit
+    # would otherwise become inf, read as "no limit"), from a file, a string or Chain.to.
+    path = tmp_path / "big.urdf"
+    path.write_text(text)
+    problem = (
+        f"attribute '{key}' value {value} overflows torch.float32 (largest finite 3.40282e+38); "
+        "use dtype=torch.float64"
+    )
+    for source, label in ((path, str(path)), (text, "<string>")):
+        with pytest.raises(URDFError) as info:
+            Chain.from_urdf(source)
+        e = info.value
+        assert (e.source, e.element, e.problem) == (label, f"<joint name='j'> <{sub}>", problem)
+        assert str(e) == f"{label}: <joint name='j'> <{sub}>: {problem}"
+    chain = Chain.from_urdf(path, dtype=F64)
+    q = chain.random_configuration(100, generator=torch.Generator().manual_seed(0))
+    assert bool(torch.isfinite(chain.forward_kinematics(q)["b"]).all())
+    with pytest.raises(URDFError) as info:
+        chain.to(torch.float32)
+    assert info.value.problem == problem
+
+
+def test_a_mimic_joints_own_limits_are_not_stored_so_not_checked():
+    mimic = joint("j2", "revolute", "b", "c", '<mimic joint="j1"/>')
+    text = robot(
+        joint("j1", "revolute", "a", "b") + mimic.replace('"1"', '"1e39"'), ("a", "b", "c")
+    )
+    chain = Chain.from_urdf(text)  # float32: j2 has no DoF, its limits are not in chain.upper
+    assert chain.joint_names == ("j1",) and chain.upper.tolist() == [1.0]
+
+
 # ----------------------------------------------------------------------------------------------
 # Number syntax: XML Schema double, nothing else
 # ----------------------------------------------------------------------------------------------
@@ -341,6 +466,86 @@ def test_names_in_error_messages_cannot_forge_log_lines(tmp_path):
 # ----------------------------------------------------------------------------------------------
 # Thousands of links and joints
 # ----------------------------------------------------------------------------------------------
+
+
+def _big_error(tmp_path, text: str) -> URDFError:
+    """The URDFError of ``text`` read from a file: it names the file and stays short."""
+    path = tmp_path / "big.urdf"
+    path.write_text(text)
+    with pytest.raises(URDFError) as info:
+        parse_urdf(path)
+    e = info.value
+    assert e.source == str(path) and str(e) == f"{path}: {e.element}: {e.problem}"
+    assert len(e.problem) < 160
+    return e
+
+
+def test_eighty_thousand_root_links_are_counted_and_five_named(tmp_path):
+    e = _big_error(tmp_path, robot("", tuple(f"l{i}" for i in range(80_000))))
+    assert e.element == "<robot>"
+    assert e.problem == (
+        "80000 root links ('l0', 'l1', 'l2', 'l3', 'l4' and 79995 more); exactly one link may "
+        "be without a parent joint"
+    )
+
+
+def test_a_five_thousand_joint_cycle_is_counted_and_five_named(tmp_path):
+    n = 5_000  # l0 -> l1 -> ... -> l4999 -> l0 by joints j0 ... j4999, below no root
+    body = "".join(joint(f"j{i}", "fixed", f"l{i}", f"l{(i + 1) % n}") for i in range(n))
+    e = _big_error(tmp_path, robot(body, ("root", *(f"l{i}" for i in range(n)))))
+    assert e.element == "<joint name='j4999'>"
+    assert e.problem == (
+        "cycle through 5000 joints 'j0' -> 'j1' -> 'j2' -> 'j3' -> 'j4' and 4995 more (links "
+        "'l0', 'l1', 'l2', 'l3', 'l4' and 4995 more)"
+    )
+
+
+def test_a_five_thousand_joint_mimic_cycle_is_counted_and_five_named(tmp_path):
+    n = 5_000  # j{i} mimics j{i+1}, and j4999 mimics j0
+    text = serial(n, mimic=True, reverse=True).replace(
+        '<limit lower="-1" upper="1"/></joint></robot>',
+        '<limit lower="-1" upper="1"/><mimic joint="j0"/></joint></robot>',
+    )
+    e = _big_error(tmp_path, text)
+    assert e.element == "<joint name='j0'> <mimic>"
+    assert e.problem == (
+        "mimic cycle of 5000 joints: 'j0' -> 'j1' -> 'j2' -> 'j3' -> 'j4' and 4996 more"
+    )
+
+
+def test_chain_errors_list_five_of_two_thousand_links():
+    n = 2_000
+    chain = Chain.from_urdf(serial(n))
+    q = torch.zeros(chain.n_dof)
+    with pytest.raises(ValueError) as info:
+        chain.forward_kinematics(q, "nope")
+    assert str(info.value) == (
+        "torchlie.kinematics.Chain.forward_kinematics: unknown link 'nope' (the links are 'l0', "
+        "'l1', 'l2', 'l3', 'l4' and 1996 more)"
+    )
+    links = [f"l{i}" for i in range(1, n + 1)]
+    with pytest.raises(ValueError) as info:
+        chain.jacobian(q, links, point={"l0": torch.zeros(3)})
+    assert str(info.value) == (
+        "torchlie.kinematics.Chain.jacobian: point has an entry for 'l0', which is not among the "
+        "links asked for ('l1', 'l2', 'l3', 'l4', 'l5' and 1995 more)"
+    )
+
+
+def test_validate_notes_list_five_joints_and_count_the_rest():
+    pytest.importorskip("pytorch_kinematics")
+    n = 12  # every joint without <axis>, every other one a mimic joint
+    body = "".join(
+        joint(f"j{i}", "revolute", f"l{i}", f"l{i + 1}", f'<mimic joint="j{i - 1}"/>' * (i % 2))
+        for i in range(n)
+    )
+    text = robot(body, tuple(f"l{i}" for i in range(n + 1)))
+    text = text.replace('upper="1"/>', 'upper="1" effort="1" velocity="1"/>')  # pk needs them
+    report = V.validate(text, samples=2, batch=2, compare_pin=False, out=io.StringIO())
+    dev = "\n".join(report.deviations)
+    assert "written out for j0, j1, j2, j3, j4 and 7 more" in dev
+    assert "expanded values j1 = 1 * j0 + 0, j3 = 1 * j2 + 0, j5 = 1 * j4 + 0, " in dev
+    assert "j9 = 1 * j8 + 0 and 1 more," in dev
 
 
 def test_parses_twenty_thousand_links():

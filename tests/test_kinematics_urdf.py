@@ -141,12 +141,11 @@ def test_cycle():
         ("a", "b", "c", "d"),
     )
     e = bad(text)
-    assert "cycle through joints" in e.problem and "(links 'b', 'c', 'd')" in e.problem
-    for name in ("'bc'", "'cd'", "'db'"):
-        assert name in e.problem
+    assert e.element == "<joint name='db'>"
+    assert e.problem == "cycle through 3 joints 'bc' -> 'cd' -> 'db' (links 'b', 'c', 'd')"
     # A cycle through every link leaves no root at all.
     e = bad(robot(joint("ab", "fixed", "a", "b") + joint("ba", "fixed", "b", "a")))
-    assert "cycle through joints" in e.problem
+    assert e.problem == "cycle through 2 joints 'ab' -> 'ba' (links 'a', 'b')"
 
 
 def test_self_loop():
@@ -163,7 +162,7 @@ def test_link_with_two_parents():
 def test_two_roots():
     e = bad(robot(joint("j", "fixed", "a", "b"), ("a", "b", "c")))
     assert e.element == "<robot>"
-    assert e.problem.startswith("2 root links ('a', 'c')")
+    assert e.problem == "2 root links ('a', 'c'); exactly one link may be without a parent joint"
 
 
 def test_unknown_joint_type():
@@ -253,7 +252,9 @@ def test_mimic_cycle():
         + joint("j2", "revolute", "b", "c", '<limit/><mimic joint="j1"/>'),
         ("a", "b", "c"),
     )
-    assert bad(text).problem.startswith("mimic cycle: 'j1' -> 'j2'")
+    assert bad(text).problem == "mimic cycle of 2 joints: 'j1' -> 'j2' -> 'j1'"
+    text = robot(joint("j1", "revolute", inner='<limit/><mimic joint="j1"/>'))
+    assert bad(text).problem == "mimic cycle of 1 joint: 'j1' -> 'j1'"
 
 
 def test_duplicates():

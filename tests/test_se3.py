@@ -643,11 +643,27 @@ def test_pos_quat_against_scipy(dtype):
     torch.testing.assert_close(se3.from_pos_quat(back), T, rtol=0, atol=8 * eps(dtype))
 
 
-def test_from_pos_quat_zero_quaternion_is_nan_for_that_element():
-    x = torch.tensor([[1.0, 2.0, 3.0, 1.0, 0.0, 0.0, 0.0], [1.0, 2.0, 3.0, 0.0, 0.0, 0.0, 0.0]])
+def test_from_pos_quat_zero_quaternion_gives_a_nan_rotation_block_only(dtype):
+    # As documented: no rotation, so that element's rotation block is NaN; its translation
+    # column is as given and its bottom row (0, 0, 0, 1); the other element is untouched.
+    x = torch.tensor(
+        [[1.0, 2.0, 3.0, 1.0, 0.0, 0.0, 0.0], [4.0, -5.0, 6.0, 0.0, 0.0, 0.0, 0.0]],
+        dtype=dtype,
+        requires_grad=True,
+    )
     T = se3.from_pos_quat(x)
-    torch.testing.assert_close(T[0], se3.from_rt(torch.eye(3), x[0, :3]), rtol=0, atol=0)
+    torch.testing.assert_close(
+        T[0], se3.from_rt(torch.eye(3, dtype=dtype), x[0, :3]), rtol=0, atol=0
+    )
     assert bool(torch.isnan(T[1, :3, :3]).all())
+    assert T[1, :3, 3].tolist() == [4.0, -5.0, 6.0]
+    assert T[1, 3].tolist() == [0.0, 0.0, 0.0, 1.0]
+    # The gradient follows the blocks: finite for both translations and the unit quaternion,
+    # NaN for the zero quaternion only.
+    (g,) = torch.autograd.grad(T.sum(), x)
+    assert bool(torch.isfinite(g[0]).all()) and bool(torch.isfinite(g[1, :3]).all())
+    assert g[1, :3].tolist() == [1.0, 1.0, 1.0]
+    assert bool(torch.isnan(g[1, 3:]).all())
 
 
 # ----------------------------------------------------------------------------------------------

@@ -7,13 +7,16 @@ explicit ``is_valid`` / ``is_unit`` functions of each module instead.
 One rule for every entry point:
 
 * tensors: float16, bfloat16 (both computed in float32), float32 or float64, else ``TypeError``;
-  the tensors of one call share one dtype, else ``TypeError``; wrong trailing shape or batch
-  shapes that do not broadcast: ``ValueError``;
-* factories (``identity``, ``random``, ...): ``dtype=`` one of those four (``TypeError``);
+  the tensors of one call share one dtype, else ``TypeError``; wrong trailing shape, batch
+  shapes that do not broadcast, or more than :data:`MAX_BATCH_DIMS` batch dimensions:
+  ``ValueError``;
+* factories (``identity``, ``random``, ...): ``dtype=`` one of those four (``TypeError``), at
+  most :data:`MAX_BATCH_DIMS` batch sizes (``ValueError``);
 * real parameters (``t``, ``dt``, ``angle``, ``std``, query times, weights): a tensor (of the
   operands' dtype, as above) or numbers: a Python or numpy real number, a numpy array of
   reals, or a (nested) list / tuple of them, converted to the operands' dtype and device;
-  ``bool`` is never a number here (``TypeError``);
+  ``bool`` is never a number here (``TypeError``); each of their dimensions counts as a batch
+  dimension;
 * tolerances and loss weights: a non-negative finite real number (``TypeError`` for another
   type, ``ValueError`` for a negative, infinite or NaN value).
 """
@@ -33,6 +36,22 @@ _LOW_PRECISION = (torch.float16, torch.bfloat16)
 #: The dtypes every op accepts (float8 and the rest are refused: no op is written for them).
 _FLOATS = frozenset((torch.float16, torch.bfloat16, torch.float32, torch.float64))
 _FLOAT_NAMES = "float16, bfloat16, float32 or float64"
+#: The most batch dimensions (those before an argument's trailing shape, such as the ``(3, 3)``
+#: of a rotation matrix) an op accepts.  torch reduces tensors of up to 64 dimensions only, and
+#: the ops build intermediates of up to three dimensions after the batch (``so3.project``'s
+#: product of two 3x3 factors written as an outer product and a sum); 60 keeps one in hand.
+MAX_BATCH_DIMS = 60
+
+
+def batch_dims(fn: str, k: int, what: str) -> None:
+    """Raise a ``ValueError`` naming ``fn`` if ``k`` batch dimensions (``what``: where they
+    are, e.g. ``"in t"``) are more than :data:`MAX_BATCH_DIMS`."""
+    if k > MAX_BATCH_DIMS:
+        raise _too_many(fn, k, what)
+
+
+def _too_many(fn: str, k: int, what: str) -> ValueError:
+    return ValueError(f"{fn}: expected at most {MAX_BATCH_DIMS} batch dimensions {what}, got {k}")
 
 
 def _shape_str(trailing: tuple[int, ...]) -> str:
@@ -57,6 +76,8 @@ def tensor(x: object, fn: str, arg: str, trailing: tuple[int, ...]) -> tuple[Ten
     k = len(shape) - len(trailing)
     if k < 0 or shape[k:] != trailing:
         raise ValueError(f"{fn}: expected {arg} of shape {_shape_str(trailing)}, got {shape}")
+    if k > MAX_BATCH_DIMS:
+        raise _too_many(fn, k, f"in {arg} (before its trailing {trailing})")
     if dtype in _LOW_PRECISION:
         return x.float(), dtype
     return x, dtype
@@ -79,6 +100,7 @@ def factory(fn: str, batch: tuple[object, ...], dtype: object) -> tuple[torch.dt
     ``dtype=None`` means torch's default dtype.  Half precision is drawn and computed in float32
     and cast back by the caller (``out``).
     """
+    batch_dims(fn, len(batch), "(one per batch size)")
     for b in batch:
         if type(b) is int and b >= 0:  # the common case, before the slower ABC checks
             continue
@@ -118,20 +140,24 @@ def real(x: object, fn: str, arg: str, like: Tensor, ref: tuple[str, Tensor]) ->
                 f"dtype {x.dtype}"
             )
         same_dtype(fn, **{ref[0]: ref[1], arg: x})
+        batch_dims(fn, x.dim(), f"in {arg}")
         return x if x.dtype == like.dtype else x.to(like.dtype)
     # float and int first (the ABC check is slower); numpy's bool_ is not a numbers.Real
     if type(x) in (float, int) or (isinstance(x, numbers.Real) and not isinstance(x, bool)):
         return torch.tensor(float(x), dtype=like.dtype, device=like.device)
     if isinstance(x, np.ndarray) and x.dtype.kind in "fiu":
+        batch_dims(fn, x.ndim, f"in {arg}")
         return torch.as_tensor(x).to(dtype=like.dtype, device=like.device)
     if isinstance(x, (list, tuple)) and _real_leaves(x):
         try:
-            return torch.tensor(x, dtype=like.dtype, device=like.device)
+            t = torch.tensor(x, dtype=like.dtype, device=like.device)
         except (ValueError, TypeError, RuntimeError):
             raise ValueError(
                 f"{fn}: expected {arg} to be a rectangular (nested) list of numbers, got a "
                 "ragged one"
             ) from None
+        batch_dims(fn, t.dim(), f"in {arg}")
+        return t
     what = f"numpy array of dtype {x.dtype}" if isinstance(x, np.ndarray) else type(x).__name__
     raise TypeError(
         f"{fn}: expected {arg} to be a real number, a list or numpy array of them, or a "
@@ -180,7 +206,8 @@ def tolerance(x: object, fn: str, arg: str, dtype: torch.dtype) -> float:
 
 
 def batch_broadcast(fn: str, *shapes: tuple[torch.Size, str]) -> torch.Size:
-    """Broadcast the leading (batch) shapes, raising a ``ValueError`` that names the function.
+    """Broadcast the leading (batch) shapes, raising a ``ValueError`` that names the function
+    (shapes that do not broadcast, or a result of more than :data:`MAX_BATCH_DIMS` dimensions).
 
     Eager calls broadcast in plain Python over the sizes (``torch.broadcast_shapes`` costs more
     than a small op's arithmetic); while compiling, sizes may be symbolic and
@@ -188,14 +215,19 @@ def batch_broadcast(fn: str, *shapes: tuple[torch.Size, str]) -> torch.Size:
     """
     if torch.compiler.is_compiling():
         try:
-            return torch.broadcast_shapes(*(s for s, _ in shapes))
+            out = torch.broadcast_shapes(*(s for s, _ in shapes))
         except RuntimeError:
             raise _broadcast_error(fn, shapes) from None
+        if len(out) > MAX_BATCH_DIMS:
+            raise _broadcast_dims(fn, shapes)
+        return out
     first = shapes[0][0] if shapes else ()
     for shape, _ in shapes:
         if shape != first:
             break
     else:
+        if len(first) > MAX_BATCH_DIMS:
+            raise _broadcast_dims(fn, shapes)
         return first if type(first) is torch.Size else torch.Size(first)
     result: list[int] = []  # the broadcast shape, last dimension first
     for shape, _ in shapes:
@@ -207,6 +239,8 @@ def batch_broadcast(fn: str, *shapes: tuple[torch.Size, str]) -> torch.Size:
                     result[i] = d
                 elif d != 1:
                     raise _broadcast_error(fn, shapes)
+    if len(result) > MAX_BATCH_DIMS:
+        raise _broadcast_dims(fn, shapes)
     result.reverse()
     return torch.Size(result)
 
@@ -230,6 +264,13 @@ def pair(
     sx, sy = x.shape, y.shape
     batch = batch_broadcast(fn, (sx[: len(sx) - len(ta)], na), (sy[: len(sy) - len(tb)], nb))
     return x, y, dtype, batch
+
+
+def _broadcast_dims(fn: str, shapes: tuple[tuple[torch.Size, str], ...]) -> ValueError:
+    """The error of a broadcast batch of more than :data:`MAX_BATCH_DIMS` dimensions, naming the
+    longest operand (one whose batch was not checked before, such as the IK solver's targets)."""
+    shape, name = max(shapes, key=lambda s: len(s[0]))
+    return _too_many(fn, len(shape), f"in {name}")
 
 
 def _broadcast_error(fn: str, shapes: tuple[tuple[torch.Size, str], ...]) -> ValueError:

@@ -425,7 +425,11 @@ def from_pos_quat(x: Float[Tensor, "*b 7"]) -> Float[Tensor, "*b 4 4"]:
     """Pose from a 7-vector ``(tx, ty, tz, qw, qx, qy, qz)``: translation, then a wxyz quaternion.
 
     The quaternion need not be unit (the rotation of ``q / |q|`` is used, as
-    :func:`torchlie.quaternion.to_matrix`); a zero quaternion gives NaN for that element.
+    :func:`torchlie.quaternion.to_matrix`).  A zero quaternion has no rotation: that
+    element's rotation block is NaN (as :func:`torchlie.quaternion.to_matrix` of it), while its
+    translation column is as given and its bottom row ``(0, 0, 0, 1)``: each block depends
+    only on its own part of ``x``, and so does the gradient (finite for the translation, NaN
+    for the zero quaternion).  The other elements of the batch are unaffected.
 
     Example:
         >>> from_pos_quat(torch.tensor([1.0, 2.0, 3.0, 0.0, 0.0, 0.0, 1.0]))

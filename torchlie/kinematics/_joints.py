@@ -185,13 +185,16 @@ def _resolve_mimics(spec: RobotSpec, dof_of: dict[str, int]) -> dict[str, tuple[
 def _check_representable(
     spec: RobotSpec, dtype: torch.dtype, mimic_mult: list[float], mimic_off: list[float]
 ) -> None:
-    """Raise :class:`URDFError` where a constant of the chain overflows ``dtype``.
+    """Raise :class:`URDFError` where a number of the URDF that the chain stores in ``dtype``
+    does not fit it.
 
-    The origins' translations and the mimic joints' composed multipliers and offsets become
-    constants of the chain; one beyond the dtype's range (``3.4e38`` for float32; in float64
-    only a product of mimic multipliers can get there) would be ``inf`` and make every pose
-    below it ``nan``, so it is an error naming the joint and the value.  Rotations and axes are
-    bounded by construction; a limit beyond the range is ``inf`` (no limit).
+    One rule for every such number: the origins' translations, the position limits and the
+    mimic joints' composed multipliers and offsets.  One beyond the dtype's range
+    (``3.4e38`` for float32; in float64 only a product of mimic multipliers can get there)
+    would become ``inf``: an origin would make every pose below it ``nan`` and a limit would
+    silently turn into "no limit", so it is an error naming the file, the joint, the attribute
+    and the value.  Rotations and axes are bounded by construction; ``effort`` and
+    ``velocity`` are metadata the chain does not convert.
     """
 
     def first_overflow(values: list[float]) -> int | None:
@@ -199,24 +202,44 @@ def _check_representable(
         return None if bool(ok.all()) else int((~ok).nonzero()[0, 0])
 
     big = f"{dtype} (largest finite {torch.finfo(dtype).max:.6g})"
+    if dtype != torch.float64:
+        big += "; use dtype=torch.float64"
+
+    def fail(j: JointSpec, sub: str, problem: str) -> URDFError:
+        return URDFError(spec.source, _describe("joint", j.name, 0, sub), problem)
+
     k = first_overflow([x for j in spec.joints for x in j.xyz])
     if k is not None:
         j = spec.joints[k // 3]
-        raise URDFError(
-            spec.source,
-            _describe("joint", j.name, 0, "origin"),
-            f"attribute 'xyz' value {j.xyz[k % 3]!r} overflows {big}; use dtype=torch.float64",
-        )
+        raise fail(j, "origin", f"attribute 'xyz' value {j.xyz[k % 3]!r} overflows {big}")
+    # The limits of the DoFs (a mimic joint's own limits are not stored: it has no DoF).
+    limited = [j for j in spec.joints if j.lower is not None and j.mimic is None]
+    k = first_overflow([x for j in limited for x in (j.lower, j.upper)])  # type: ignore[misc]
+    if k is not None:
+        j = limited[k // 2]
+        key, value = ("lower", j.lower) if k % 2 == 0 else ("upper", j.upper)
+        raise fail(j, "limit", f"attribute {key!r} value {value!r} overflows {big}")
     mimics = [j for j in spec.joints if j.mimic is not None]
     for what, values in (("multiplier", mimic_mult), ("offset", mimic_off)):
         k = first_overflow(values)
         if k is not None:
-            raise URDFError(
-                spec.source,
-                _describe("joint", mimics[k].name, 0, "mimic"),
+            raise fail(
+                mimics[k],
+                "mimic",
                 f"the {what} composed along its chain of mimic joints, {values[k]!r}, "
                 f"overflows {big}",
             )
+
+
+def _uniform_within(lo: Tensor, hi: Tensor, u: Tensor) -> Tensor:
+    """``lo + u (hi - lo)`` for ``u`` in ``[0, 1)``: finite and within ``[lo, hi]`` for every
+    finite ``lo <= hi``.
+
+    Written ``lo (1 - u) + hi u``, so the difference ``hi - lo`` (``inf`` for limits of opposite
+    signs near the float64 range) is never formed, and clamped into ``[lo, hi]``: the rounded
+    products can step an ulp outside, or to ``inf`` next to the largest double.
+    """
+    return torch.minimum(torch.maximum(lo * (1.0 - u) + hi * u, lo), hi)
 
 
 def _sampling_ranges(names: Sequence[str], lower: Tensor, upper: Tensor) -> tuple[Tensor, Tensor]:

@@ -18,7 +18,7 @@ from torch import Tensor
 from .. import so3
 from ._joints import _resolve_mimics
 from .chain import Chain
-from .urdf import RobotSpec
+from .urdf import RobotSpec, _some
 
 #: Pinocchio's reference frames for torchlie's Jacobian kinds (``Chain.jacobian(frame=...)``).
 PIN_FRAMES = {"world": "LOCAL_WORLD_ALIGNED", "link": "LOCAL", "spatial": "WORLD"}
@@ -165,7 +165,8 @@ def _pin_setup(
         )
     if pinc.skipped:
         deviations.append(
-            f"Pinocchio's planar joint moves in its xy plane only: {', '.join(pinc.skipped)} "
+            "Pinocchio's planar joint moves in its xy plane only: "
+            f"{_some(pinc.skipped, quote=False)} "
             "(another axis) and the links below are not compared with it"
         )
     deviations.append(

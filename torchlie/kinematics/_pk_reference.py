@@ -17,7 +17,7 @@ from torch import Tensor
 
 from ._joints import _resolve_mimics
 from .chain import Chain
-from .urdf import RobotSpec
+from .urdf import RobotSpec, _some
 
 #: Tolerance against pytorch-kinematics (times ``1 + reach`` for positions and Jacobians): it
 #: parses origins and computes in float32.
@@ -138,10 +138,13 @@ def _pk_setup(
     if pkc is not None:
         mimics = [j for j in spec.joints if j.mimic is not None]
         if mimics:
-            desc = ", ".join(
-                f"{j.name} = {j.mimic.multiplier:g} * {j.mimic.joint} + {j.mimic.offset:g}"
-                for j in mimics
-                if j.mimic is not None
+            desc = _some(
+                [
+                    f"{j.name} = {j.mimic.multiplier:g} * {j.mimic.joint} + {j.mimic.offset:g}"
+                    for j in mimics
+                    if j.mimic is not None
+                ],
+                quote=False,
             )
             deviations.append(
                 f"pk ignores <mimic> (it makes them independent joints): it was given the "
@@ -155,13 +158,14 @@ def _pk_setup(
         if no_axis:
             deviations.append(
                 "pk reads an omitted <axis> as +Z (URDF: +X): its copy has axis '1 0 0' written "
-                f"out for {', '.join(no_axis)}"
+                f"out for {_some(no_axis, quote=False)}"
             )
         free_joints = [j.name for j in spec.joints if j.type in ("floating", "planar")]
         if free_joints:
             deviations.append(
                 "pk cannot load floating or planar joints: they are fixed joints in its copy "
-                f"({', '.join(free_joints)}); the links below them ({', '.join(free)}) are "
+                f"({_some(free_joints, quote=False)}); the links below them "
+                f"({_some(list(free), quote=False)}) are "
                 "compared with the float64 reference only"
             )
         deviations.append(

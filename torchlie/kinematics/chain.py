@@ -38,17 +38,22 @@ Conventions
 
 Deliberate conventions at the edges:
 
-* Every batch shape is accepted, empty ones included: ``q`` of shape ``(0, n_dof)`` gives
-  poses ``(0, 4, 4)`` and Jacobians ``(0, 6, n_dof)``, like every torchlie op.
+* Every batch shape of up to 60 dimensions is accepted, empty ones included: ``q`` of shape
+  ``(0, n_dof)`` gives poses ``(0, 4, 4)`` and Jacobians ``(0, 6, n_dof)``, like every
+  torchlie op (more batch dimensions raise ``ValueError``, as there).
 * A robot without degrees of freedom (one link, or fixed joints only) takes ``q`` of shape
   ``(..., 0)``; its poses are constants and its Jacobians have no columns, ``(..., 6, 0)``.
-* Numbers: a constant of the chain that does not fit its dtype (an ``<origin>`` translation
-  beyond ``3.4e38`` in a float32 chain, or mimic multipliers whose product overflows) raises
-  :class:`~torchlie.kinematics.URDFError` naming the joint and the value when the chain is
-  built.  With constants that fit, poses follow plain IEEE arithmetic: a pose whose
-  translation overflows (two origins of ``1e308`` in float64) is ``inf`` there, and the links
-  below it get ``nan`` entries (the 4x4 products multiply that ``inf`` by the bottom row's
-  zeros).  No check on values is made at run time (it would cost a device sync).
+* Numbers: one rule for every number of the URDF the chain stores in its dtype (``<origin>``
+  translations, ``<limit lower upper>`` and the composed ``<mimic>`` multipliers and
+  offsets): one that does not fit the dtype (beyond ``3.4e38`` in a float32 chain, or mimic
+  multipliers whose product overflows) raises :class:`~torchlie.kinematics.URDFError` naming
+  the file, the joint, the attribute and the value when the chain is built (by
+  :meth:`Chain.from_urdf`, the constructor or :meth:`Chain.to`); it never silently becomes
+  ``inf`` (for a limit, that would read as "no limit").  With constants that fit, poses
+  follow plain IEEE arithmetic: a pose whose translation overflows (two origins of ``1e308``
+  in float64) is ``inf`` there, and the links below it get ``nan`` entries (the 4x4 products
+  multiply that ``inf`` by the bottom row's zeros).  No check on values is made at run time
+  (it would cost a device sync).
 
 Implementation: the joints of each tree depth are computed together, per joint kind, with one
 matrix product per depth.  A child pose is linear in a few features of its joint value
@@ -88,11 +93,12 @@ from ._joints import (
     _mimic_rows,
     _sampling_ranges,
     _tree_links,
+    _uniform_within,
     rpy_matrix,
 )
 from .ik import IKResult
 from .ik import inverse_kinematics as _inverse_kinematics
-from .urdf import RobotSpec, parse_urdf
+from .urdf import RobotSpec, _some, parse_urdf
 
 __all__ = ["Chain", "rpy_matrix"]
 
@@ -272,9 +278,10 @@ class Chain:
         Coordinates without limits are drawn from ``[-pi, pi]`` (continuous joints, planar
         rotation), ``[-1, 1]`` m (planar and floating translations) and
         ``[-pi/sqrt(3), pi/sqrt(3)]`` per rotation-vector component (floating rotations).
-        Drawn on the CPU in float64 (with ``generator`` if given), then converted.  Each batch
-        size is a non-negative integer (0 gives an empty batch); anything else raises
-        ``TypeError``/``ValueError``.
+        Drawn on the CPU in float64 (with ``generator`` if given), then converted; the values are
+        finite for every pair of limits, those near the float64 range included.  Each batch
+        size is a non-negative integer (0 gives an empty batch), at most 60 of them (the batch
+        limit of every torchlie op); anything else raises ``TypeError``/``ValueError``.
 
         Example:
             >>> from torchlie.kinematics import sample_robot
@@ -298,9 +305,10 @@ class Chain:
             if size < 0:
                 raise ValueError(f"{fn}: expected batch sizes >= 0, got batch={batch!r}")
             sizes.append(size)
+        _checks.batch_dims(fn, len(sizes), "(one per batch size)")
         lo, hi = self._sampling_bounds()
         u = torch.rand(*sizes, self.n_dof, generator=generator, dtype=torch.float64)
-        return (lo + (hi - lo) * u).to(dtype=self.dtype, device=self.device)
+        return _uniform_within(lo, hi, u).to(dtype=self.dtype, device=self.device)
 
     # ------------------------------------------------------------------------------------------
     # Forward kinematics: plans (which links, grouped by depth and joint kind) and their run
@@ -376,13 +384,10 @@ class Chain:
             )
         for n in names:
             if n not in self._index:
-                raise ValueError(f"{_NAME}{fn}: unknown link {n!r} ({self._some_links()})")
+                raise ValueError(
+                    f"{_NAME}{fn}: unknown link {n!r} (the links are {_some(self.link_names)})"
+                )
         return tuple(self._index[n] for n in names)
-
-    def _some_links(self, shown: int = 12) -> str:
-        names = ", ".join(repr(n) for n in self.link_names[:shown])
-        more = len(self.link_names) - shown
-        return f"the links are {names}" + (f" and {more} more" if more > 0 else "")
 
     def forward_kinematics(
         self,
@@ -612,7 +617,7 @@ class Chain:
                 if k not in names:
                     raise ValueError(
                         f"{fn}: point has an entry for {reprlib.repr(k)}, which is not among "
-                        f"the links asked for ({', '.join(map(repr, names))})"
+                        f"the links asked for ({_some(names)})"
                     )
             items = {k: (v, f"point[{k!r}]") for k, v in point.items()}
         else:

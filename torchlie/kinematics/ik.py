@@ -99,6 +99,7 @@ from torch import Tensor
 from .. import _checks, _coeffs, _rodrigues, _se3_jacobian
 from .. import se3 as _se3
 from .. import so3 as _so3
+from ._joints import _uniform_within
 
 if TYPE_CHECKING:
     from .chain import Chain
@@ -513,7 +514,7 @@ def _starts(
     slo = torch.where(torch.isfinite(lo64), lo64, torch.minimum(slo, hi64))
     shi = torch.where(torch.isfinite(hi64), hi64, torch.maximum(shi, lo64))
     u = torch.rand(*shape, chain.n_dof, generator=generator, dtype=torch.float64)
-    return (slo + (shi - slo) * u).to(dtype=chain.dtype, device=chain.device)
+    return _uniform_within(slo, shi, u).to(dtype=chain.dtype, device=chain.device)
 
 
 def inverse_kinematics(

@@ -28,7 +28,9 @@ default to 0, ``<mimic multiplier>`` to 1 and ``offset`` to 0.
 Every problem raises :class:`URDFError` (a :class:`ValueError`) naming the file (or
 ``"<string>"``), the element and what is wrong.  Names and values taken from the file are
 quoted with :func:`repr` in these messages, so a name containing a newline or another control
-character shows as an escape and cannot forge a line of a log.
+character shows as an escape and cannot forge a line of a log.  Where several names are at
+fault (root links, the joints of a cycle) a message names the first five and says how many
+there are, so it stays short for a file of any size.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ import math
 import os
 import re
 import xml.etree.ElementTree as ET
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 __all__ = [
@@ -58,6 +61,9 @@ _DOUBLE = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?
 # XML whitespace (Python's str.split/strip would also take Unicode spaces).
 _XML_SPACE = " \t\r\n"
 _XML_SPLIT = re.compile(r"[ \t\r\n]+")
+
+#: How many names a message lists before it says how many more there are.
+_SHOWN = 5
 
 
 class URDFError(ValueError):
@@ -146,6 +152,14 @@ class RobotSpec:
 def _describe(tag: str, name: str | None, index: int, sub: str | None = None) -> str:
     head = f"<{tag} name={name!r}>" if name else f"<{tag}> #{index + 1}"
     return f"{head} <{sub}>" if sub else head
+
+
+def _some(names: Sequence[str], sep: str = ", ", quote: bool = True) -> str:
+    """The first :data:`_SHOWN` of ``names`` (quoted by :func:`repr`, unless ``quote`` is
+    False) joined by ``sep``, then how many more there are: ``'a', 'b', ... and 7995 more``."""
+    text = sep.join(repr(n) if quote else n for n in names[:_SHOWN])
+    more = len(names) - _SHOWN
+    return f"{text} and {more} more" if more > 0 else text
 
 
 def _local(tag: object) -> str:
@@ -310,8 +324,8 @@ def _check_tree(r: _Reader, links: list[str], joints: list[JointSpec]) -> str:
     if len(roots) > 1:
         raise r.fail(
             "<robot>",
-            f"{len(roots)} root links ({', '.join(repr(x) for x in roots)}); exactly one link "
-            "may be without a parent joint",
+            f"{len(roots)} root links ({_some(roots)}); exactly one link may be without a "
+            "parent joint",
         )
 
     # With every other link having exactly one parent, a link that is not reachable from the
@@ -336,11 +350,11 @@ def _check_tree(r: _Reader, links: list[str], joints: list[JointSpec]) -> str:
             cur = parent_of[cur].parent
         cycle = list(seen)[seen[cur] :]
         down = list(reversed(cycle))  # joints in parent -> child order
-        names = " -> ".join(repr(parent_of[x].name) for x in down)
-        loop = ", ".join(repr(parent_of[x].parent) for x in down)
+        names = _some([parent_of[x].name for x in down], " -> ")
+        loop = _some([parent_of[x].parent for x in down])
         raise r.fail(
             _describe("joint", parent_of[cur].name, 0),
-            f"cycle through joints {names} (links {loop})",
+            f"cycle through {len(down)} joints {names} (links {loop})",
         )
     return roots[0]
 
@@ -370,8 +384,9 @@ def _check_mimics(r: _Reader, joints: list[JointSpec]) -> None:
         cur: JointSpec | None = j
         while cur is not None and cur.mimic is not None and cur.name not in ends:
             if cur.name in walk:
-                names = list(walk) + [cur.name]
-                raise r.fail(where, "mimic cycle: " + " -> ".join(repr(n) for n in names))
+                n = len(walk) - walk[cur.name]  # the walk may lead into the cycle
+                path = _some([*walk, cur.name], " -> ")
+                raise r.fail(where, f"mimic cycle of {n} joint{'s' * (n > 1)}: {path}")
             walk[cur.name] = len(walk)
             cur = by_name.get(cur.mimic.joint)
         ends.update(walk)
