@@ -781,3 +781,19 @@ def test_real_parameters_count_every_dimension_as_a_batch_dimension(make):
     msg = rf"^torchlie\.so3\.interpolate: expected at most {LIMIT} batch dimensions in t, got 61$"
     with pytest.raises(ValueError, match=msg):
         so3.interpolate(_R1, _R1, make(LIMIT + 1))
+
+
+def test_batch_dimensions_added_by_sample_shape_and_query_times():
+    """Dimensions that each input stays within but that add up beyond the limit: the error
+    names the statistics function, not the op it calls."""
+    half = LIMIT // 2
+    R = torch.eye(3, dtype=F64).expand(*(1,) * half, 3, 3)
+    assert st.so3_randn(R, 0.1, sample_shape=(1,) * (LIMIT - half)).dim() == LIMIT + 2
+    with pytest.raises(ValueError, match=r"^torchlie\.statistics\.so3_randn: expected at most"):
+        st.so3_randn(R, 0.1, sample_shape=(1,) * (LIMIT - half + 1))
+    keys = torch.eye(3, dtype=F64).expand(2, *(1,) * half, 3, 3)
+    times = torch.tensor([0.0, 1.0], dtype=F64)
+    query = torch.zeros((1,) * (LIMIT - half), dtype=F64)
+    assert st.so3_interpolate_keyframes(times, keys, query).dim() == LIMIT + 2
+    with pytest.raises(ValueError, match=r"^torchlie\.statistics\.so3_interpolate_keyframes: "):
+        st.so3_interpolate_keyframes(times, keys, query[None])

@@ -19,8 +19,8 @@ Euler angles       scipy's naming: ``"xyz"`` lower case = extrinsic (static axes
                    upper case = intrinsic; all 24 sequences.
 log range          rotation angle in ``[0, pi]``; at exactly pi the axis sign follows the
                    canonical quaternion rule above.
-batch              any number of leading dimensions, broadcast like torch; no op flattens or
-                   loops in Python.
+batch              up to 60 leading dimensions (torch's reductions take at most 64 in all),
+                   broadcast like torch; no op flattens or loops in Python.
 dtypes             float32 and float64; float16/bfloat16 are computed in float32 and returned
                    in the input dtype.  Integer tensors raise ``TypeError``; a wrong trailing
                    shape raises ``ValueError`` naming the function and both shapes.

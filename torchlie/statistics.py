@@ -109,6 +109,7 @@ def _randn(
             L = L.tril()
         shapes.append((L.shape[:-2], name))
     batch = _checks.batch_broadcast(fn, *shapes)
+    _checks.batch_dims(fn, len(sample_shape) + len(batch), "in sample_shape and the batch")
     z = torch.randn(
         (*sample_shape, *batch, g.dof), generator=generator, dtype=m.dtype, device=m.device
     )
@@ -340,6 +341,7 @@ def _keyframes(
         )
     q = _checks.real(query, fn, "query_times", kf, ("keyframes", keyframes))
     batch = kf.shape[1:-2]
+    _checks.batch_dims(fn, q.dim() + len(batch), "in query_times and the keyframes' batch")
     lead = (None,) * len(batch)
     if K == 1:
         return _checks.out(kf[0].expand(*q.shape, *batch, g.n, g.n).clone(), dtype)
