@@ -351,8 +351,11 @@ def test_compiled_ops_take_every_magnitude(dtype):
 @pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
 def test_compiled_gradients_are_finite_and_eager(dtype):
     """Through the custom Functions' backward, whose guard is carried back by hand: finite at
-    every magnitude, and eager's below ``1 / eps`` (beyond it the reduced angle may differ by
-    the rounding of the angle, a different but equally valid residue)."""
+    every magnitude, and eager's: the quaternion ops' below ``1 / eps``, the exp maps' for
+    angles up to 10.  Eager's multiply-adds and Inductor's code may round the angle ``t = |w|``
+    differently, by an ulp of ``t``, which moves ``sin t`` and ``cos t`` by about ``t eps``:
+    beyond a few radians the two are different but equally valid evaluations, and only their
+    finiteness is compared."""
     from torchlie import compiled
 
     s, w = _sweep(3, dtype)
@@ -361,12 +364,17 @@ def test_compiled_gradients_are_finite_and_eager(dtype):
     )
     q = torch.cat((torch.ones_like(w[:, :1]), w), -1)
     p = _P.to(dtype)
-    exact = s < 1.0 / torch.finfo(dtype).eps
-    for fn, eager, x in (
-        (compiled.so3.exp, so3.exp, w),
-        (compiled.se3.exp, se3.exp, xi),
-        (compiled.quaternion.to_matrix, quaternion.to_matrix, q),
-        (lambda v: compiled.quaternion.apply(v, p), lambda v: quaternion.apply(v, p), q),
+    angles, scale_free = s <= 10.0, s < 1.0 / torch.finfo(dtype).eps
+    for fn, eager, x, exact in (
+        (compiled.so3.exp, so3.exp, w, angles),
+        (compiled.se3.exp, se3.exp, xi, angles),
+        (compiled.quaternion.to_matrix, quaternion.to_matrix, q, scale_free),
+        (
+            lambda v: compiled.quaternion.apply(v, p),
+            lambda v: quaternion.apply(v, p),
+            q,
+            scale_free,
+        ),
     ):
         leaf = x.clone().requires_grad_()
         out = fn(leaf)
