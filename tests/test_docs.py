@@ -59,6 +59,22 @@ def test_readme_relative_links_resolve():
     assert not missing, f"README links to files that do not exist: {missing}"
 
 
+def test_declared_torch_range_is_the_tested_one():
+    """``pyproject.toml`` declares torch from the oldest release ``.ci/torch-range`` runs the
+    suite on to the minor release after the newest, and the docs state that range."""
+    script = (ROOT / ".ci" / "torch-range").read_text(encoding="utf-8")
+    ends = re.search(r"^versions=\((\d+)\.(\d+)\.\d+ (\d+)\.(\d+)\.\d+\)$", script, re.M)
+    assert ends is not None, ".ci/torch-range names its oldest and newest release"
+    old_major, old_minor, new_major, new_minor = map(int, ends.groups())
+    declared = f"torch>={old_major}.{old_minor},<{new_major}.{new_minor + 1}"
+    pyproject = (ROOT / "pyproject.toml").read_text(encoding="utf-8")
+    assert re.findall(r'"(torch[<>=].*?)"', pyproject) == [declared]
+    stated = f"torch {old_major}.{old_minor} to {new_major}.{new_minor}"
+    assert stated in README.read_text(encoding="utf-8")
+    assert stated in (DOCS / "getting-started.md").read_text(encoding="utf-8")
+    assert declared in (DOCS / "contributing.md").read_text(encoding="utf-8")
+
+
 def _doc_pages() -> list:
     """The top-level docs pages with python blocks; a page whose code calls the compiled path
     compiles with Inductor (seconds per function) and is marked ``compile`` and ``slow``."""

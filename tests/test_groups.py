@@ -410,7 +410,7 @@ def test_pytree_through_torch_func(grp):
 @pytest.mark.slow
 @pytest.mark.compile
 def test_compile_fullgraph():
-    # Dynamo (torch <= 2.13) cannot trace the ``@`` operator on user-defined classes, so
+    # torch 2.13's Dynamo cannot trace the ``@`` operator on user-defined classes, so
     # compiled code uses the named methods; the classes cross the boundary as pytrees.
     torch._dynamo.reset()
 

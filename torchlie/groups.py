@@ -10,7 +10,7 @@ tensor, cannot be mutated, and cost one Python object per call.
 * ``X @ Y`` composes two elements of the same group (batch shapes broadcast);
   ``X @ p`` with a plain tensor ``p`` of shape ``(..., 3)`` acts on points (``X.apply(p)``).
   Inside ``torch.compile(fullgraph=True)`` use the named methods ``X.compose(Y)`` and
-  ``X.apply(p)``: Dynamo (torch 2.13) does not trace ``@`` on user-defined classes.
+  ``X.apply(p)``: torch 2.13's Dynamo does not trace ``@`` on user-defined classes (2.15's does).
 * ``X.shape`` is the *batch* shape; ``len(X)``, ``X[i]``, ``X[1:3]``, ``X[..., 0]`` index the
   batch dimensions only and return the same class.
 * Property or method, by one rule: a *property* is a noun for data the element stores, read
@@ -185,8 +185,8 @@ class _Group:
     def compose(self: _G, other: _G) -> _G:
         """``self @ other`` (batch shapes broadcast); use it in ``torch.compile`` d code.
 
-        Dynamo (torch 2.13) cannot trace the ``@`` operator on user-defined classes: it graph
-        breaks, and ``fullgraph=True`` raises.  The named methods trace.
+        torch 2.13's Dynamo cannot trace the ``@`` operator on user-defined classes (2.15's can):
+        it graph breaks, and ``fullgraph=True`` raises.  The named methods trace in both.
 
         Example:
             >>> X = SO3.exp(torch.tensor([0.0, 0.0, 0.25]))
