@@ -153,7 +153,9 @@ def _quaternion_to_euler(q: Tensor, plan: tuple[int, int, int, bool]) -> Tensor:
     sa, sb = torch.where(lock_diff, one, a), torch.where(lock_diff, zero, b)
     sc, sd = torch.where(lock_sum, one, c), torch.where(lock_sum, zero, d)
     # With A = a + ib = |A| e^{i(t1+t3)/2} and C = c + id = |C| e^{i(t3-t1)/2}:
-    atan2 = _coeffs.atan2  # the same bits whatever the batch size and layout
+    # No (0, 0) reaches atan2 (a zero quaternion is NaN by now), so its derivatives are the
+    # true ones everywhere, at exact zeros and ties included.
+    atan2 = torch.atan2
     first = atan2(sb * sc - sa * sd, sa * sc + sb * sd)  # arg(A conj(C)) = t1
     third = atan2(sb * sc + sa * sd, sa * sc - sb * sd)  # arg(A C) = t3
     sum_ = atan2(2.0 * sa * sb, sa * sa - sb * sb)  # arg(A^2) = t1 + t3
