@@ -481,7 +481,8 @@ def distance(R1: Float[Tensor, "*b1 3 3"], R2: Float[Tensor, "*b2 3 3"]) -> Floa
 
     Computed as ``atan2(|vee(M)|, (tr M - 1)/2)``, accurate at every angle.  The angle is not
     differentiable at 0 and at pi (it is a cone and a ridge there); the gradient returned at those
-    points is the zero subgradient, always finite.
+    points is the zero subgradient, always finite.  Between them its derivatives are the true
+    ones, at right angles too.
 
     Example:
         >>> distance(torch.eye(3), exp(torch.tensor([0.0, 0.3, 0.0])))
