@@ -191,31 +191,15 @@ def jinv(t2: Tensor) -> Tensor:
     return (sinc3(t2) - 2.0 * cosc4(t2)) / (2.0 * cosc(t2))
 
 
-#: The smallest positive subnormal of each dtype (a denominator clamped at it is unchanged
-#: unless it is 0).
-_SUBNORMAL = {torch.float32: 2.0**-149, torch.float64: 2.0**-1074}
-
-
 def atan2(y: Tensor, x: Tensor) -> Tensor:
-    """``torch.atan2(y, x)`` for finite input (signed zeros included), from ``torch.atan``.
+    """``torch.atan2(y, x)`` whose gradient at ``(0, 0)`` is 0 instead of NaN (double where).
 
-    torch's CPU ``atan2`` rounds differently in its vectorised loop and in its scalar loop (the
-    tail of an array, strided operands), so its bits would depend on the batch size and the
-    layout; ``atan`` of the ratio of the smaller to the larger magnitude, moved to its
-    quadrant, rounds alike in both (one more rounding than ``atan2``).
+    Elsewhere its derivatives are ``torch.atan2``'s, the true ones (``x / r^2`` and
+    ``-y / r^2``) at every point, on the axes and on the diagonals included.  For callers
+    where ``(0, 0)`` can occur; where it cannot, ``torch.atan2`` itself.
     """
-    ax, ay = x.abs(), y.abs()
-    r = torch.minimum(ax, ay) / torch.maximum(ax, ay).clamp_min(_SUBNORMAL[x.dtype])
-    a = torch.atan(r)
-    a = torch.where(ay > ax, torch.rsub(a, 0.5 * math.pi), a)
-    a = torch.where(torch.signbit(x), torch.rsub(a, math.pi), a)
-    return torch.copysign(a, y)
-
-
-def atan2_nonneg(y: Tensor, x: Tensor) -> Tensor:
-    """:func:`atan2` for ``y > 0`` and ``x >= 0`` (the half angle of a rotation)."""
-    a = torch.atan(torch.minimum(x, y) / torch.maximum(x, y))
-    return torch.where(y > x, torch.rsub(a, 0.5 * math.pi), a)
+    origin = (x == 0) & (y == 0)
+    return torch.atan2(y, torch.where(origin, torch.ones_like(x), x))
 
 
 def atan_ratio(n: Tensor, w: Tensor) -> Tensor:
@@ -234,7 +218,7 @@ def atan_ratio(n: Tensor, w: Tensor) -> Tensor:
     ok = n > 0
     n_e = torch.where(small | ~ok, torch.ones_like(n), n)
     w_e = torch.where(small, torch.ones_like(w), w)
-    exact = torch.where(ok, atan2(n_e, w_e) / n_e, torch.zeros_like(n))
+    exact = torch.where(ok, torch.atan2(n_e, w_e) / n_e, torch.zeros_like(n))
     return torch.where(small, series, exact)
 
 

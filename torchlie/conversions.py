@@ -31,9 +31,9 @@ determined one (``t2`` within about ``8 eps`` of the lock value), so that settin
 angle to 0 moves the rotation by at most about ``16 eps`` (radians); every returned triple
 converts back to the input rotation to that accuracy, at, near and away from gimbal lock.  No
 NaN and no warning is produced, and the gradient stays finite there (zero for the angle set
-to 0).  scipy's own test is an absolute ``1e-7`` on ``t2``, so within ``1e-7`` of gimbal lock
-(but farther than ``8 eps``) scipy sets the third angle to 0 while this module returns the
-exact split.
+to 0, that of the sum or difference for the other).  scipy's own test is an absolute ``1e-7``
+on ``t2``, so within ``1e-7`` of gimbal lock (but farther than ``8 eps``) scipy sets the third
+angle to 0 while this module returns the exact split.
 
 The angles are computed from the quaternion with one branch-free formula for all sequences
 (after the general method of Bernardes and Viollet, 2022): the quaternion is mapped to four
@@ -41,6 +41,11 @@ numbers ``(a, b, c, d)`` with ``a + ib = cos(t2'/2) e^{i(t1+t3)/2}`` and
 ``c + id = sin(t2'/2) e^{i(t3-t1)/2}`` (angles in extrinsic order, so reversed for intrinsic
 sequences; for Tait-Bryan sequences after a fixed quarter turn that makes
 ``t2' = t2 + pi/2``), and each angle is one ``atan2`` of products of them.
+
+**Derivatives.**  Away from gimbal lock the angles are smooth functions of the rotation, and
+their derivatives (reverse, forward, second order) are the true ones, at angles of exactly 0
+and +-pi/2 included.  Where ``t1`` or ``t3`` wraps from ``pi`` to ``-pi`` the value jumps by
+``2 pi`` but the derivative is the same on both sides.
 """
 
 from __future__ import annotations
@@ -153,7 +158,9 @@ def _quaternion_to_euler(q: Tensor, plan: tuple[int, int, int, bool]) -> Tensor:
     sa, sb = torch.where(lock_diff, one, a), torch.where(lock_diff, zero, b)
     sc, sd = torch.where(lock_sum, one, c), torch.where(lock_sum, zero, d)
     # With A = a + ib = |A| e^{i(t1+t3)/2} and C = c + id = |C| e^{i(t3-t1)/2}:
-    atan2 = _coeffs.atan2  # the same bits whatever the batch size and layout
+    # No (0, 0) reaches atan2 (a zero quaternion is NaN by now), so its derivatives are the
+    # true ones everywhere, at exact zeros and ties included.
+    atan2 = torch.atan2
     first = atan2(sb * sc - sa * sd, sa * sc + sb * sd)  # arg(A conj(C)) = t1
     third = atan2(sb * sc + sa * sd, sa * sc - sb * sd)  # arg(A C) = t3
     sum_ = atan2(2.0 * sa * sb, sa * sa - sb * sb)  # arg(A^2) = t1 + t3

@@ -4,6 +4,10 @@
 ``w == 0`` (a rotation by exactly pi) it is the one whose largest-magnitude vector component is
 positive (the first such component on ties).  :func:`canonicalize`, :func:`from_matrix` and
 :func:`to_rotvec` (at pi) all follow that rule, so ``torchlie.so3.log`` at pi is deterministic.
+Their results jump to their negatives across ``w = 0``, where they are not differentiable: the
+derivative returned there is the one-sided derivative of the representative returned.
+Everywhere else derivatives (reverse, forward, second order) are the true ones, at exact zeros
+and equal components included.
 
 A quaternion acts on a point ``p`` as ``q * [0, p] * conj(q)``; :func:`to_matrix` gives the
 matrix ``R`` with ``R @ p`` equal to that rotation (column vectors).  Products compose like
@@ -104,7 +108,8 @@ def _normalize(q: Tensor) -> Tensor:
 def canonicalize(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
     """The representative of ``{q, -q}`` with ``w > 0`` (rule at ``w == 0``: module docstring).
 
-    Does not normalise.
+    Does not normalise.  Its derivative is ``+-`` the identity, that of the sign chosen (at
+    ``w == 0`` too, where the result jumps).
 
     Example:
         >>> canonicalize(torch.tensor([-1.0, 0.0, 0.0, 0.0]))
@@ -207,7 +212,9 @@ def to_rotvec(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 3"]:
     """Rotation vector (angle in ``[0, pi]``) of ``q / |q|``; ``q`` and ``-q`` give the same.
 
     Computed as ``2 atan2(|v|, |w|) v/|v|`` with ``v`` signed like the canonical
-    representative; smooth at the identity.  Zero quaternion: NaN.
+    representative; smooth at the identity.  At ``w = 0`` (angle pi) the result jumps to its
+    negative; the derivative there is that of the canonical side (``w -> 0+``).  Zero
+    quaternion: NaN.
 
     Example:
         >>> to_rotvec(torch.tensor([0.0, 0.0, 1.0, 0.0]))
@@ -393,11 +400,13 @@ def log(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
     ``[ln w, v/w]`` to first order).  On the branch cut ``v = 0, w < 0`` (the negative reals,
     where every ``pi u``, ``u`` a unit vector, is a logarithm) the value is
     ``[ln|w|, pi, 0, 0]``, i.e. ``u`` is the x axis, as the canonical rule's first-on-ties
-    choice would give; its gradient there is finite.  Zero quaternion: NaN.
+    choice would give; there the vector part is not differentiable and gets a zero gradient
+    (the scalar part keeps its true one).  Zero quaternion: NaN.
 
     Gradient meaning: the vector part is invariant to the scale of ``q``, so its ordinary
-    gradient is already the projected one (no custom backward is needed); it is finite
-    wherever ``log`` is differentiable (everywhere except the branch cut).
+    gradient is already the projected one (no custom backward is needed); it is the true one
+    wherever ``log`` is differentiable (everywhere except the branch cut), ``w = 0`` and
+    ``|w| = |v_i|`` included.
 
     Example:
         >>> log(torch.tensor([0.0, 0.0, 0.0, 2.0]))
@@ -433,7 +442,8 @@ def slerp(
 
     Inputs are normalised first; the result is the unit quaternion
     ``q0 exp(t log(q0^-1 q1'))``, with ``q1' = -q1`` when ``dot(q0, q1) < 0`` so that the path
-    is the shorter of the two arcs (at ``dot == 0`` the two are equally long and ``q1`` is kept).
+    is the shorter of the two arcs (at ``dot == 0`` the two are equally long and ``q1`` is kept:
+    the result jumps there, and its derivative is that of the side ``dot > 0``).
     ``t = 0`` gives ``q0``, ``t = 1`` gives ``q1'``; other ``t`` extrapolate.  Written with the
     half-angle vector ``atan2(|r_v|, r_w) r_v/|r_v|`` of ``r = q0^-1 q1'`` and the series of
     :mod:`torchlie._coeffs`, so it is exact and has finite gradients for nearly equal or equal

@@ -409,38 +409,44 @@ def _project_forward(M: Tensor) -> Tensor:
     return torch.where(finite, R, torch.full_like(M, float("nan")))
 
 
-def _polar_frame(M: Tensor, R: Tensor):
-    """Eigenbasis of the symmetric factor ``P = R^T M`` (non-finite elements as the identity)."""
+def _polar_system(M: Tensor, R: Tensor):
+    """``(finite, R, B)``: ``B = tr(P) I - P`` for the symmetric factor ``P = R^T M`` (non-finite
+    elements as the identity).  For symmetric ``P``, ``P hat(x) + hat(x) P = hat(B x)``."""
     finite = torch.isfinite(R).all(dim=-1).all(dim=-1)[..., None, None]
     eye = torch.eye(3, dtype=M.dtype, device=M.device)
     R = torch.where(finite, R, eye)
     P = R.transpose(-1, -2) @ torch.where(finite, M, eye)
-    s, V = torch.linalg.eigh(0.5 * (P + P.transpose(-1, -2)))
-    # The diagonal of the skew solution is 0 whatever the denominator: 1 there keeps a rank-2
-    # M (s_3 = 0, where the nearest rotation is still unique and smooth) free of 0/0.
-    eye_b = torch.eye(3, dtype=torch.bool, device=M.device)
-    denom = torch.where(eye_b, torch.ones_like(P), s.unsqueeze(-1) + s.unsqueeze(-2))
-    return finite, R, V, denom
+    P = 0.5 * (P + P.transpose(-1, -2))
+    B = P.diagonal(0, -2, -1).sum(-1)[..., None, None] * eye - P
+    return finite, R, B
+
+
+def _solve3(B: Tensor, w: Tensor) -> Tensor:
+    """``B^-1 w`` (``solve_ex`` without its check: a singular ``B`` gives Inf/NaN for that
+    element, never an error or a device sync)."""
+    return torch.linalg.solve_ex(B, w, check_errors=False)[0]
+
+
+def _r_hat(R: Tensor, z: Tensor) -> Tensor:
+    """``R hat(z)``: row ``i`` is ``R_i x z``."""
+    return torch.linalg.cross(R, z.unsqueeze(-2).expand_as(R), dim=-1)
 
 
 def _project_backward(saved, g: Tensor):
-    # Polar decomposition M = R P (P symmetric): dR = R X with X skew solving
-    # P X + X P = R^T dM - dM^T R.  In P's eigenbasis (P = V diag(s) V^T), the solution
-    # divides by s_i + s_j, which is positive for any full-rank M (no distinct-singular-value
-    # requirement, unlike the SVD's own backward).
-    finite, R, V, denom = _polar_frame(*saved)
-    H = V.transpose(-1, -2) @ (R.transpose(-1, -2) @ g) @ V
-    K = (H - H.transpose(-1, -2)) / denom
-    grad = R @ (V @ K @ V.transpose(-1, -2))
+    # Polar decomposition M = R P (P symmetric): dR = R hat(x) with P hat(x) + hat(x) P =
+    # hat(B x) = R^T dM - dM^T R, B = tr(P) I - P.  Its eigenvalues are the sums s_i + s_j of
+    # two signed singular values: B is invertible wherever the projection is differentiable,
+    # rotations included, and no eigenbasis is formed (an eigenbasis has no derivative at
+    # repeated singular values, so the second derivatives at rotations would be wrong).
+    finite, R, B = _polar_system(*saved)
+    grad = _r_hat(R, _solve3(B, _components.skew_vee(R.transpose(-1, -2) @ g)))
     # a non-finite element (NaN output) passes no gradient: the others stay clean
     return (torch.where(finite, grad, torch.zeros_like(grad)),)
 
 
 def _project_jvp(saved, dM: Tensor) -> Tensor:
-    finite, R, V, denom = _polar_frame(*saved)
-    A = R.transpose(-1, -2) @ dM
-    X = V.transpose(-1, -2) @ (A - A.transpose(-1, -2)) @ V / denom
-    out = R @ (V @ X @ V.transpose(-1, -2))
+    finite, R, B = _polar_system(*saved)
+    out = _r_hat(R, _solve3(B, _components.skew_vee(R.transpose(-1, -2) @ dM)))
     return torch.where(finite, out, torch.full_like(out, float("nan")))
 
 
@@ -481,7 +487,8 @@ def distance(R1: Float[Tensor, "*b1 3 3"], R2: Float[Tensor, "*b2 3 3"]) -> Floa
 
     Computed as ``atan2(|vee(M)|, (tr M - 1)/2)``, accurate at every angle.  The angle is not
     differentiable at 0 and at pi (it is a cone and a ridge there); the gradient returned at those
-    points is the zero subgradient, always finite.
+    points is the zero subgradient, always finite.  Between them its derivatives are the true
+    ones, at right angles too.
 
     Example:
         >>> distance(torch.eye(3), exp(torch.tensor([0.0, 0.3, 0.0])))
