@@ -4,17 +4,12 @@ from __future__ import annotations
 
 import pytest
 import torch
-from agreement import assert_agree
+from agreement import assert_agree, assert_bits
 from samplers import rotvecs
 
 from torchlie import _layout, conversions, quaternion, se3, so3
 
 DTYPES = [torch.float32, torch.float64]
-
-
-def _same_bits(a, b):
-    ints = {torch.float32: torch.int32, torch.float64: torch.int64}[a.dtype]
-    return torch.equal(a.view(ints), b.view(ints))
 
 
 @pytest.fixture(autouse=True)
@@ -32,9 +27,9 @@ def test_planes_and_interleave_are_exact(dtype):
     x[1, 6] = torch.tensor([float("nan"), -0.0, float("inf"), 1.0])
     parts = _layout.planes(x, 4)
     assert all(p.is_contiguous() and p.shape == (2, 700) for p in parts)
-    assert _same_bits(torch.stack(parts, -1), x)
+    assert_bits(torch.stack(parts, -1), x, "planes")
     out = _layout.interleave(parts)
-    assert out.shape == x.shape and _same_bits(out, x)
+    assert_bits(out, x, "interleave")
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
@@ -47,7 +42,7 @@ def test_planes_of_3_vectors_column_by_column(dtype):
     x[1, 7] = torch.tensor([1e-40 if dtype == torch.float64 else 1e-42, 3e38, -2.5])
     parts = _layout.planes(x, 3)
     assert all(p.is_contiguous() and p.shape == (2, 700) for p in parts)
-    assert all(_same_bits(p, c) for p, c in zip(parts, x.unbind(-1), strict=True))
+    assert_bits(parts, x.unbind(-1), "planes of 3-vectors")
     assert not parts[0][0, 4].isnan() and parts[1][0, 5].signbit()
     y = x.clone().requires_grad_()  # recorded by autograd: the differentiable copy
     parts = _layout.planes(y, 3)
