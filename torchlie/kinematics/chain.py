@@ -94,6 +94,7 @@ from ._joints import (
     _sampling_ranges,
     _tree_links,
     _uniform_within,
+    _velocity_layout,
     rpy_matrix,
 )
 from .ik import IKResult
@@ -136,6 +137,8 @@ class Chain:
         root: the root link (its frame is the world frame).
         link_names: every link, in document order.
         joint_names: the ``n_dof`` degrees of freedom, in the order of ``q``'s last dimension.
+        velocity_names: the ``n_v`` velocity coordinates, the Jacobian's columns (the same as
+            ``joint_names`` unless the chain has MJCF ball or free joints).
         leaf_links: links without children (end effectors, tool frames), in document order.
         lower, upper: ``(n_dof,)`` position limits (``-inf``/``inf`` where there are none).
         dtype, device: of the constants, and hence of ``q`` and the results.
@@ -176,6 +179,11 @@ class Chain:
         self.lower = self._limits64[0].to(dtype=dtype, device=self.device)
         self._sample64 = _sampling_ranges(names, *self._limits64)
         self.upper = self._limits64[1].to(dtype=dtype, device=self.device)
+        # Velocity coordinates (the Jacobian's columns): the DoFs, except that a quaternion
+        # (MJCF ball and free joints) has three.
+        vel_of, vel_names = _velocity_layout(spec)
+        self.velocity_names: tuple[str, ...] = tuple(vel_names)
+        self.n_v = len(vel_names)
 
         # Mimic joints: value row = n_dof + k, q[src] * mult + off (chains resolved).
         row_of, self._mimic = _mimic_rows(spec, dof_of, self.n_dof)
@@ -192,7 +200,7 @@ class Chain:
         }
 
         # Breadth-first internal order; children in document order of their joints.
-        self._links = _tree_links(spec, dof_of, row_of, self._mimic_of)
+        self._links = _tree_links(spec, dof_of, row_of, self._mimic_of, vel_of)
         self._index = {link.name: link.index for link in self._links}
         has_child = {link.parent for link in self._links}
         self.leaf_links: tuple[str, ...] = tuple(
@@ -234,6 +242,48 @@ class Chain:
             (('j',), tensor([0.5000]))
         """
         return cls(parse_urdf(source), dtype=dtype, device=device)
+
+    @classmethod
+    def from_mjcf(
+        cls,
+        source: str | os.PathLike[str] | bytes | Any,
+        *,
+        dtype: torch.dtype = torch.float32,
+        device: torch.device | str | None = None,
+    ) -> Chain:
+        """Compile an MJCF file (or MJCF text, or take a ``mujoco.MjModel``) with MuJoCo and
+        build its chain (needs the ``mujoco`` package: ``torchlie[mjcf]``).
+
+        One link per body; ``q`` is MuJoCo's ``qpos`` (so ``chain.forward_kinematics(
+        data.qpos)`` needs no conversion) and the Jacobian's columns are MuJoCo's ``nv``
+        velocity coordinates (:attr:`velocity_names`).  The naming of unnamed bodies and
+        joints and the joint conventions are in :mod:`torchlie.kinematics.mjcf`.
+
+        Args:
+            source: a path to an ``.xml`` file, MJCF text (a string starting with ``<``) or a
+                ``mujoco.MjModel``.
+            dtype: float32 (default) or float64.
+            device: where the constants live (default CPU).
+
+        Raises:
+            MJCFError: MuJoCo refused the file (MuJoCo's message, with the file name).
+            ImportError: ``mujoco`` is not installed.
+
+        Example:
+            >>> chain = Chain.from_mjcf('''<mujoco><worldbody><body name="ball" pos="0 0 1">
+            ...   <joint type="ball"/><geom size="0.1"/><body name="tip" pos="0 0 -1"/></body>
+            ...   </worldbody></mujoco>''', dtype=torch.float64)
+            >>> chain.joint_names
+            ('joint_0:qw', 'joint_0:qx', 'joint_0:qy', 'joint_0:qz')
+            >>> chain.velocity_names
+            ('joint_0:wx', 'joint_0:wy', 'joint_0:wz')
+            >>> q = torch.tensor([0.0, 1.0, 0.0, 0.0], dtype=torch.float64)  # pi about x
+            >>> chain.forward_kinematics(q, "tip")["tip"][:3, 3]
+            tensor([0., 0., 2.], dtype=torch.float64)
+        """
+        from .mjcf import parse_mjcf
+
+        return cls(parse_mjcf(source), dtype=dtype, device=device)
 
     def to(
         self, dtype: torch.dtype | None = None, device: torch.device | str | None = None
@@ -457,7 +507,7 @@ class Chain:
         return _cached(
             self._jac_plans,
             target,
-            lambda: _jacobian_plan(self._links, target, self.n_dof, self.dtype, self.device),
+            lambda: _jacobian_plan(self._links, target, self.n_v, self.dtype, self.device),
         )
 
     def _jacobian_columns(
@@ -472,7 +522,7 @@ class Chain:
         :meth:`jacobian`), or only the columns of ``dofs`` (sorted DoFs, ``(len(dofs), 6, B)``);
         ``pose(i)`` gives link ``i``'s internal ``(4, 4, B)`` pose."""
         B = q2.shape[0]
-        n_out = self.n_dof if dofs is None else len(dofs)
+        n_out = self.n_v if dofs is None else len(dofs)
         C = _link_columns(jp, pose, q2, target)
         if C is None:
             return q2.new_zeros(n_out, 6, B)
@@ -515,8 +565,20 @@ class Chain:
         *,
         frame: str = "world",
         point: Tensor | Mapping[str, Tensor] | None = None,
-    ) -> Float[Tensor, "*b 6 n_dof"] | dict[str, Float[Tensor, "*b 6 n_dof"]]:
-        """Geometric Jacobian of a link, ``(..., 6, n_dof)``, in closed form.
+    ) -> Float[Tensor, "*b 6 n_v"] | dict[str, Float[Tensor, "*b 6 n_v"]]:
+        """Geometric Jacobian of a link, ``(..., 6, n_v)``, in closed form.
+
+        ``n_v`` is the number of velocity coordinates (:attr:`velocity_names`): ``n_dof``,
+        except for the quaternions of MJCF ``ball`` and ``free`` joints, which have three
+        (MuJoCo's ``nv`` columns, in its order; ``q`` itself is its ``qpos``).  Their columns
+        follow MuJoCo: a ball joint's three columns are angular velocities about the axes of
+        the body's own frame (the frame right after the ball joint: the quaternion moved to
+        ``q_ball * Exp(w dt)``), turning about the joint's anchor; a free joint's first three
+        are the linear velocity of the body's origin along the world axes, the last three the
+        angular velocity about the body's own axes.  (Where a body has a rotating joint after
+        a ball joint, MuJoCo's own Jacobian takes the body's final frame for the ball's
+        columns; these columns take the frame right after the ball, the derivative of the
+        poses.)
 
         Column ``i`` is the velocity of the link for a unit rate of DoF ``i`` (columns in
         :attr:`joint_names` order), rows (linear; angular), in one of three conventions:
@@ -590,7 +652,7 @@ class Chain:
             if frame != "world" or points.get(name) is not None:
                 J = _frame_jacobian(J, P, frame, points.get(name), batch)
             else:
-                J = J.reshape(*batch, 6, self.n_dof)
+                J = J.reshape(*batch, 6, self.n_v)
             out[name] = _checks.out(J.contiguous(), out_dtype)
         if isinstance(link, str):
             return out[link]
