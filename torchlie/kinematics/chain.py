@@ -575,13 +575,11 @@ class Chain:
         the body's own frame (the frame right after the ball joint: the quaternion moved to
         ``q_ball * Exp(w dt)``), turning about the joint's anchor; a free joint's first three
         are the linear velocity of the body's origin along the world axes, the last three the
-        angular velocity about the body's own axes.  (Where a body has a rotating joint after
-        a ball joint, MuJoCo's own Jacobian takes the body's final frame for the ball's
-        columns; these columns take the frame right after the ball, the derivative of the
-        poses.)
+        angular velocity about the body's own axes.
 
-        Column ``i`` is the velocity of the link for a unit rate of DoF ``i`` (columns in
-        :attr:`joint_names` order), rows (linear; angular), in one of three conventions:
+        Column ``i`` is the velocity of the link for a unit rate of velocity coordinate ``i``
+        (columns in :attr:`velocity_names` order: the DoFs, in :attr:`joint_names` order, for
+        a URDF chain), rows (linear; angular), in one of three conventions:
 
         * ``frame="world"`` (the default): the linear velocity of the link's origin (or of
           ``point``) and the angular velocity, both in world coordinates.  For a revolute joint
