@@ -382,3 +382,24 @@ def test_missing_mujoco_names_the_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "mujoco", None)
     with pytest.raises(ImportError, match=r"torchlie\[mjcf\]"):
         Chain.from_mjcf(BALL)
+
+
+# ----------------------------------------------------------------------------------------------
+# python -m torchlie.kinematics.validate on MJCF
+# ----------------------------------------------------------------------------------------------
+
+
+def test_validate_command_takes_mjcf(tmp_path, capsys):
+    from torchlie.kinematics.validate import main
+
+    path = tmp_path / "robot.xml"
+    path.write_text(FREE)
+    assert main([str(path), "--samples", "20"]) == 0
+    text = capsys.readouterr().out
+    assert "MuJoCo" in text and "PASS" in text and "leg" in text
+    assert main([str(path), "--samples", "5", "--dtype", "float32"]) == 0
+    bad = tmp_path / "bad.xml"
+    bad.write_text('<mujoco><worldbody><body><joint axis="0 0 0"/><geom size="1"/></body>'
+                   "</worldbody></mujoco>")  # fmt: skip
+    assert main([str(bad)]) == 2
+    assert str(bad) in capsys.readouterr().err

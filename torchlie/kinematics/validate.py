@@ -6,6 +6,11 @@ Usage::
     python -m torchlie.kinematics.validate [ROBOT.urdf] [--samples N] [--dtype float32|float64]
                                            [--no-pk] [--no-pin]
     torchlie-validate tree            # a bundled robot: arm7 (the default), tree or panda
+    torchlie-validate robot.xml       # an MJCF file: compared with MuJoCo itself
+
+An MJCF file (root element ``<mujoco>``) is compiled by MuJoCo and every body's pose and every
+end body's Jacobian are compared with MuJoCo's ``mj_kinematics`` and ``mj_jacBody`` at the same
+tolerances (see :mod:`torchlie.kinematics._mjcf_validate`); the rest of this page is about URDF.
 
 For ``N`` random configurations within the joint limits it compares every link's pose and the
 Jacobian of every end link (a link without children) computed by :class:`Chain` with
@@ -71,6 +76,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import sys
 import time
 from collections.abc import Callable
@@ -606,6 +612,19 @@ def _print_report(
         w(f"\nFAIL: outside tolerance: {', '.join(bad)}\n")
 
 
+def _is_mjcf(robot: str) -> bool:
+    """Whether ``robot`` (a path or XML text) is MJCF: its root element is ``<mujoco>``."""
+    if robot.lstrip().startswith("<"):
+        head = robot[:4096]
+    else:
+        try:
+            with open(robot, "rb") as f:
+                head = f.read(4096).decode("utf-8", "replace")
+        except OSError:
+            return False
+    return re.search(r"<mujoco[\s>/]", head) is not None and "<robot" not in head
+
+
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point (``torchlie-validate``); returns the exit status.
 
@@ -621,7 +640,7 @@ def main(argv: list[str] | None = None) -> int:
         "robot",
         nargs="?",
         default="arm7",
-        help=f"URDF file, or a bundled robot: {', '.join(SAMPLE_ROBOTS)} (default arm7)",
+        help=f"URDF or MJCF file, or a bundled robot: {', '.join(SAMPLE_ROBOTS)} (default arm7)",
     )
     parser.add_argument("--samples", type=int, default=1000, help="random configurations")
     parser.add_argument("--dtype", choices=("float32", "float64"), default="float64")
@@ -633,6 +652,22 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.samples < 1 or args.batch < 1:
         parser.error("--samples and --batch must be positive")
+    if _is_mjcf(args.robot):
+        from ._mjcf_validate import validate_mjcf
+        from .mjcf import MJCFError
+
+        try:
+            ok, _ = validate_mjcf(
+                args.robot,
+                samples=args.samples,
+                dtype=getattr(torch, args.dtype),
+                seed=args.seed,
+                out=sys.stdout,
+            )
+        except (MJCFError, ImportError, OSError) as e:
+            print(f"torchlie-validate: error: {e}", file=sys.stderr)
+            return 2
+        return 0 if ok else 1
     try:
         report = validate(
             args.robot,
