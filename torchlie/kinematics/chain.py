@@ -285,6 +285,39 @@ class Chain:
 
         return cls(parse_mjcf(source), dtype=dtype, device=device)
 
+    @classmethod
+    def from_sdf(
+        cls,
+        source: str | os.PathLike[str] | bytes,
+        *,
+        loops: str = "error",
+        dtype: torch.dtype = torch.float32,
+        device: torch.device | str | None = None,
+    ) -> Chain:
+        """Parse an SDF file (or SDF text: one model, or a world holding one) and build its
+        chain; poses are in the model's frame (see :mod:`torchlie.kinematics.sdf`).
+
+        Args:
+            source: a path to an ``.sdf`` file, or the XML text (a string starting with ``<``).
+            loops: ``"error"`` or ``"skip"`` (leave out the joints closing kinematic loops).
+            dtype: float32 (default) or float64.
+            device: where the constants live (default CPU).
+
+        Raises:
+            SDFError: a malformed or unsupported SDF.
+
+        Example:
+            >>> chain = Chain.from_sdf('''<sdf version="1.7"><model name="m">
+            ...   <link name="a"/><link name="b"><pose>0 0 1 0 0 0</pose></link>
+            ...   <joint name="j" type="prismatic"><parent>a</parent><child>b</child>
+            ...     <axis><xyz>1 0 0</xyz></axis></joint></model></sdf>''')
+            >>> chain.forward_kinematics(torch.tensor([0.5]), "b")["b"][:3, 3]
+            tensor([0.5000, 0.0000, 1.0000])
+        """
+        from .sdf import parse_sdf
+
+        return cls(parse_sdf(source, loops=loops), dtype=dtype, device=device)
+
     def to(
         self, dtype: torch.dtype | None = None, device: torch.device | str | None = None
     ) -> Chain:
