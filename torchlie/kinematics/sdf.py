@@ -7,8 +7,8 @@ and ``<axis>`` (``<xyz expressed_in>``, the older ``<use_parent_model_frame>``, 
 ``<lower>``/``<upper>``).  Joint types ``revolute``, ``continuous``, ``prismatic``,
 ``fixed`` and ``ball`` (its value a unit quaternion ``w, x, y, z``, the rotation of the joint
 frame from its zero pose; its velocity columns the angular velocity in the joint frame).
-Everything else (visuals, collisions, inertials, plugins, meshes and their
-``<uri>``) is ignored.
+Everything else (visuals, collisions, inertials, plugins, meshes and their ``<uri>``) is
+ignored.
 
 Frames, as SDFormat 1.7+ defines them: a link's pose is relative to the model frame unless
 ``relative_to`` names another frame; a joint's pose (its frame) is relative to its child link;
@@ -21,8 +21,7 @@ frame.  A pose is ``x y z roll pitch yaw`` with ``R = Rz(yaw) Ry(pitch) Rx(roll)
 The chain: its root is the model frame, called ``"__model__"`` (or ``"world"`` when a joint
 has ``<parent>world</parent>``: the world is then taken to be the model frame), and every pose
 it returns is in the model's frame.  The model's own ``<pose>`` (where it stands in its world)
-is not applied; pre-multiply by it (``chain.model_pose``... see :func:`parse_sdf`) for world
-poses.  A link that no joint moves is attached to the root by a fixed joint.  A joint turns
+is not applied: pre-multiply the chain's poses by it for world poses.  A link that no joint moves is attached to the root by a fixed joint.  A joint turns
 about its own frame's origin and axis; the joint frame need not coincide with the child link's.
 
 Not supported, with an error naming it: several models, nested models, ``<include>``, joint
