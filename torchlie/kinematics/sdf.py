@@ -21,8 +21,9 @@ frame.  A pose is ``x y z roll pitch yaw`` with ``R = Rz(yaw) Ry(pitch) Rx(roll)
 The chain: its root is the model frame, called ``"__model__"`` (or ``"world"`` when a joint
 has ``<parent>world</parent>``: the world is then taken to be the model frame), and every pose
 it returns is in the model's frame.  The model's own ``<pose>`` (where it stands in its world)
-is not applied: pre-multiply the chain's poses by it for world poses.  A link that no joint moves is attached to the root by a fixed joint.  A joint turns
-about its own frame's origin and axis; the joint frame need not coincide with the child link's.
+is not applied: pre-multiply the chain's poses by it for world poses.  A link that no joint
+moves is attached to the root by a fixed joint.  A joint turns about its own frame's origin and
+axis; the joint frame need not coincide with the child link's.
 
 Not supported, with an error naming it: several models, nested models, ``<include>``, joint
 types other than the four above, and kinematic loops (a link that is the child of several
