@@ -26,9 +26,9 @@ moves is attached to the root by a fixed joint.  A joint turns about its own fra
 axis; the joint frame need not coincide with the child link's.
 
 Not supported, with an error naming it: several models, nested models, ``<include>``, joint
-types other than the four above, and kinematic loops (a link that is the child of several
+types other than those above, and kinematic loops (a link that is the child of several
 joints), unless ``loops="skip"``: then each link keeps the first of its parent joints (in
-document order) of a supported type, the others (loop closures: ball, gearbox, ... joints) are
+document order) of a supported type, the others (loop closures: gearbox, ball, ... joints) are
 left out, as a tree of the robot's links needs.
 """
 
