@@ -403,3 +403,27 @@ def test_validate_command_takes_mjcf(tmp_path, capsys):
                    "</worldbody></mujoco>")  # fmt: skip
     assert main([str(bad)]) == 2
     assert str(bad) in capsys.readouterr().err
+
+
+def test_sites_as_links():
+    xml = HINGE_SLIDE.replace(
+        '<geom size="0.1"/></body>',
+        '<geom size="0.1"/><site name="tcp" pos="0.1 0 0.2" euler="0.3 0 0"/><site/></body>',
+    )
+    m = mujoco.MjModel.from_xml_string(xml)
+    chain = Chain.from_mjcf(m, sites=True, dtype=torch.float64)
+    assert chain.link_names == ("world", "base", "tip", "tcp", "site_1")
+    assert Chain.from_mjcf(m).link_names == ("world", "base", "tip")
+    q = random_qpos(chain, 3, 8)
+    T = chain.forward_kinematics(q, ["tcp", "site_1"], stacked=True).numpy()
+    d = mujoco.MjData(m)
+    for b in range(3):
+        d.qpos[:] = q[b].numpy()
+        mujoco.mj_kinematics(m, d)
+        assert np.abs(T[b, :, :3, 3] - d.site_xpos).max() <= 1e-12
+        assert np.abs(T[b, :, :3, :3] - d.site_xmat.reshape(-1, 3, 3)).max() <= 1e-12
+    clash = HINGE_SLIDE.replace(
+        '<geom size="0.1"/></body>', '<geom size="0.1"/><site name="tip"/></body>'
+    )
+    with pytest.raises(MJCFError, match="site 'tip' has the name of a body"):
+        Chain.from_mjcf(clash, sites=True)

@@ -248,6 +248,7 @@ class Chain:
         cls,
         source: str | os.PathLike[str] | bytes | Any,
         *,
+        sites: bool = False,
         dtype: torch.dtype = torch.float32,
         device: torch.device | str | None = None,
     ) -> Chain:
@@ -262,6 +263,7 @@ class Chain:
         Args:
             source: a path to an ``.xml`` file, MJCF text (a string starting with ``<``) or a
                 ``mujoco.MjModel``.
+            sites: also make each site a link (fixed to its body, after the bodies).
             dtype: float32 (default) or float64.
             device: where the constants live (default CPU).
 
@@ -283,7 +285,7 @@ class Chain:
         """
         from .mjcf import parse_mjcf
 
-        return cls(parse_mjcf(source), dtype=dtype, device=device)
+        return cls(parse_mjcf(source, sites=sites), dtype=dtype, device=device)
 
     @classmethod
     def from_sdf(

@@ -106,7 +106,7 @@ def _compile(source: Any) -> tuple[Any, str]:
         raise MJCFError(label, str(e).strip()) from None
 
 
-def parse_mjcf(source: str | os.PathLike[str] | bytes | Any) -> RobotSpec:
+def parse_mjcf(source: str | os.PathLike[str] | bytes | Any, *, sites: bool = False) -> RobotSpec:
     """Compile an MJCF file (or MJCF text, or take a compiled ``mujoco.MjModel``) with MuJoCo
     and describe its kinematic tree as a :class:`~torchlie.kinematics.RobotSpec`.
 
@@ -116,6 +116,8 @@ def parse_mjcf(source: str | os.PathLike[str] | bytes | Any) -> RobotSpec:
     Args:
         source: a path to an ``.xml`` file, MJCF text (a string starting with ``<``) or a
             ``mujoco.MjModel``.
+        sites: also make each ``<site>`` a link (after the bodies, fixed to its body; an
+            unnamed site ``s`` is ``"site_{s}"``; a site named as a body is an error).
 
     Raises:
         MJCFError: MuJoCo's compiler refused the file (its message, with the file name).
@@ -190,5 +192,20 @@ def parse_mjcf(source: str | os.PathLike[str] | bytes | Any) -> RobotSpec:
                     )
                 )
             parent = child
-    model_name = name(mujoco.mjtObj.mjOBJ_MODEL, 0) if hasattr(mujoco.mjtObj, "mjOBJ_MODEL") else ""
-    return RobotSpec(model_name or "mjcf", tuple(bodies), tuple(joints), bodies[0], label)
+    links = list(bodies)
+    if sites:
+        staken = {name(mujoco.mjtObj.mjOBJ_SITE, s) for s in range(m.nsite)} - {""}
+        for s in range(m.nsite):
+            site = name(mujoco.mjtObj.mjOBJ_SITE, s) or _unique(f"site_{s}", staken)
+            if site in taken:
+                raise MJCFError(
+                    label, f"site {site!r} has the name of a body: its frame would be ambiguous"
+                )
+            taken.add(site)
+            links.append(site)
+            body = bodies[int(m.site_bodyid[s])]
+            xyz, quat = vec(m.site_pos[s]), vec(m.site_quat[s])
+            joints.append(JointSpec(f"{site}:fixed", "fixed", body, site, xyz=xyz, quat=quat))
+    # The model's name: the first entry of MuJoCo's name buffer.
+    model_name = bytes(m.names).split(b"\0", 1)[0].decode("utf-8", "replace")
+    return RobotSpec(model_name or "mjcf", tuple(links), tuple(joints), bodies[0], label)
