@@ -427,3 +427,30 @@ def test_sites_as_links():
     )
     with pytest.raises(MJCFError, match="site 'tip' has the name of a body"):
         Chain.from_mjcf(clash, sites=True)
+
+
+@pytest.mark.compile
+def test_compile_fullgraph_ball_free_anchors():
+    # aot_eager: one graph through AOT autograd (as tests/test_kinematics_compile.py).
+    chain = Chain.from_mjcf(FREE.replace('type="free"', 'type="ball" pos="0.1 0 0"'))
+    links = ["leg", "box"]
+
+    def f(q):
+        return chain.forward_kinematics(q, links, stacked=True), chain.jacobian(q, "leg")
+
+    q = chain.random_configuration(16, generator=torch.Generator().manual_seed(0))
+    T, J = torch.compile(f, fullgraph=True, backend="aot_eager")(q)
+    T_eager, J_eager = f(q)
+    tol = 64 * torch.finfo(torch.float32).eps
+    torch.testing.assert_close(T, T_eager, atol=tol, rtol=0)
+    torch.testing.assert_close(J, J_eager, atol=tol, rtol=0)
+
+
+def test_gradients_through_quaternion_joints():
+    """First derivatives with respect to ``q`` through ball and free joints (normalised
+    quaternions) and anchors: ``gradcheck`` in float64."""
+    chain = Chain.from_mjcf(BALL_SLIDE, dtype=torch.float64)
+    q = random_qpos(chain, 2, 9).requires_grad_()
+    assert torch.autograd.gradcheck(
+        lambda x: chain.forward_kinematics(x, "c")["c"], (q,), eps=1e-6, atol=1e-8
+    )
