@@ -422,3 +422,38 @@ def _identity_q(chain: Chain) -> torch.Tensor:
 def test_unsupported_files_raise(xml, match):
     with pytest.raises(SDFError, match=match):
         Chain.from_sdf(xml)
+
+
+# ----------------------------------------------------------------------------------------------
+# python -m torchlie.kinematics.validate on SDF
+# ----------------------------------------------------------------------------------------------
+
+
+def test_validate_command_takes_sdf(tmp_path, capsys):
+    from torchlie.kinematics._sdf_validate import joint_values, sdf_reference_poses
+    from torchlie.kinematics.validate import main
+
+    path = tmp_path / "robot.sdf"
+    path.write_text(FRAMES)
+    assert main([str(path), "--samples", "10"]) == 0
+    text = capsys.readouterr().out
+    assert "PASS" in text and "tool" in text
+    assert main([str(path), "--samples", "4", "--dtype", "float32"]) == 0
+    # The validation's reference agrees with this file's (scipy) one.
+    chain = Chain.from_sdf(FRAMES, dtype=torch.float64)
+    q = chain.random_configuration(generator=torch.Generator().manual_seed(6)).numpy()
+    ours = sdf_reference_poses(FRAMES, joint_values(chain.joint_names, q))
+    theirs = reference_poses(FRAMES, values_of(chain, torch.from_numpy(q)))
+    assert max(float(np.abs(ours[n] - theirs[n]).max()) for n in theirs) <= 1e-13
+    loop = tmp_path / "loop.sdf"
+    loop.write_text(
+        '<sdf version="1.7"><model name="m"><link name="a"/><link name="b"/><link name="c"/>'
+        '<joint name="j1" type="revolute"><parent>a</parent><child>b</child></joint>'
+        '<joint name="j2" type="revolute"><parent>a</parent><child>c</child></joint>'
+        '<joint name="j3" type="ball"><parent>b</parent><child>c</child></joint>'
+        "</model></sdf>"
+    )
+    assert main([str(loop)]) == 2
+    err = capsys.readouterr().err
+    assert str(loop) in err and "kinematic loop" in err
+    assert main([str(loop), "--loops", "skip", "--samples", "3"]) == 0
