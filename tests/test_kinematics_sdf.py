@@ -457,3 +457,14 @@ def test_validate_command_takes_sdf(tmp_path, capsys):
     err = capsys.readouterr().err
     assert str(loop) in err and "kinematic loop" in err
     assert main([str(loop), "--loops", "skip", "--samples", "3"]) == 0
+
+
+def test_old_frame_attribute_is_relative_to():
+    old = FRAMES.replace('relative_to="upper">0.4', 'frame="upper">0.4')
+    assert old != FRAMES
+    a = Chain.from_sdf(FRAMES, dtype=torch.float64)
+    b = Chain.from_sdf(old, dtype=torch.float64)
+    q = a.random_configuration(3, generator=torch.Generator().manual_seed(2))
+    torch.testing.assert_close(
+        a.forward_kinematics(q, stacked=True), b.forward_kinematics(q, stacked=True)
+    )

@@ -89,7 +89,9 @@ def sdf_reference_poses(xml: str, values: dict[str, object]) -> dict[str, np.nda
 
     def read(el: ET.Element, default: str) -> None:
         p = el.find("pose")
-        given = (p.get("relative_to") or "").strip() if p is not None else ""
+        given = ""
+        if p is not None:
+            given = (p.get("relative_to") or p.get("frame") or "").strip()
         rel[el.get("name", "")] = given or default
         pose[el.get("name", "")] = _pose(p)
 

@@ -23,6 +23,12 @@ Conventions
                     (:func:`torchlie.so3.exp`)
   ==========  ====  ============================================================================
 
+* MJCF (:meth:`Chain.from_mjcf`) and SDF (:meth:`Chain.from_sdf`) chains also have ``ball``
+  joints (``q``: a quaternion ``w, x, y, z``) and MJCF ``free`` joints (position, then a
+  quaternion), joints that turn about a point of their frame (MJCF ``pos``) and MJCF ``ref``
+  offsets: see :mod:`torchlie.kinematics.mjcf` and :mod:`torchlie.kinematics.sdf`.  A
+  quaternion has three velocity coordinates, so their Jacobians have ``n_v`` columns
+  (:attr:`Chain.velocity_names`), ``n_v = n_dof`` otherwise.
 * ``<mimic joint=J multiplier=m offset=c>``: the joint's value is ``m * q[J] + c``; it has no
   DoF of its own (chains of mimics compose).
 * ``q`` has shape ``(..., n_dof)`` in :attr:`Chain.joint_names` order: one entry per degree of

@@ -16,7 +16,8 @@ a ``<frame>``'s to the frame it is attached to (the model frame by default); a j
 expressed in the joint frame, or in the frame its ``expressed_in`` names, or in the model frame
 when ``<use_parent_model_frame>`` is true (SDFormat 1.4-1.6).  ``__model__`` names the model
 frame.  A pose is ``x y z roll pitch yaw`` with ``R = Rz(yaw) Ry(pitch) Rx(roll)``;
-``degrees="true"`` and ``rotation_format="quat_xyzw"`` (``x y z qx qy qz qw``) are read.
+``degrees="true"`` and ``rotation_format="quat_xyzw"`` (``x y z qx qy qz qw``) are read, and
+the ``frame`` attribute of SDFormat 1.5-1.6 poses as ``relative_to``.
 
 The chain: its root is the model frame, called ``"__model__"`` (or ``"world"`` when a joint
 has ``<parent>world</parent>``: the world is then taken to be the model frame), and every pose
@@ -239,8 +240,9 @@ def parse_sdf(source: str | os.PathLike[str] | bytes, *, loops: str = "error") -
             raise r.fail(where, f"the name {name!r} is already taken")
         pose_el = el.find("pose")
         rel = default_rel
-        if pose_el is not None and (pose_el.get("relative_to") or "").strip():
-            rel = pose_el.get("relative_to", "").strip()
+        if pose_el is not None:  # SDFormat 1.5-1.6 spelled relative_to "frame"
+            given = (pose_el.get("relative_to") or pose_el.get("frame") or "").strip()
+            rel = given or rel
         frames[name] = _Frame(rel, r.pose(pose_el, where + " <pose>"))
         return name
 
