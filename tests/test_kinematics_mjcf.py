@@ -103,9 +103,12 @@ def quat_distance(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.minimum(np.abs(a - b).max(-1), np.abs(a + b).max(-1)).max(initial=0.0))
 
 
-def compare(m, n: int = 4, seed: int = 0, jacobians: bool = True) -> dict[str, float]:
+def compare(
+    m, n: int = 4, seed: int = 0, jacobians: bool = True, float32: bool = False
+) -> dict[str, float]:
     """Errors of the float64 chain of ``m`` against MuJoCo at ``n`` random ``qpos``: position
-    (relative to the model size, at least 1), rotation (quaternion), Jacobian (relative)."""
+    (relative to the model size, at least 1), rotation (quaternion), Jacobian (relative); and
+    with ``float32`` the float32 chain's poses, scaled to the float64 tolerance."""
     chain = Chain.from_mjcf(m, dtype=torch.float64)
     assert chain.link_names[0] == "world" and len(chain.link_names) == m.nbody
     q = random_qpos(chain, n, seed)
@@ -121,6 +124,14 @@ def compare(m, n: int = 4, seed: int = 0, jacobians: bool = True) -> dict[str, f
         Js = chain.jacobian(q, list(chain.link_names))
         J = np.stack([Js[n].numpy() for n in chain.link_names], axis=1)
         err["jac"] = float(np.abs(J - jac).max(initial=0.0)) / scale
+    if float32:  # errors of the float32 chain, divided by 1e-5 / 1e-12 (the tolerance ratio)
+        T32 = chain.to(torch.float32).forward_kinematics(q.float(), stacked=True).double().numpy()
+        R_ref = quaternion.to_matrix(torch.from_numpy(xquat)).numpy()
+        e32 = max(
+            float(np.abs(T32[..., :3, 3] - xpos).max(initial=0.0)) / scale,
+            float(np.abs(T32[..., :3, :3] - R_ref).max(initial=0.0)),
+        )
+        err["float32"] = e32 * 1e-7
     return err
 
 
@@ -151,12 +162,12 @@ def test_every_installed_model_matches_mujoco():
     files = [p for name in PACKAGES for p in model_files(name)]
     if not files:
         pytest.skip("no package with MJCF models is installed")
-    checked, worst = 0, {"pos": 0.0, "rot": 0.0, "jac": 0.0}
+    checked, worst = 0, {"pos": 0.0, "rot": 0.0, "jac": 0.0, "float32": 0.0}
     for k, p in enumerate(files):
         m = compile_or_skip(p)
         if m is None:
             continue
-        err = compare(m, n=2, seed=k)
+        err = compare(m, n=2, seed=k, float32=True)
         assert max(err.values()) <= 1e-12, (str(p), err)
         worst = {key: max(worst[key], err[key]) for key in worst}
         checked += 1
