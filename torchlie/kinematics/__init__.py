@@ -1,4 +1,5 @@
-"""Robot kinematics on torchlie: URDF chains, batched forward kinematics and Jacobians.
+"""Robot kinematics on torchlie: URDF, MJCF and SDF chains, batched forward kinematics and
+Jacobians.
 
 >>> import torch
 >>> from torchlie.kinematics import Chain, sample_robot
@@ -26,6 +27,8 @@ from pathlib import Path
 
 from .chain import Chain
 from .ik import IKResult
+from .mjcf import MJCFError, parse_mjcf
+from .sdf import SDFError, parse_sdf
 from .urdf import JOINT_TYPES, JointSpec, MimicSpec, RobotSpec, URDFError, parse_urdf
 
 __all__ = [
@@ -37,6 +40,10 @@ __all__ = [
     "RobotSpec",
     "URDFError",
     "parse_urdf",
+    "MJCFError",
+    "parse_mjcf",
+    "SDFError",
+    "parse_sdf",
     "sample_robot",
     "SAMPLE_ROBOTS",
 ]

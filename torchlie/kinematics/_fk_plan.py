@@ -17,11 +17,12 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from .. import quaternion as _quaternion
 from .. import so3 as _so3
 from ._joints import _Link
 
 # Internal kinds in the order their groups are computed at each depth (one GEMM per kind).
-_KIND_ORDER = ("fixed", "rot", "prism", "planar", "float")
+_KIND_ORDER = ("fixed", "rot", "prism", "planar", "float", "ball", "free")
 
 
 @dataclass
@@ -39,6 +40,7 @@ class _Plan:
     where: dict[int, tuple[int, int, int]]  # link -> (level, group, position)
     rot_sel: object  # None, slice or index tensor into the value bank
     float_idx: Tensor | None  # value rows of the floating joints, 6 per joint
+    quat_idx: Tensor | None = None  # value rows of the quaternions (ball, free), 4 per joint
 
 
 def _rows_index(rows: Sequence[int], device: torch.device) -> object:
@@ -80,6 +82,7 @@ def _build_plan(
     # Value rows that need sin / 1 - cos, and floating joints' first rows.
     rot_rows: list[int] = []
     float_rows: list[int] = []
+    quat_rows: list[int] = []
     for i in need:
         link = links[i]
         if link.kind == "rot":
@@ -88,9 +91,12 @@ def _build_plan(
             rot_rows.append(link.rows[2])
         elif link.kind == "float":
             float_rows.append(link.rows[0])
+        elif link.kind in ("ball", "free"):
+            quat_rows.append(link.rows[-4])
     rot_rows = sorted(set(rot_rows))
     rot_pos = {r: k for k, r in enumerate(rot_rows)}
     float_pos = {r: k for k, r in enumerate(float_rows)}
+    quat_pos = {r: k for k, r in enumerate(quat_rows)}
 
     where: dict[int, tuple[int, int, int]] = {0: (0, 0, 0)}
     levels: list[list[_Group]] = []
@@ -146,13 +152,23 @@ def _build_plan(
                 for k in range(12):
                     rows = [float_pos[link.rows[0]] * 12 + k for link in members]
                     feats.append(("F", _rows_index(rows, dev)))
+            if kind in ("ball", "free"):  # the rotation matrix's entries, then the position
+                for k in range(9):
+                    rows = [quat_pos[link.rows[-4]] * 9 + k for link in members]
+                    feats.append(("Q", _rows_index(rows, dev)))
+            if kind == "free":
+                for k in range(3):
+                    feats.append(("v", _rows_index([link.rows[k] for link in members], dev)))
             groups.append(_Group([m.index for m in members], kind, parent_src, ct, feats))
         levels.append(groups)
     rot_sel = None if not rot_rows else _rows_index(rot_rows, dev)
     float_idx = None
     if float_rows:
         float_idx = torch.tensor([r + k for r in float_rows for k in range(6)], device=dev)
-    return _Plan(levels, where, rot_sel, float_idx)
+    quat_idx = None
+    if quat_rows:
+        quat_idx = torch.tensor([r + k for r in quat_rows for k in range(4)], device=dev)
+    return _Plan(levels, where, rot_sel, float_idx, quat_idx)
 
 
 def _run(plan: _Plan, v: Tensor) -> list[list[Tensor]]:
@@ -172,6 +188,11 @@ def _run(plan: _Plan, v: Tensor) -> list[list[Tensor]]:
         R = _so3.exp(vals[:, 3:].transpose(1, 2))  # (n, B, 3, 3)
         F = torch.cat((R.permute(0, 2, 3, 1).reshape(nf, 9, B), vals[:, :3]), dim=1)
         banks["F"] = F.view(nf * 12, 1, 1, B)
+    if plan.quat_idx is not None:
+        nq = plan.quat_idx.shape[0] // 4
+        x = v.index_select(0, plan.quat_idx).view(nq, 4, B).transpose(1, 2)
+        R = _quaternion.to_matrix(x)  # (n, B, 3, 3), of the normalised quaternion
+        banks["Q"] = R.permute(0, 2, 3, 1).reshape(nq * 9, 1, 1, B)
 
     out: list[list[Tensor]] = []
     for groups in plan.levels:

@@ -37,6 +37,9 @@ class _JacPlan:
     in_dof_order: bool  # column k is DoF k's, for every DoF (a serial arm): no scatter needed
     dofs: tuple[int, ...]  # the DoFs that move the link (those of dof_index, sorted)
     col_dofs: tuple[int, ...]  # dof_index as Python ints
+    # (n_rot_const, 3, 1, 1): the centre of each rotation in its child's frame (MJCF joint
+    # anchors), None when every centre is the child's origin
+    rot_anchor: Tensor | None = None
 
 
 def _jacobian_plan(
@@ -56,10 +59,13 @@ def _jacobian_plan(
     rot: list[tuple[int, tuple[float, ...], int, int, float]] = []  # parent, v, child, d, w
     tr: list[tuple[int, tuple[float, ...], int, float]] = []  # parent, v, d, w
     floats: list[tuple[int, int, int, Tensor]] = []  # parent, child, rotvec DoF, O_R
+    anchors: list[tuple[float, float, float]] = []
     for link in reversed(path):
         for kind, v, d, w in link.cols:
-            if kind == "rot":
-                rot.append((link.parent, v, link.index, d, w))
+            if kind in ("rot", "crot"):  # crot: a direction fixed in the child's frame
+                frame = link.parent if kind == "rot" else link.index
+                rot.append((frame, v, link.index, d, w))
+                anchors.append(link.anchor or (0.0, 0.0, 0.0))
             else:
                 tr.append((link.parent, v, d, w))
         if link.float_rot is not None:
@@ -88,6 +94,11 @@ def _jacobian_plan(
             if all(w == 1.0 for w in col_w)
             else torch.tensor(col_w, dtype=dt, device=dev).view(len(col_w), 1, 1)
         ),
+        rot_anchor=(
+            torch.tensor(anchors, dtype=dt, device=dev).view(len(anchors), 3, 1, 1)
+            if any(any(a) for a in anchors)
+            else None
+        ),
     )
 
 
@@ -105,6 +116,9 @@ def _link_columns(
         U = torch.matmul(jp.vs, Rs.reshape(n, 3, 3 * B)).view(n, 3, B)
         us.append(U[: jp.n_rot_const])
     origins = [pose(c)[3, :3] for c in jp.rot_children]
+    if jp.rot_anchor is not None:  # the anchor p of the child c: t_c + R_c p
+        Rc = torch.stack([pose(c)[:3, :3] for c in jp.rot_children])  # (n, c, r, B)
+        origins = list((torch.stack(origins) + (jp.rot_anchor * Rc).sum(1)).unbind(0))
     for parent, child, d0, O_R in jp.floats:
         V = torch.matmul(O_R, _so3.jac_left(q2[:, d0 : d0 + 3]))  # (B, c, k)
         Rp = pose(parent)[:3, :3]  # (c, r, B)

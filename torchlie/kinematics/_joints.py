@@ -20,8 +20,25 @@ from torch import Tensor
 from .. import so3 as _so3
 from .urdf import JointSpec, RobotSpec, URDFError, _describe
 
-_SUFFIXES = {"planar": ("x", "y", "theta"), "floating": ("x", "y", "z", "rx", "ry", "rz")}
-_NDOF = {"revolute": 1, "continuous": 1, "prismatic": 1, "fixed": 0, "planar": 3, "floating": 6}
+_QUAT = ("qw", "qx", "qy", "qz")
+_SUFFIXES = {
+    "planar": ("x", "y", "theta"),
+    "floating": ("x", "y", "z", "rx", "ry", "rz"),
+    "ball": _QUAT,
+    "free": ("x", "y", "z", *_QUAT),
+}
+_NDOF = {
+    "revolute": 1,
+    "continuous": 1,
+    "prismatic": 1,
+    "fixed": 0,
+    "planar": 3,
+    "floating": 6,
+    "ball": 4,
+    "free": 7,
+}
+# Velocity coordinates where they differ from the values (a quaternion has 3).
+_VEL_SUFFIXES = {"ball": ("wx", "wy", "wz"), "free": ("x", "y", "z", "wx", "wy", "wz")}
 # Internal kinds (one GEMM per depth and kind).
 _KIND = {
     "revolute": "rot",
@@ -30,6 +47,8 @@ _KIND = {
     "fixed": "fixed",
     "planar": "planar",
     "floating": "float",
+    "ball": "ball",
+    "free": "free",
 }
 
 # Sampling ranges for coordinates without limits (random_configuration).
@@ -65,9 +84,23 @@ def rpy_matrix(roll: float, pitch: float, yaw: float) -> Tensor:
     )
 
 
+def _quat_matrix(q: Sequence[float]) -> Tensor:
+    """Rotation matrix of the quaternion ``(w, x, y, z)`` (normalised) in float64."""
+    n = math.sqrt(sum(x * x for x in q))
+    w, x, y, z = (c / n for c in q)
+    return torch.tensor(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ],
+        dtype=torch.float64,
+    )
+
+
 def _origin(j: JointSpec) -> Tensor:
     T = torch.eye(4, dtype=torch.float64)
-    T[:3, :3] = rpy_matrix(*j.rpy)
+    T[:3, :3] = rpy_matrix(*j.rpy) if j.quat is None else _quat_matrix(j.quat)
     T[:3, 3] = torch.tensor(j.xyz, dtype=torch.float64)
     return T
 
@@ -96,25 +129,58 @@ def _plane_basis(n: Tensor) -> tuple[Tensor, Tensor]:
     return e1, torch.linalg.cross(n, e1)
 
 
+def _frame(j: JointSpec) -> tuple[Tensor, Tensor | None]:
+    """``(A, P)`` with ``T_origin @ M(q - ref)`` about the anchor ``= A @ M(q) @ P`` (``P``
+    None: the identity).  A rotation about the anchor ``p`` is ``Trans(p) M Trans(-p)``; the
+    ``ref`` offset of a one-DoF joint is a constant motion along its axis, folded into ``A``
+    (it commutes with ``M``)."""
+    A = _origin(j)
+    P = None
+    kind = _KIND[j.type]
+    if kind in ("rot", "ball") and any(j.anchor):
+        p = torch.tensor(j.anchor, dtype=torch.float64)
+        A = A @ (torch.eye(4, dtype=torch.float64) + _block(t=p))
+        P = torch.eye(4, dtype=torch.float64) + _block(t=-p)
+    if j.ref != 0.0 and kind in ("rot", "prism"):
+        a = _unit(j.axis)
+        if kind == "rot":
+            K = _so3.hat(a)
+            R = torch.eye(3, dtype=torch.float64) - math.sin(j.ref) * K
+            R = R + (1.0 - math.cos(j.ref)) * (K @ K)
+            H = torch.eye(4, dtype=torch.float64)
+            H[:3, :3] = R
+            A = A @ H
+        else:
+            A = A @ (torch.eye(4, dtype=torch.float64) + _block(t=-j.ref * a))
+    return A, P
+
+
+_UNITS = [(3, 3)] + [(r, c) for r in range(3) for c in range(3)] + [(r, 3) for r in range(3)]
+
+
 def _constants(j: JointSpec) -> list[Tensor]:
     """``[C_0, C_1, ...]`` with ``T_origin @ M(q) = C_0 + sum_f feat_f(q) C_f``."""
-    T = _origin(j)
+    T, P = _frame(j)
     kind = _KIND[j.type]
+
+    def c(M: Tensor) -> Tensor:
+        return T @ M if P is None else T @ M @ P
+
     if kind == "fixed":
         return [T]
-    if kind == "float":
-        # M = E33 + sum_rc R[r, c] E_rc + sum_r t[r] E_r3, E_rc the unit matrices.
+    if kind in ("float", "free", "ball"):
+        # M = E33 + sum_rc R[r, c] E_rc + sum_r t[r] E_r3, E_rc the unit matrices (a ball
+        # joint has no translation).
         out = []
-        units = [(3, 3)] + [(r, c) for r in range(3) for c in range(3)] + [(r, 3) for r in range(3)]
-        for r, c in units:
+        for r, col in _UNITS[:10] if kind == "ball" else _UNITS:
             E = torch.zeros(4, 4, dtype=torch.float64)
-            E[r, c] = 1.0
-            out.append(T @ E)
+            E[r, col] = 1.0
+            out.append(c(E))
         return out
     a = _unit(j.axis)
     K = _so3.hat(a)
     if kind == "rot":
-        return [T, T @ _block(K), T @ _block(K @ K)]
+        return [c(torch.eye(4, dtype=torch.float64)), c(_block(K)), c(_block(K @ K))]
     if kind == "prism":
         return [T, T @ _block(t=a)]
     e1, e2 = _plane_basis(a)  # planar
@@ -122,13 +188,15 @@ def _constants(j: JointSpec) -> list[Tensor]:
 
 
 def _columns(
-    j: JointSpec, rows: tuple[int, ...], mimic: tuple[int, float] | None
+    j: JointSpec, rows: tuple[int, ...], mimic: tuple[int, float] | None, vel: int | None = None
 ) -> tuple[tuple, tuple | None]:
-    """Jacobian columns of joint ``j`` (see ``_Link.cols``), from float64 values."""
+    """Jacobian columns of joint ``j`` (see ``_Link.cols``), from float64 values; ``vel`` is
+    the joint's first velocity coordinate (``rows[0]`` when None)."""
     kind = _KIND[j.type]
     if kind == "fixed":
         return (), None
     O_R = _origin(j)[:3, :3]
+    v0 = rows[0] if vel is None else vel
 
     def vec(v: Tensor) -> tuple[float, ...]:
         return tuple(float(x) for x in v)
@@ -136,8 +204,16 @@ def _columns(
     if kind == "float":
         cols = tuple(("tr", vec(O_R[:, k]), rows[k], 1.0) for k in range(3))
         return cols, (rows[3], tuple(vec(r) for r in O_R))
+    # A quaternion joint's angular velocity is in the child's frame ("crot": the direction is
+    # a column of the child's rotation); a free joint's translation in its parent's frame.
+    unit = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+    if kind == "ball":
+        return tuple(("crot", unit[k], v0 + k, 1.0) for k in range(3)), None
+    if kind == "free":
+        cols = tuple(("tr", vec(O_R[:, k]), v0 + k, 1.0) for k in range(3))
+        return cols + tuple(("crot", unit[k], v0 + 3 + k, 1.0) for k in range(3)), None
     a = _unit(j.axis)
-    d, w = mimic if mimic is not None else (rows[0], 1.0)
+    d, w = mimic if mimic is not None else (v0, 1.0)
     if kind == "rot":
         return (("rot", vec(O_R @ a), d, w),), None
     if kind == "prism":
@@ -252,6 +328,8 @@ def _sampling_ranges(names: Sequence[str], lower: Tensor, upper: Tensor) -> tupl
         suffix = name.rsplit(":", 1)[-1] if ":" in name else ""
         if suffix in ("x", "y", "z"):
             r = _FREE_TRANSLATION
+        elif suffix in _QUAT:  # normalised by the forward kinematics
+            r = 1.0
         elif suffix in ("rx", "ry", "rz"):
             r = _FREE_ROTVEC
         else:
@@ -279,6 +357,8 @@ class _Link:
     # for a floating joint also (first rotation-vector DoF, O_R as nested tuples).
     cols: tuple[tuple[str, tuple[float, ...], int, float], ...] = ()
     float_rot: tuple[int, tuple[tuple[float, ...], ...]] | None = None
+    # The point of the child frame its rotation columns turn about (None: the origin).
+    anchor: tuple[float, float, float] | None = None
 
 
 def _dof_layout(spec: RobotSpec) -> tuple[dict[str, int], list[str], list[float], list[float]]:
@@ -306,6 +386,26 @@ def _dof_layout(spec: RobotSpec) -> tuple[dict[str, int], list[str], list[float]
     return dof_of, names, lower, upper
 
 
+def _velocity_layout(spec: RobotSpec) -> tuple[dict[str, int], list[str]]:
+    """Velocity coordinates (the Jacobian's columns): joint -> its first one, and their names.
+
+    The same as the degrees of freedom of :func:`_dof_layout` except for quaternion joints
+    (``ball``: 3 angular velocities, ``free``: 3 linear, then 3 angular)."""
+    vel_of: dict[str, int] = {}
+    names: list[str] = []
+    for j in spec.joints:
+        n = _NDOF[j.type]
+        if n == 0 or j.mimic is not None:
+            continue
+        vel_of[j.name] = len(names)
+        if n == 1:
+            names.append(j.name)
+        else:
+            sfx = _VEL_SUFFIXES.get(j.type, _SUFFIXES[j.type])
+            names.extend(f"{j.name}:{x}" for x in sfx)
+    return vel_of, names
+
+
 def _mimic_rows(
     spec: RobotSpec, dof_of: dict[str, int], n_dof: int
 ) -> tuple[dict[str, int], tuple[list[int], list[float], list[float]]]:
@@ -328,6 +428,7 @@ def _tree_links(
     dof_of: dict[str, int],
     row_of: dict[str, int],
     mimic_of: dict[str, tuple[int, float]],
+    vel_of: dict[str, int] | None = None,
 ) -> list[_Link]:
     """The links in breadth-first internal order (children in document order of their
     joints), the root first, each with its joint's value rows, constants and Jacobian columns
@@ -356,7 +457,8 @@ def _tree_links(
                     _KIND[j.type],
                     rows,
                     tuple(_constants(j)),
-                    *_columns(j, rows, mimic_of.get(j.name)),
+                    *_columns(j, rows, mimic_of.get(j.name), (vel_of or dof_of).get(j.name)),
+                    j.anchor if any(j.anchor) and _KIND[j.type] in ("rot", "ball") else None,
                 )
                 links.append(link)
                 nxt.append(link.index)

@@ -23,6 +23,12 @@ Conventions
                     (:func:`torchlie.so3.exp`)
   ==========  ====  ============================================================================
 
+* MJCF (:meth:`Chain.from_mjcf`) and SDF (:meth:`Chain.from_sdf`) chains also have ``ball``
+  joints (``q``: a quaternion ``w, x, y, z``) and MJCF ``free`` joints (position, then a
+  quaternion), joints that turn about a point of their frame (MJCF ``pos``) and MJCF ``ref``
+  offsets: see :mod:`torchlie.kinematics.mjcf` and :mod:`torchlie.kinematics.sdf`.  A
+  quaternion has three velocity coordinates, so their Jacobians have ``n_v`` columns
+  (:attr:`Chain.velocity_names`), ``n_v = n_dof`` otherwise.
 * ``<mimic joint=J multiplier=m offset=c>``: the joint's value is ``m * q[J] + c``; it has no
   DoF of its own (chains of mimics compose).
 * ``q`` has shape ``(..., n_dof)`` in :attr:`Chain.joint_names` order: one entry per degree of
@@ -94,6 +100,7 @@ from ._joints import (
     _sampling_ranges,
     _tree_links,
     _uniform_within,
+    _velocity_layout,
     rpy_matrix,
 )
 from .ik import IKResult
@@ -136,6 +143,8 @@ class Chain:
         root: the root link (its frame is the world frame).
         link_names: every link, in document order.
         joint_names: the ``n_dof`` degrees of freedom, in the order of ``q``'s last dimension.
+        velocity_names: the ``n_v`` velocity coordinates, the Jacobian's columns (the same as
+            ``joint_names`` unless the chain has MJCF ball or free joints).
         leaf_links: links without children (end effectors, tool frames), in document order.
         lower, upper: ``(n_dof,)`` position limits (``-inf``/``inf`` where there are none).
         dtype, device: of the constants, and hence of ``q`` and the results.
@@ -176,6 +185,11 @@ class Chain:
         self.lower = self._limits64[0].to(dtype=dtype, device=self.device)
         self._sample64 = _sampling_ranges(names, *self._limits64)
         self.upper = self._limits64[1].to(dtype=dtype, device=self.device)
+        # Velocity coordinates (the Jacobian's columns): the DoFs, except that a quaternion
+        # (MJCF ball and free joints) has three.
+        vel_of, vel_names = _velocity_layout(spec)
+        self.velocity_names: tuple[str, ...] = tuple(vel_names)
+        self.n_v = len(vel_names)
 
         # Mimic joints: value row = n_dof + k, q[src] * mult + off (chains resolved).
         row_of, self._mimic = _mimic_rows(spec, dof_of, self.n_dof)
@@ -192,7 +206,7 @@ class Chain:
         }
 
         # Breadth-first internal order; children in document order of their joints.
-        self._links = _tree_links(spec, dof_of, row_of, self._mimic_of)
+        self._links = _tree_links(spec, dof_of, row_of, self._mimic_of, vel_of)
         self._index = {link.name: link.index for link in self._links}
         has_child = {link.parent for link in self._links}
         self.leaf_links: tuple[str, ...] = tuple(
@@ -234,6 +248,83 @@ class Chain:
             (('j',), tensor([0.5000]))
         """
         return cls(parse_urdf(source), dtype=dtype, device=device)
+
+    @classmethod
+    def from_mjcf(
+        cls,
+        source: str | os.PathLike[str] | bytes | Any,
+        *,
+        sites: bool = False,
+        dtype: torch.dtype = torch.float32,
+        device: torch.device | str | None = None,
+    ) -> Chain:
+        """Compile an MJCF file (or MJCF text, or take a ``mujoco.MjModel``) with MuJoCo and
+        build its chain (needs the ``mujoco`` package: ``torchlie[mjcf]``).
+
+        One link per body; ``q`` is MuJoCo's ``qpos`` (so ``chain.forward_kinematics(
+        data.qpos)`` needs no conversion) and the Jacobian's columns are MuJoCo's ``nv``
+        velocity coordinates (:attr:`velocity_names`).  The naming of unnamed bodies and
+        joints and the joint conventions are in :mod:`torchlie.kinematics.mjcf`.
+
+        Args:
+            source: a path to an ``.xml`` file, MJCF text (a string starting with ``<``) or a
+                ``mujoco.MjModel``.
+            sites: also make each site a link (fixed to its body, after the bodies).
+            dtype: float32 (default) or float64.
+            device: where the constants live (default CPU).
+
+        Raises:
+            MJCFError: MuJoCo refused the file (MuJoCo's message, with the file name).
+            ImportError: ``mujoco`` is not installed.
+
+        Example:
+            >>> chain = Chain.from_mjcf('''<mujoco><worldbody><body name="ball" pos="0 0 1">
+            ...   <joint type="ball"/><geom size="0.1"/><body name="tip" pos="0 0 -1"/></body>
+            ...   </worldbody></mujoco>''', dtype=torch.float64)
+            >>> chain.joint_names
+            ('joint_0:qw', 'joint_0:qx', 'joint_0:qy', 'joint_0:qz')
+            >>> chain.velocity_names
+            ('joint_0:wx', 'joint_0:wy', 'joint_0:wz')
+            >>> q = torch.tensor([0.0, 1.0, 0.0, 0.0], dtype=torch.float64)  # pi about x
+            >>> chain.forward_kinematics(q, "tip")["tip"][:3, 3]
+            tensor([0., 0., 2.], dtype=torch.float64)
+        """
+        from .mjcf import parse_mjcf
+
+        return cls(parse_mjcf(source, sites=sites), dtype=dtype, device=device)
+
+    @classmethod
+    def from_sdf(
+        cls,
+        source: str | os.PathLike[str] | bytes,
+        *,
+        loops: str = "error",
+        dtype: torch.dtype = torch.float32,
+        device: torch.device | str | None = None,
+    ) -> Chain:
+        """Parse an SDF file (or SDF text: one model, or a world holding one) and build its
+        chain; poses are in the model's frame (see :mod:`torchlie.kinematics.sdf`).
+
+        Args:
+            source: a path to an ``.sdf`` file, or the XML text (a string starting with ``<``).
+            loops: ``"error"`` or ``"skip"`` (leave out the joints closing kinematic loops).
+            dtype: float32 (default) or float64.
+            device: where the constants live (default CPU).
+
+        Raises:
+            SDFError: a malformed or unsupported SDF.
+
+        Example:
+            >>> chain = Chain.from_sdf('''<sdf version="1.7"><model name="m">
+            ...   <link name="a"/><link name="b"><pose>0 0 1 0 0 0</pose></link>
+            ...   <joint name="j" type="prismatic"><parent>a</parent><child>b</child>
+            ...     <axis><xyz>1 0 0</xyz></axis></joint></model></sdf>''')
+            >>> chain.forward_kinematics(torch.tensor([0.5]), "b")["b"][:3, 3]
+            tensor([0.5000, 0.0000, 1.0000])
+        """
+        from .sdf import parse_sdf
+
+        return cls(parse_sdf(source, loops=loops), dtype=dtype, device=device)
 
     def to(
         self, dtype: torch.dtype | None = None, device: torch.device | str | None = None
@@ -457,7 +548,7 @@ class Chain:
         return _cached(
             self._jac_plans,
             target,
-            lambda: _jacobian_plan(self._links, target, self.n_dof, self.dtype, self.device),
+            lambda: _jacobian_plan(self._links, target, self.n_v, self.dtype, self.device),
         )
 
     def _jacobian_columns(
@@ -472,7 +563,7 @@ class Chain:
         :meth:`jacobian`), or only the columns of ``dofs`` (sorted DoFs, ``(len(dofs), 6, B)``);
         ``pose(i)`` gives link ``i``'s internal ``(4, 4, B)`` pose."""
         B = q2.shape[0]
-        n_out = self.n_dof if dofs is None else len(dofs)
+        n_out = self.n_v if dofs is None else len(dofs)
         C = _link_columns(jp, pose, q2, target)
         if C is None:
             return q2.new_zeros(n_out, 6, B)
@@ -515,11 +606,21 @@ class Chain:
         *,
         frame: str = "world",
         point: Tensor | Mapping[str, Tensor] | None = None,
-    ) -> Float[Tensor, "*b 6 n_dof"] | dict[str, Float[Tensor, "*b 6 n_dof"]]:
-        """Geometric Jacobian of a link, ``(..., 6, n_dof)``, in closed form.
+    ) -> Float[Tensor, "*b 6 n_v"] | dict[str, Float[Tensor, "*b 6 n_v"]]:
+        """Geometric Jacobian of a link, ``(..., 6, n_v)``, in closed form.
 
-        Column ``i`` is the velocity of the link for a unit rate of DoF ``i`` (columns in
-        :attr:`joint_names` order), rows (linear; angular), in one of three conventions:
+        ``n_v`` is the number of velocity coordinates (:attr:`velocity_names`): ``n_dof``,
+        except for the quaternions of MJCF ``ball`` and ``free`` joints, which have three
+        (MuJoCo's ``nv`` columns, in its order; ``q`` itself is its ``qpos``).  Their columns
+        follow MuJoCo: a ball joint's three columns are angular velocities about the axes of
+        the body's own frame (the frame right after the ball joint: the quaternion moved to
+        ``q_ball * Exp(w dt)``), turning about the joint's anchor; a free joint's first three
+        are the linear velocity of the body's origin along the world axes, the last three the
+        angular velocity about the body's own axes.
+
+        Column ``i`` is the velocity of the link for a unit rate of velocity coordinate ``i``
+        (columns in :attr:`velocity_names` order: the DoFs, in :attr:`joint_names` order, for
+        a URDF chain), rows (linear; angular), in one of three conventions:
 
         * ``frame="world"`` (the default): the linear velocity of the link's origin (or of
           ``point``) and the angular velocity, both in world coordinates.  For a revolute joint
@@ -590,7 +691,7 @@ class Chain:
             if frame != "world" or points.get(name) is not None:
                 J = _frame_jacobian(J, P, frame, points.get(name), batch)
             else:
-                J = J.reshape(*batch, 6, self.n_dof)
+                J = J.reshape(*batch, 6, self.n_v)
             out[name] = _checks.out(J.contiguous(), out_dtype)
         if isinstance(link, str):
             return out[link]

@@ -580,6 +580,13 @@ def inverse_kinematics(
             ``restarts < 1``, ``lower > upper``, and other bad arguments, with the argument's
             name.
     """
+    if chain.n_v != chain.n_dof:  # the steps below add velocities to the values
+        quats = sorted({nm.rsplit(":", 1)[0] for nm in chain.joint_names if nm.endswith(":qw")})
+        raise ValueError(
+            f"{_FN}: the chain has ball or free joints ({', '.join(map(repr, quats[:5]))}), "
+            "whose quaternion values the solver does not step; it solves for hinge, slide "
+            "(revolute, prismatic) and URDF joints"
+        )
     items = _targets(chain, targets, link)
     restarts = _checks.count(restarts, _FN, "restarts", 1)
     if max_iterations is None:

@@ -103,6 +103,8 @@ class JointSpec:
     ``axis`` is the axis exactly as written (not normalised; ``(1, 0, 0)`` when the element is
     omitted, and then ``axis_given`` is False).  ``lower``/``upper`` are the position limits
     (``None`` where the joint type has none); ``effort``/``velocity`` are kept as metadata.
+    The MJCF loader also makes ``ball`` (value: a quaternion ``w, x, y, z``) and ``free``
+    (position, then a quaternion) joints.
     """
 
     name: str
@@ -118,6 +120,13 @@ class JointSpec:
     effort: float | None = None
     velocity: float | None = None
     mimic: MimicSpec | None = None
+    # Set by the MJCF loader only (URDF has no such attributes): the origin's rotation as a
+    # unit quaternion ``(w, x, y, z)`` (replaces ``rpy`` when given), the point of the joint
+    # frame a rotation turns about, and the joint value at which the joint is at its origin
+    # (MuJoCo's ``ref``): ``M(q - ref)``.
+    quat: tuple[float, float, float, float] | None = None
+    anchor: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    ref: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -6,6 +6,15 @@ Usage::
     python -m torchlie.kinematics.validate [ROBOT.urdf] [--samples N] [--dtype float32|float64]
                                            [--no-pk] [--no-pin]
     torchlie-validate tree            # a bundled robot: arm7 (the default), tree or panda
+    torchlie-validate robot.xml       # an MJCF file: compared with MuJoCo itself
+    torchlie-validate robot.sdf [--loops skip]   # an SDF file
+
+An MJCF file (root element ``<mujoco>``) is compiled by MuJoCo and every body's pose and every
+end body's Jacobian are compared with MuJoCo's ``mj_kinematics`` and ``mj_jacBody`` at the same
+tolerances (see :mod:`torchlie.kinematics._mjcf_validate`).  An SDF file (root element
+``<sdf>``) is compared link by link with an independent float64 evaluation of the SDFormat
+frame rules (:mod:`torchlie.kinematics._sdf_validate`); ``--loops skip`` leaves out the joints
+closing kinematic loops.  The rest of this page is about URDF.
 
 For ``N`` random configurations within the joint limits it compares every link's pose and the
 Jacobian of every end link (a link without children) computed by :class:`Chain` with
@@ -71,6 +80,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import sys
 import time
 from collections.abc import Callable
@@ -606,6 +616,23 @@ def _print_report(
         w(f"\nFAIL: outside tolerance: {', '.join(bad)}\n")
 
 
+def _root_tag(robot: str) -> str | None:
+    """The root element of ``robot`` (a path or XML text) when it is ``mujoco`` (MJCF) or
+    ``sdf``, else None (URDF, a bundled name, or not readable: the URDF path reports it)."""
+    if robot.lstrip().startswith("<"):
+        head = robot[:4096]
+    else:
+        try:
+            with open(robot, "rb") as f:
+                head = f.read(4096).decode("utf-8", "replace")
+        except OSError:
+            return False
+    if "<robot" in head:
+        return None
+    m = re.search(r"<(mujoco|sdf)[\s>/]", head)
+    return m.group(1) if m else None
+
+
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point (``torchlie-validate``); returns the exit status.
 
@@ -621,7 +648,8 @@ def main(argv: list[str] | None = None) -> int:
         "robot",
         nargs="?",
         default="arm7",
-        help=f"URDF file, or a bundled robot: {', '.join(SAMPLE_ROBOTS)} (default arm7)",
+        help=f"URDF, MJCF or SDF file, or a bundled robot: {', '.join(SAMPLE_ROBOTS)} "
+        "(default arm7)",
     )
     parser.add_argument("--samples", type=int, default=1000, help="random configurations")
     parser.add_argument("--dtype", choices=("float32", "float64"), default="float64")
@@ -630,9 +658,48 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-pk", action="store_true", help="skip pytorch-kinematics")
     parser.add_argument("--no-pin", action="store_true", help="skip Pinocchio")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument(
+        "--loops",
+        choices=("error", "skip"),
+        default="error",
+        help="SDF: a kinematic loop is an error, or its closing joints are left out",
+    )
     args = parser.parse_args(argv)
     if args.samples < 1 or args.batch < 1:
         parser.error("--samples and --batch must be positive")
+    if _root_tag(args.robot) == "sdf":
+        from ._sdf_validate import validate_sdf
+        from .sdf import SDFError
+
+        try:
+            ok = validate_sdf(
+                args.robot,
+                samples=args.samples,
+                dtype=getattr(torch, args.dtype),
+                seed=args.seed,
+                loops=args.loops,
+                out=sys.stdout,
+            )
+        except (SDFError, OSError) as e:
+            print(f"torchlie-validate: error: {e}", file=sys.stderr)
+            return 2
+        return 0 if ok else 1
+    if _root_tag(args.robot) == "mujoco":
+        from ._mjcf_validate import validate_mjcf
+        from .mjcf import MJCFError
+
+        try:
+            ok, _ = validate_mjcf(
+                args.robot,
+                samples=args.samples,
+                dtype=getattr(torch, args.dtype),
+                seed=args.seed,
+                out=sys.stdout,
+            )
+        except (MJCFError, ImportError, OSError) as e:
+            print(f"torchlie-validate: error: {e}", file=sys.stderr)
+            return 2
+        return 0 if ok else 1
     try:
         report = validate(
             args.robot,

@@ -1,0 +1,101 @@
+"""``python -m torchlie.kinematics.validate ROBOT.xml`` for an MJCF file: every body's pose and
+every end body's Jacobian of :meth:`Chain.from_mjcf` against MuJoCo's own ``mj_kinematics``
+(``xpos``, ``xmat``) and ``mj_jacBody`` at random ``qpos``.
+
+Apart from :mod:`torchlie.kinematics.validate` because MuJoCo is the one oracle here (and the
+only reader of the file): the URDF comparisons there (pytorch-kinematics, Pinocchio, the
+float64 reference) read URDF.  Tolerances are the same: ``1e-12`` (float64) or ``1e-5``
+(float32), times ``1 + size`` for positions and Jacobians, ``size`` the largest distance of a
+body from the world origin over the samples (m).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+import torch
+
+from .chain import Chain
+from .mjcf import _compile, _mujoco
+
+
+def mujoco_reference(m: Any, qpos: np.ndarray, bodies: list[int]) -> tuple[np.ndarray, ...]:
+    """MuJoCo's ``xpos (B, nbody, 3)``, ``xmat (B, nbody, 3, 3)`` and the ``mj_jacBody``
+    Jacobians ``(B, len(bodies), 6, nv)`` (linear; angular) at each row of ``qpos``."""
+    mujoco = _mujoco()
+    d = mujoco.MjData(m)
+    B = qpos.shape[0]
+    xpos = np.zeros((B, m.nbody, 3))
+    xmat = np.zeros((B, m.nbody, 3, 3))
+    jac = np.zeros((B, len(bodies), 6, m.nv))
+    for b in range(B):
+        d.qpos[:] = qpos[b]
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        xpos[b], xmat[b] = d.xpos, d.xmat.reshape(-1, 3, 3)
+        for k, i in enumerate(bodies):
+            mujoco.mj_jacBody(m, d, jac[b, k, :3], jac[b, k, 3:], i)
+    return xpos, xmat, jac
+
+
+def validate_mjcf(
+    source: Any, *, samples: int, dtype: torch.dtype, seed: int, out: Any
+) -> tuple[bool, int]:
+    """Compare and print the report; returns ``(ok, n_v)``."""
+    m, label = _compile(source)
+    chain = Chain.from_mjcf(m, dtype=dtype)
+    tol = 1e-12 if dtype == torch.float64 else 1e-5
+    w = out.write
+    w(f"torchlie.kinematics.validate: MJCF {label}\n")
+    w(
+        f"{m.nbody} bodies, {m.njnt} joints, nq = {m.nq}, nv = {m.nv}; {samples} random qpos "
+        f"(limits where the joints have them); torchlie in {str(dtype)[6:]}; compared with "
+        f"MuJoCo {_mujoco().__version__} (mj_kinematics, mj_jacBody)\n"
+    )
+    if chain.n_dof == 0:
+        w("NOTHING TO COMPARE: the model has no joint\n")
+        return True, 0
+    q = chain.random_configuration(samples, generator=torch.Generator().manual_seed(seed))
+    q64 = q.to(torch.float64)
+    names = list(chain.link_names)
+    leaves = [names.index(n) for n in chain.leaf_links]
+    xpos, xmat, jac = mujoco_reference(m, q64.numpy(), leaves)
+    T = chain.forward_kinematics(q, stacked=True).to(torch.float64).numpy()
+    scale = 1.0 + float(np.abs(xpos).max())
+    dp = np.abs(T[..., :3, 3] - xpos).max(axis=(0, 2))
+    dr = np.abs(T[..., :3, :3] - xmat).max(axis=(0, 2, 3))
+    Js = chain.jacobian(q, list(chain.leaf_links)) if leaves else {}
+    dj = [
+        float(np.abs(Js[names[i]].double().numpy() - jac[:, k]).max()) for k, i in enumerate(leaves)
+    ]
+    width = max(12, *(len(n) for n in names)) + 2
+    w(f"tolerance {tol:g} rad, {tol * scale:.1e} m (1 + size = {scale:.2f} m)\n\n")
+    w(f"{'body':<{width}}{'|dp| m':>12}{'|dR|':>12}  status\n")
+    ok = True
+    for i, n in enumerate(names):
+        good = bool(dp[i] <= tol * scale and dr[i] <= tol)  # a nan is outside
+        ok = ok and good
+        w(f"{n:<{width}}{dp[i]:>12.1e}{dr[i]:>12.1e}  {'ok' if good else 'MISMATCH'}\n")
+    w(f"\n{'Jacobian of end body':<{width}}{'max|dJ|':>12}\n")
+    for k, i in enumerate(leaves):
+        good = dj[k] <= tol * scale
+        ok = ok and good
+        w(f"{names[i]:<{width}}{dj[k]:>12.1e}  {'ok' if good else 'MISMATCH'}\n")
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        qt = q[: min(samples, 1000)]
+        chain.forward_kinematics(qt)
+        best = math.inf
+        for _ in range(20):
+            t0 = time.perf_counter()
+            chain.forward_kinematics(qt)
+            best = min(best, time.perf_counter() - t0)
+    finally:
+        torch.set_num_threads(threads)
+    w(f"\ntiming: FK of all bodies, batch of {qt.shape[0]}, one thread: {best * 1e3:.3f} ms\n")
+    w("\nPASS: every body pose and end-body Jacobian within tolerance\n" if ok else "\nFAIL\n")
+    return ok, chain.n_v
