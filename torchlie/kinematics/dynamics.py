@@ -1,0 +1,712 @@
+"""Rigid-body dynamics of a :class:`~torchlie.kinematics.Chain`: inverse dynamics (recursive
+Newton-Euler), the joint-space mass matrix (composite rigid bodies), forward dynamics, bias
+forces and gravity torques, batched and differentiable, also with respect to the inertials.
+
+Conventions (see also ``docs/dynamics.md``):
+
+* Coordinates: ``q``, ``qd = dq/dt``, ``qdd`` and ``tau`` are ``(..., n_dof)`` in
+  :attr:`Chain.joint_names` order, exactly the coordinates of the kinematics (for a floating
+  joint: its translation and the time derivatives of its rotation vector; for a planar joint
+  ``(x, y, theta)``).  The equations of motion are ``M(q) qdd + h(q, qd) = tau + sum_links
+  J_link(q)^T f_link``, ``tau`` the generalised forces (torques of revolute joints, forces of
+  prismatic ones) that do virtual work ``tau . dq``.  A mimic joint has no coordinate: its
+  motion is ``m qd[J]`` and its torque is added, times ``m``, to the torque of the joint it
+  follows (the reduced equations of the mimic constraint).
+* Bodies: every link moved by a joint with degrees of freedom (a mimic joint included) is a
+  body; links attached through fixed joints merge their inertials into their nearest moving
+  ancestor (links fixed to the root do not move and are ignored).  :attr:`Chain.inertials`
+  holds, per body (:attr:`Chain.body_names`), its mass, centre of mass and rotational inertia
+  about the centre of mass, both in the body's (link) frame.
+* Gravity ``(3,)`` or ``(..., 3)`` is the acceleration of free fall in the root (world) frame,
+  default ``(0, 0, -9.81)``.  External wrenches ``f_ext`` map a link name to a ``(..., 6)``
+  wrench ``(force; torque)`` acting on that link, in world coordinates, the torque taken about
+  the link's origin (the dual of :meth:`Chain.jacobian`'s default ``frame="world"``: the
+  wrench contributes ``J^T f`` to the equations).
+
+Method: spatial vectors are 6-vectors (linear; angular) in world coordinates at the world
+origin (Plücker coordinates).  In that frame every recursion of the Newton-Euler algorithm is
+a sum along the tree: body velocities and accelerations are sums of their joints' motions over
+the ancestors, and joint forces sums of body forces over the subtree, so each is one product
+with a constant 0/1 ancestor matrix, batch innermost, instead of a loop over links.  The mass
+matrix follows from composite inertias (one product with the subtree matrix) and the joint
+axes; forward dynamics solves ``M qdd = tau - h`` by a batched Cholesky factorisation (the
+articulated-body algorithm would be a Python loop over the tree's depth; for the tens of
+degrees of freedom of a robot the Cholesky solve is as exact and costs fewer torch calls).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import torch
+from torch import Tensor
+
+from .. import _checks, _coeffs
+from .. import so3 as _so3
+from .._typing import Float
+from ._joints import _Link, _origin, rpy_matrix
+from .urdf import RobotSpec, _some
+
+__all__ = ["Inertials", "DEFAULT_GRAVITY"]
+
+#: Gravity in the root frame when none is given, m/s^2.
+DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
+
+_NAME = "torchlie.kinematics.Chain."
+
+
+class Inertials(NamedTuple):
+    """Inertial parameters of a chain's bodies (:attr:`Chain.body_names` order).
+
+    Attributes:
+        mass: ``(..., n_bodies)`` kg.
+        com: ``(..., n_bodies, 3)`` centre of mass in the body's frame, m.
+        inertia: ``(..., n_bodies, 3, 3)`` rotational inertia about the centre of mass, axes of
+            the body's frame, kg m^2.
+
+    Leading batch dimensions are allowed (they broadcast with ``q``'s); the tensors may require
+    gradients (system identification).
+
+    Example:
+        >>> from torchlie.kinematics import Chain, sample_robot
+        >>> arm = Chain.from_urdf(sample_robot("arm7"))
+        >>> arm.inertials.mass.shape, arm.body_names[:2]
+        (torch.Size([7]), ('link1', 'link2'))
+    """
+
+    mass: Tensor
+    com: Tensor
+    inertia: Tensor
+
+
+# ----------------------------------------------------------------------------------------------
+# The plan: bodies, joint columns and the ancestor matrices, built once per chain
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _DynPlan:
+    bodies: tuple[int, ...]  # internal link index of each body
+    body_of: dict[int, tuple[int, Tensor]]  # link -> (body or -1, float64 T_body_link)
+    targets: tuple[int, ...]  # links whose poses a pass needs: bodies, then column parents
+    n_rot: int  # columns: n_rot constant rotations, then 3 per floating joint, then translations
+    col_v: Tensor  # (n_const, 1, 3) directions of the constant columns in their parent frames
+    col_parent: Tensor  # (n_const,) position in targets of each constant column's parent link
+    col_body: Tensor  # (K,) body moved by each column
+    col_frame: Tensor  # (K,) body whose velocity carries the column (n_bodies: the world)
+    col_dof: Tensor  # (K,) the DoF of each column
+    col_w: Tensor  # (K, 1) its weight (mimic multipliers)
+    floats: list[tuple[int, int, int, Tensor]]  # parent pos in targets, body, rotvec DoF, O_R
+    A: Tensor  # (n_bodies, K): 1 where the column's body is an ancestor-or-self of the body
+    sub: Tensor  # (n_bodies, n_bodies): 1 where the second is in the first's subtree
+    anc: Tensor  # (K, K): 1 where column k's body is an ancestor-or-self of column l's
+    anc_strict: Tensor  # (K, K): the same, strict
+    W: Tensor  # (n_dof, K) folding of columns onto DoFs
+    inertials64: tuple[Tensor, Tensor, Tensor]  # merged (mass, com, inertia), float64 CPU
+    massless: list[str]  # DoFs whose moving subtree has neither mass nor inertia
+
+
+def _spatial_inertia64(mass: float, com: Tensor, inertia: Tensor) -> Tensor:
+    """6x6 spatial inertia (linear; angular) about a frame's origin, float64."""
+    c = _so3.hat(com)
+    top = torch.cat((mass * torch.eye(3, dtype=torch.float64), -mass * c), dim=1)
+    bottom = torch.cat((mass * c, inertia - mass * c @ c), dim=1)
+    return torch.cat((top, bottom), dim=0)
+
+
+def _transform_inertia64(X: Tensor, T: Tensor) -> Tensor:
+    """The spatial inertia ``X`` given in a frame ``B``, expressed in the frame ``A`` where
+    ``T = T_A_B``."""
+    R, p = T[:3, :3], T[:3, 3]
+    # Motion transform A <- B: [[R, hat(p) R], [0, R]].
+    Xm = torch.zeros(6, 6, dtype=torch.float64)
+    Xm[:3, :3] = R
+    Xm[3:, 3:] = R
+    Xm[:3, 3:] = _so3.hat(p) @ R
+    Xf = torch.linalg.inv(Xm).T  # force transform A <- B
+    return Xf @ X @ torch.linalg.inv(Xm)
+
+
+def _inertial_parts64(X: Tensor) -> tuple[float, Tensor, Tensor]:
+    """(mass, centre of mass, inertia about it) of a 6x6 spatial inertia."""
+    m = float(X[0, 0])
+    if m == 0.0:
+        return 0.0, torch.zeros(3, dtype=torch.float64), X[3:, 3:].clone()
+    mc = _so3.vee(X[3:, :3])
+    c = mc / m
+    hc = _so3.hat(c)
+    return m, c, X[3:, 3:] + m * hc @ hc
+
+
+def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) -> _DynPlan:
+    n_dof = len(joint_names)
+    moving = [lk.index for lk in links[1:] if lk.cols or lk.float_rot is not None]
+    body_ix = {i: b for b, i in enumerate(moving)}
+    nb = len(moving)
+    # Each link's body and its pose in the body's frame (fixed joints only in between).
+    body_of: dict[int, tuple[int, Tensor]] = {0: (-1, torch.eye(4, dtype=torch.float64))}
+    for lk in links[1:]:
+        if lk.index in body_ix:
+            body_of[lk.index] = (body_ix[lk.index], torch.eye(4, dtype=torch.float64))
+        else:
+            pb, T = body_of[lk.parent]
+            assert lk.joint is not None
+            body_of[lk.index] = (pb, T @ _origin(lk.joint))
+    # Merged inertials, as 6x6 spatial inertias in the body frames.
+    spec_in = dict(zip(spec.links, spec.inertials, strict=True)) if spec.inertials else {}
+    X = [torch.zeros(6, 6, dtype=torch.float64) for _ in range(nb)]
+    for lk in links:
+        b, T = body_of[lk.index]
+        ins = spec_in.get(lk.name)
+        if b < 0 or ins is None:
+            continue
+        R = rpy_matrix(*ins.rpy)
+        ixx, ixy, ixz, iyy, iyz, izz = ins.inertia
+        I_c = torch.tensor([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]], dtype=torch.float64)
+        Ti = torch.eye(4, dtype=torch.float64)
+        Ti[:3, :3] = R
+        Ti[:3, 3] = torch.tensor(ins.xyz, dtype=torch.float64)
+        Xi = _spatial_inertia64(ins.mass, torch.zeros(3, dtype=torch.float64), I_c)
+        X[b] = X[b] + _transform_inertia64(Xi, T @ Ti)
+    parts = [_inertial_parts64(x) for x in X]
+    mass = torch.tensor([m for m, _, _ in parts], dtype=torch.float64)
+    com = torch.stack([c for _, c, _ in parts]) if nb else torch.zeros(0, 3, dtype=torch.float64)
+    inertia = (
+        torch.stack([i for _, _, i in parts]) if nb else torch.zeros(0, 3, 3, dtype=torch.float64)
+    )
+
+    parent_body = [body_of[links[i].parent][0] for i in moving]
+    anc_sets: list[set[int]] = []
+    for b in range(nb):
+        s = {b}
+        p = parent_body[b]
+        while p >= 0:
+            s.add(p)
+            p = parent_body[p]
+        anc_sets.append(s)
+
+    # Columns: constant rotations, floating rotations, translations.
+    rot: list[tuple[int, tuple[float, ...], int, int, float]] = []  # parent, v, body, d, w
+    tr: list[tuple[int, tuple[float, ...], int, int, float]] = []
+    floats_raw: list[tuple[int, int, int, Tensor]] = []
+    for i in moving:
+        lk = links[i]
+        b = body_ix[i]
+        for kind, v, d, w in lk.cols:
+            (rot if kind == "rot" else tr).append((lk.parent, v, b, d, w))
+        if lk.float_rot is not None:
+            d0, O_R = lk.float_rot
+            floats_raw.append((lk.parent, b, d0, torch.tensor(O_R, dtype=torch.float64)))
+    const = rot + tr
+    parents = sorted({p for p, *_ in const} | {p for p, *_ in floats_raw})
+    targets = tuple(moving) + tuple(p for p in parents if p not in body_ix)
+    pos = {t: k for k, t in enumerate(targets)}
+    col_body = [b for _, _, b, _, _ in rot]
+    col_body += [b for _, b, _, _ in floats_raw for _ in range(3)]
+    col_body += [b for _, _, b, _, _ in tr]
+    col_frame = [b for _, _, b, _, _ in rot] + [b for _, b, _, _ in floats_raw for _ in range(3)]
+    col_frame += [body_of[p][0] if body_of[p][0] >= 0 else nb for p, *_ in tr]
+    col_dof = [d for *_, d, _ in rot] + [d0 + k for _, _, d0, _ in floats_raw for k in range(3)]
+    col_dof += [d for *_, d, _ in tr]
+    col_w = [w for *_, w in rot] + [1.0] * (3 * len(floats_raw)) + [w for *_, w in tr]
+    K = len(col_body)
+    A = torch.zeros(nb, K, dtype=torch.float64)
+    for b in range(nb):
+        for k in range(K):
+            if col_body[k] in anc_sets[b]:
+                A[b, k] = 1.0
+    sub = torch.tensor(
+        [[1.0 if b in anc_sets[c] else 0.0 for c in range(nb)] for b in range(nb)],
+        dtype=torch.float64,
+    ).reshape(nb, nb)
+    anc = torch.tensor(
+        [[float(col_body[k] in anc_sets[col_body[j]]) for j in range(K)] for k in range(K)],
+        dtype=torch.float64,
+    ).reshape(K, K)
+    same = torch.tensor(
+        [[1.0 if col_body[k] == col_body[j] else 0.0 for j in range(K)] for k in range(K)],
+        dtype=torch.float64,
+    ).reshape(K, K)
+    W = torch.zeros(n_dof, K, dtype=torch.float64)
+    for k in range(K):
+        W[col_dof[k], k] += col_w[k]
+
+    # DoFs whose subtree carries neither mass nor inertia (M has a zero row there).
+    empty = [
+        bool(mass[list(s_b)].sum() == 0 and inertia[list(s_b)].abs().sum() == 0)
+        for s_b in ([c for c in range(nb) if b in anc_sets[c]] for b in range(nb))
+    ]
+    zero_cols = [[col_dof[k] for k in range(K) if col_body[k] == b] for b in range(nb)]
+    massless = sorted({joint_names[d] for b in range(nb) if empty[b] for d in zero_cols[b]})
+    return _DynPlan(
+        bodies=tuple(moving),
+        body_of=body_of,
+        targets=targets,
+        n_rot=len(rot),
+        col_v=torch.tensor([list(v) for _, v, *_ in const], dtype=torch.float64).reshape(-1, 1, 3),
+        col_parent=torch.tensor([pos[p] for p, *_ in const], dtype=torch.long),
+        col_body=torch.tensor(col_body, dtype=torch.long),
+        col_frame=torch.tensor(col_frame, dtype=torch.long),
+        col_dof=torch.tensor(col_dof, dtype=torch.long),
+        col_w=torch.tensor(col_w, dtype=torch.float64).reshape(K, 1),
+        floats=[(pos[p], b, d0, O_R) for p, b, d0, O_R in floats_raw],
+        A=A,
+        sub=sub,
+        anc=anc,
+        anc_strict=anc - same,
+        W=W,
+        inertials64=(mass, com, inertia),
+        massless=massless,
+    )
+
+
+def _convert(plan: _DynPlan, dtype: torch.dtype, device: torch.device) -> _DynPlan:
+    """The plan's float tensors in ``dtype`` on ``device`` (index tensors moved only)."""
+
+    def f(x: Tensor) -> Tensor:
+        return x.to(dtype=dtype, device=device)
+
+    def i(x: Tensor) -> Tensor:
+        return x.to(device=device)
+
+    return _DynPlan(
+        bodies=plan.bodies,
+        body_of=plan.body_of,
+        targets=plan.targets,
+        n_rot=plan.n_rot,
+        col_v=f(plan.col_v),
+        col_parent=i(plan.col_parent),
+        col_body=i(plan.col_body),
+        col_frame=i(plan.col_frame),
+        col_dof=i(plan.col_dof),
+        col_w=f(plan.col_w),
+        floats=[(p, b, d0, f(O)) for p, b, d0, O in plan.floats],
+        A=f(plan.A),
+        sub=f(plan.sub),
+        anc=f(plan.anc),
+        anc_strict=f(plan.anc_strict),
+        W=f(plan.W),
+        inertials64=plan.inertials64,
+        massless=plan.massless,
+    )
+
+
+def _plan(chain) -> _DynPlan:
+    plan = chain.__dict__.get("_dyn_plan")
+    if plan is None:
+        plan = _convert(
+            _build(chain.spec, chain._links, chain.joint_names), chain.dtype, chain.device
+        )
+        if not torch.compiler.is_compiling():
+            chain.__dict__["_dyn_plan"] = plan
+    return plan
+
+
+def body_names(chain) -> tuple[str, ...]:
+    """The chain's bodies (links moved by a joint with degrees of freedom), internal order."""
+    return tuple(chain._links[i].name for i in _plan(chain).bodies)
+
+
+def inertials(chain) -> Inertials:
+    """The chain's merged inertials in its dtype and on its device (fresh tensors)."""
+    m, c, inertia = _plan(chain).inertials64
+    dt, dev = chain.dtype, chain.device
+    return Inertials(*(x.to(device=dev, dtype=dt, copy=True) for x in (m, c, inertia)))
+
+
+# ----------------------------------------------------------------------------------------------
+# The computation, batch innermost: spatial 6-vectors are (n, 6, B), 3-vectors (n, 3, B)
+# ----------------------------------------------------------------------------------------------
+
+
+def _cross(a: Tensor, b: Tensor) -> Tensor:
+    return torch.linalg.cross(a, b, dim=-2)
+
+
+def _mcross(v: Tensor, m: Tensor) -> Tensor:
+    """Spatial motion cross product ``v x m`` (6-vectors (linear; angular) on dim -2)."""
+    vl, va = v[..., :3, :], v[..., 3:, :]
+    ml, ma = m[..., :3, :], m[..., 3:, :]
+    return torch.cat((_cross(va, ml) + _cross(vl, ma), _cross(va, ma)), dim=-2)
+
+
+def _fcross(v: Tensor, f: Tensor) -> Tensor:
+    """Spatial force cross product ``v x* f``."""
+    vl, va = v[..., :3, :], v[..., 3:, :]
+    fl, fa = f[..., :3, :], f[..., 3:, :]
+    return torch.cat((_cross(va, fl), _cross(va, fa) + _cross(vl, fl)), dim=-2)
+
+
+@dataclass
+class _Geometry:
+    S: Tensor  # (K, 6, B) joint columns, world Plücker coordinates
+    p: Tensor  # (nb, 3, B) body origins
+    R: Tensor  # (nb, 3, 3, B) body rotations, R[r, c]
+    poses: Tensor  # (n_targets, 4, 4, B) internal poses (T^T) of the targets
+    floats: list[tuple[Tensor, Tensor, Tensor]]  # per floating joint: R_parent O_R, r, p
+
+
+def _geometry(chain, plan: _DynPlan, q2: Tensor, extra: tuple[int, ...]) -> _Geometry:
+    """Poses and joint columns for ``q2 (B, n_dof)``; ``extra``: more links whose poses are
+    wanted (after the plan's targets in ``poses``)."""
+    B = q2.shape[0]
+    targets = plan.targets + extra
+    fk = chain._plan(targets)
+    out = chain._run(fk, q2)
+    P = torch.stack([chain._pose(fk, out, i, B, q2) for i in targets])  # (n, c, r, B)
+    nb = len(plan.bodies)
+    Pb = P[:nb]
+    p = Pb[:, 3, :3]  # (nb, 3, B)
+    R = Pb[:, :3, :3].transpose(1, 2)  # (nb, r, c, B)
+    parts_u: list[Tensor] = []
+    parts_p: list[Tensor] = []
+    n_const = plan.col_v.shape[0]
+    U = None
+    if n_const:
+        Rp = P.index_select(0, plan.col_parent)[:, :3, :3]  # (n, c, r, B)
+        U = torch.matmul(plan.col_v, Rp.reshape(n_const, 3, 3 * B)).view(n_const, 3, B)
+        parts_u.append(U[: plan.n_rot])
+        parts_p.append(p.index_select(0, plan.col_body[: plan.n_rot]))
+    floats = []
+    for ppos, b, d0, O_R in plan.floats:
+        Rp = P[ppos, :3, :3]  # (c, r, B)
+        RO = torch.einsum("crb,ck->rkb", Rp, O_R)  # R_parent O_R, (3, 3, B)
+        r = q2[:, d0 : d0 + 3]
+        Jl = _so3.jac_left(r).permute(1, 2, 0)  # (3, 3, B)
+        parts_u.append(torch.einsum("rkb,kjb->jrb", RO, Jl))  # column j: RO Jl e_j
+        parts_p.append(p[b].unsqueeze(0).expand(3, 3, B))
+        floats.append((RO, r, p[b]))
+    cols: list[Tensor] = []
+    if parts_u:
+        Ur = torch.cat(parts_u) if len(parts_u) > 1 else parts_u[0]
+        Pr = torch.cat(parts_p) if len(parts_p) > 1 else parts_p[0]
+        cols.append(torch.cat((_cross(Pr, Ur), Ur), dim=1))
+    if U is not None and plan.n_rot < n_const:
+        Ut = U[plan.n_rot :]
+        cols.append(torch.cat((Ut, torch.zeros_like(Ut)), dim=1))
+    if cols:
+        S = torch.cat(cols) if len(cols) > 1 else cols[0]
+    else:
+        S = q2.new_zeros(0, 6, B)
+    return _Geometry(S, p, R, P, floats)
+
+
+def _batch_last(x: Tensor, batch: tuple[int, ...], trailing: int) -> Tensor:
+    """``x (*b, *t)`` (``b`` broadcasting to ``batch``, ``trailing`` dims ``t``) as
+    ``(*t, B)`` or ``(*t, 1)`` when ``x`` has no batch dimensions."""
+    if x.dim() == trailing:
+        return x.unsqueeze(-1)
+    t = tuple(x.shape[x.dim() - trailing :])
+    x = x.broadcast_to(batch + t).reshape((math.prod(batch),) + t)
+    return x.permute(*range(1, trailing + 1), 0)
+
+
+def _world_inertia(geo: _Geometry, ins: Inertials, batch: tuple[int, ...]):
+    """Per body: mass ``(nb, 1, B|1)``, world centre of mass ``(nb, 3, B)`` and world rotational
+    inertia about it ``(nb, 3, 3, B)``."""
+    m = _batch_last(ins.mass, batch, 1).unsqueeze(1)  # (nb, 1, B|1)
+    c = _batch_last(ins.com, batch, 2)  # (nb, 3, B|1)
+    Ic = _batch_last(ins.inertia, batch, 3)  # (nb, 3, 3, B|1)
+    R = geo.R
+    cw = geo.p + (R * c.unsqueeze(1)).sum(2)
+    Iw = torch.einsum("nijb,njkb,nlkb->nilb", R, Ic.expand(*Ic.shape[:3], R.shape[-1]), R)
+    return m, cw, Iw
+
+
+def _inertia_apply(m: Tensor, cw: Tensor, Iw: Tensor, s: Tensor) -> Tensor:
+    """World spatial inertia of bodies (mass, centre of mass, inertia about it) times motion
+    ``s (nb, 6, B)``: the spatial momentum, about the world origin."""
+    sl, sa = s[:, :3], s[:, 3:]
+    fl = m * (sl + _cross(sa, cw))
+    fa = _cross(cw, fl) + (Iw * sa.unsqueeze(1)).sum(2)
+    return torch.cat((fl, fa), dim=1)
+
+
+def _gather_cols(x: Tensor, plan: _DynPlan) -> Tensor:
+    """Per column, ``x[:, col_dof] * col_w``, as ``(K, 1, B)`` from ``x (B, n_dof)``."""
+    return (x.mT.index_select(0, plan.col_dof) * plan.col_w).unsqueeze(1)
+
+
+def _float_bias(geo: _Geometry, qd2: Tensor, plan: _DynPlan) -> Tensor | None:
+    """The acceleration terms ``(p x u; u)``, ``u = R_parent O_R (dJl/dt) rd``, of the floating
+    joints' rotation columns (their axes turn with the rotation vector), ``(n_float, 6, B)``."""
+    if not plan.floats:
+        return None
+    out = []
+    for (RO, r, p), (_, _, d0, _) in zip(geo.floats, plan.floats, strict=True):
+        rd = qd2[:, d0 : d0 + 3]
+        t2 = (r * r).sum(-1, keepdim=True)
+        rdot = (r * rd).sum(-1, keepdim=True)
+        b = _coeffs.sinc3(t2)
+        a_dot = (2.0 * _coeffs.cosc4(t2) - b) * rdot
+        b_dot = -2.0 * _coeffs.q3(t2) * rdot
+        rxrd = torch.linalg.cross(r, rd, dim=-1)
+        u = (
+            a_dot * rxrd
+            + b_dot * torch.linalg.cross(r, rxrd, dim=-1)
+            + b * torch.linalg.cross(rd, rxrd, dim=-1)
+        )
+        uw = (RO * u.mT.unsqueeze(0)).sum(1)  # (3, B)
+        out.append(torch.cat((torch.linalg.cross(p, uw, dim=0), uw), dim=0))
+    return torch.stack(out)
+
+
+def _rnea(
+    plan: _DynPlan,
+    geo: _Geometry,
+    ins: Inertials,
+    batch: tuple[int, ...],
+    qd2: Tensor | None,
+    qdd2: Tensor | None,
+    g: Tensor,
+    fext: Tensor | None,
+) -> Tensor:
+    """Generalised forces ``(n_dof, B)``; ``qd2``/``qdd2`` ``(B, n_dof)`` or None for zero,
+    ``g (3, B|1)`` gravity, ``fext (nb, 6, B)`` world-origin wrenches or None."""
+    S = geo.S
+    K, _, B = S.shape
+    nb = len(plan.bodies)
+    m, cw, Iw = _world_inertia(geo, ins, batch)
+    a0 = torch.cat((-g, torch.zeros_like(g)), dim=0)  # (6, B|1)
+    if qd2 is not None:
+        Vc = S * _gather_cols(qd2, plan)
+        v = torch.mm(plan.A, Vc.reshape(K, 6 * B)).view(nb, 6, B)
+        vf = torch.cat((v, v.new_zeros(1, 6, B))).index_select(0, plan.col_frame)
+        ac = _mcross(vf, Vc)
+        fb = _float_bias(geo, qd2, plan)
+        if fb is not None:
+            first = [plan.n_rot + 3 * k for k in range(len(plan.floats))]
+            ac = ac.index_add(0, torch.tensor(first, device=ac.device), fb)
+        if qdd2 is not None:
+            ac = ac + S * _gather_cols(qdd2, plan)
+    elif qdd2 is not None:
+        ac = S * _gather_cols(qdd2, plan)
+    else:
+        ac = None
+    if ac is not None:
+        a = torch.mm(plan.A, ac.reshape(K, 6 * B)).view(nb, 6, B) + a0
+    else:
+        a = a0.expand(nb, 6, B)
+    f = _inertia_apply(m, cw, Iw, a)
+    if qd2 is not None:
+        f = f + _fcross(v, _inertia_apply(m, cw, Iw, v))
+    if fext is not None:
+        f = f - fext
+    F = torch.mm(plan.A.T, f.reshape(nb, 6 * B)).view(K, 6, B)
+    tau_c = (S * F).sum(1)  # (K, B)
+    return torch.mm(plan.W, tau_c)
+
+
+def _crba(plan: _DynPlan, geo: _Geometry, ins: Inertials, batch: tuple[int, ...]) -> Tensor:
+    """Mass matrix ``(B, n_dof, n_dof)``."""
+    S = geo.S
+    K, _, B = S.shape
+    nb = len(plan.bodies)
+    m, cw, Iw = _world_inertia(geo, ins, batch)
+    # Composite inertias in the 10-parameter form about the world origin: mass, first moment
+    # h = m c, rotational inertia I_O = Iw + m (|c|^2 1 - c c^T).
+    mB = m.expand(nb, 1, B)
+    h = mB * cw
+    eye = torch.eye(3, dtype=S.dtype, device=S.device).view(1, 3, 3, 1)
+    IO = Iw + mB.unsqueeze(1) * (
+        (cw * cw).sum(1, keepdim=True).unsqueeze(1) * eye - cw.unsqueeze(2) * cw.unsqueeze(1)
+    )
+    params = torch.cat((mB, h, IO.reshape(nb, 9, B)), dim=1)  # (nb, 13, B)
+    comp = torch.mm(plan.sub, params.reshape(nb, 13 * B)).view(nb, 13, B)
+    cb = comp.index_select(0, plan.col_body)  # (K, 13, B)
+    mc, hc, Ic = cb[:, :1], cb[:, 1:4], cb[:, 4:].view(K, 3, 3, B)
+    sl, sa = S[:, :3], S[:, 3:]
+    Fl = mc * sl - _cross(hc, sa)
+    Fa = (Ic * sa.unsqueeze(1)).sum(2) + _cross(hc, sl)
+    F = torch.cat((Fl, Fa), dim=1)  # (K, 6, B)
+    Q = torch.einsum("kib,lib->klb", S, F)  # Q[k, l] = S_k . Ic_l S_l
+    Mc = Q * plan.anc.unsqueeze(-1) + (Q * plan.anc_strict.unsqueeze(-1)).transpose(0, 1)
+    return torch.einsum("dk,klb,el->bde", plan.W, Mc, plan.W)
+
+
+# ----------------------------------------------------------------------------------------------
+# Argument handling of the Chain methods
+# ----------------------------------------------------------------------------------------------
+
+
+def _check_inertials(chain, inertials: Inertials | None, fn: str) -> Inertials:
+    if inertials is None:
+        return chain.inertials
+    if not isinstance(inertials, tuple) or len(inertials) != 3:
+        raise TypeError(
+            f"{_NAME}{fn}: expected inertials to be an Inertials (mass, com, inertia), got "
+            f"{type(inertials).__name__}"
+        )
+    nb = len(_plan(chain).bodies)
+    out = []
+    for name, x, trailing in zip(
+        ("mass", "com", "inertia"), inertials, ((nb,), (nb, 3), (nb, 3, 3)), strict=True
+    ):
+        t, _ = _checks.tensor(x, _NAME + fn, f"inertials.{name}", trailing)
+        chain._check_like(t, _NAME + fn, f"inertials.{name}", x.dtype)
+        out.append(t)
+    return Inertials(*out)
+
+
+def _check_vec(chain, x: Tensor, fn: str, name: str, batch: tuple[int, ...]) -> Tensor:
+    t, _ = _checks.tensor(x, _NAME + fn, name, (chain.n_dof,))
+    chain._check_like(t, _NAME + fn, name, x.dtype)
+    try:
+        t = t.broadcast_to(batch + (chain.n_dof,))
+    except RuntimeError:
+        raise ValueError(
+            f"{_NAME}{fn}: {name} of shape {tuple(x.shape)} does not broadcast to q's batch "
+            f"shape {batch}"
+        ) from None
+    return t.reshape(math.prod(batch), chain.n_dof)
+
+
+def _gravity(chain, gravity, fn: str, batch: tuple[int, ...], like: Tensor) -> Tensor:
+    if gravity is None:
+        return torch.tensor(DEFAULT_GRAVITY, dtype=like.dtype, device=like.device).unsqueeze(-1)
+    if not isinstance(gravity, Tensor):
+        gravity = torch.as_tensor(gravity, dtype=like.dtype, device=like.device)
+    g, _ = _checks.tensor(gravity, _NAME + fn, "gravity", (3,))
+    chain._check_like(g, _NAME + fn, "gravity", gravity.dtype)
+    try:
+        return _batch_last(g, batch, 1)
+    except RuntimeError:
+        raise ValueError(
+            f"{_NAME}{fn}: gravity of shape {tuple(gravity.shape)} does not broadcast to q's "
+            f"batch shape {batch}"
+        ) from None
+
+
+def _fext_links(chain, f_ext: Mapping[str, Tensor] | None, fn: str) -> tuple[int, ...]:
+    if f_ext is None:
+        return ()
+    if not isinstance(f_ext, Mapping):
+        raise TypeError(
+            f"{_NAME}{fn}: expected f_ext to be a dict link name -> (..., 6) wrench, got "
+            f"{type(f_ext).__name__}"
+        )
+    for k in f_ext:
+        if k not in chain._index:
+            raise ValueError(
+                f"{_NAME}{fn}: f_ext names unknown link {k!r} (the links are "
+                f"{_some(chain.link_names)})"
+            )
+    return tuple(chain._index[k] for k in f_ext)
+
+
+def _fext(
+    chain,
+    plan: _DynPlan,
+    geo: _Geometry,
+    f_ext: Mapping[str, Tensor],
+    fn: str,
+    batch: tuple[int, ...],
+) -> Tensor | None:
+    """The wrenches of ``f_ext`` summed per body, about the world origin, ``(nb, 6, B)``."""
+    nb = len(plan.bodies)
+    B = geo.S.shape[-1]
+    parts: list[Tensor] = []
+    idx: list[int] = []
+    for k, (name, w) in enumerate(f_ext.items()):
+        t, _ = _checks.tensor(w, _NAME + fn, f"f_ext[{name!r}]", (6,))
+        chain._check_like(t, _NAME + fn, f"f_ext[{name!r}]", w.dtype)
+        b, _ = plan.body_of[chain._index[name]]
+        if b < 0:
+            continue  # a link fixed to the world: the wrench acts on the world
+        try:
+            wb = _batch_last(t, batch, 1).expand(6, B)
+        except RuntimeError:
+            raise ValueError(
+                f"{_NAME}{fn}: f_ext[{name!r}] of shape {tuple(w.shape)} does not broadcast "
+                f"to q's batch shape {batch}"
+            ) from None
+        p = geo.poses[len(plan.targets) + k, 3, :3]  # the link's origin, (3, B)
+        f, n = wb[:3], wb[3:]
+        parts.append(torch.cat((f, n + torch.linalg.cross(p, f, dim=0)), dim=0))
+        idx.append(b)
+    if not parts:
+        return None
+    out = geo.S.new_zeros(nb, 6, B)
+    return out.index_add(0, torch.tensor(idx, device=out.device), torch.stack(parts))
+
+
+def _prepare(chain, q: Tensor, fn: str):
+    q2, out_dtype, batch = chain._prepare(q, fn)
+    return q2, out_dtype, batch, _plan(chain)
+
+
+def _result(x: Tensor, batch: tuple[int, ...], n: int, out_dtype: torch.dtype) -> Tensor:
+    """``(n, B)`` -> ``(*batch, n)``."""
+    return _checks.out(x.mT.reshape(*batch, n), out_dtype)
+
+
+def inverse_dynamics(
+    chain,
+    q: Float[Tensor, "*b n_dof"],
+    qd: Float[Tensor, "*b n_dof"],
+    qdd: Float[Tensor, "*b n_dof"],
+    *,
+    gravity: Tensor | None = None,
+    f_ext: Mapping[str, Tensor] | None = None,
+    inertials: Inertials | None = None,
+    _fn: str = "inverse_dynamics",
+) -> Float[Tensor, "*b n_dof"]:
+    """Joint forces for the motion ``(q, qd, qdd)``: see :meth:`Chain.inverse_dynamics`."""
+    q2, out_dtype, batch, plan = _prepare(chain, q, _fn)
+    qd2 = None if qd is None else _check_vec(chain, qd, _fn, "qd", batch)
+    qdd2 = None if qdd is None else _check_vec(chain, qdd, _fn, "qdd", batch)
+    ins = _check_inertials(chain, inertials, _fn)
+    g = _gravity(chain, gravity, _fn, batch, q2)
+    extra = _fext_links(chain, f_ext, _fn)
+    geo = _geometry(chain, plan, q2, extra)
+    fx = None if f_ext is None else _fext(chain, plan, geo, f_ext, _fn, batch)
+    tau = _rnea(plan, geo, ins, batch, qd2, qdd2, g, fx)
+    return _result(tau, batch, chain.n_dof, out_dtype)
+
+
+def mass_matrix(
+    chain, q: Float[Tensor, "*b n_dof"], *, inertials: Inertials | None = None
+) -> Float[Tensor, "*b n_dof n_dof"]:
+    """Joint-space mass matrix: see :meth:`Chain.mass_matrix`."""
+    fn = "mass_matrix"
+    q2, out_dtype, batch, plan = _prepare(chain, q, fn)
+    ins = _check_inertials(chain, inertials, fn)
+    geo = _geometry(chain, plan, q2, ())
+    M = _crba(plan, geo, ins, batch)
+    return _checks.out(M.reshape(*batch, chain.n_dof, chain.n_dof), out_dtype)
+
+
+def forward_dynamics(
+    chain,
+    q: Float[Tensor, "*b n_dof"],
+    qd: Float[Tensor, "*b n_dof"],
+    tau: Float[Tensor, "*b n_dof"],
+    *,
+    gravity: Tensor | None = None,
+    f_ext: Mapping[str, Tensor] | None = None,
+    inertials: Inertials | None = None,
+) -> Float[Tensor, "*b n_dof"]:
+    """Joint accelerations: see :meth:`Chain.forward_dynamics`."""
+    fn = "forward_dynamics"
+    q2, out_dtype, batch, plan = _prepare(chain, q, fn)
+    if inertials is None and plan.massless:
+        raise ValueError(
+            f"{_NAME}{fn}: the mass matrix is singular: no mass or inertia moves with "
+            f"{_some(plan.massless)} (links without <inertial>?); give those links inertials "
+            "or pass inertials="
+        )
+    qd2 = _check_vec(chain, qd, fn, "qd", batch)
+    tau2 = _check_vec(chain, tau, fn, "tau", batch)
+    ins = _check_inertials(chain, inertials, fn)
+    g = _gravity(chain, gravity, fn, batch, q2)
+    extra = _fext_links(chain, f_ext, fn)
+    geo = _geometry(chain, plan, q2, extra)
+    fx = None if f_ext is None else _fext(chain, plan, geo, f_ext, fn, batch)
+    h = _rnea(plan, geo, ins, batch, qd2, None, g, fx)  # (n, B)
+    M = _crba(plan, geo, ins, batch)  # (B, n, n)
+    L, _ = torch.linalg.cholesky_ex(M)
+    qdd = torch.cholesky_solve((tau2 - h.mT).unsqueeze(-1), L).squeeze(-1)  # (B, n)
+    return _checks.out(qdd.reshape(*batch, chain.n_dof), out_dtype)
