@@ -479,3 +479,43 @@ def test_bad_arguments(arm):
         arm.mass_matrix(q, inertials=Inertials(ins.mass[:3], ins.com, ins.inertia))
     with pytest.raises(TypeError, match="expected inertials to be an Inertials"):
         arm.mass_matrix(q, inertials={"mass": ins.mass})
+
+
+# ----------------------------------------------------------------------------------------------
+# The validation command reports the dynamics
+# ----------------------------------------------------------------------------------------------
+
+
+def _validate(robot, **kw):
+    import io
+
+    import torchlie.kinematics.validate as V
+
+    out = io.StringIO()
+    kw.setdefault("samples", 40)
+    report = V.validate(robot, out=out, err=io.StringIO(), compare_pk=False, **kw)
+    return report, out.getvalue()
+
+
+def test_validate_reports_dynamics():
+    pytest.importorskip("pinocchio")
+    report, text = _validate("panda")
+    assert report.ok and report.dynamics is not None
+    assert set(report.dynamics) == {"tau", "M", "bias", "gravity", "qdd"}
+    assert all(v <= 1e-9 for v in report.dynamics.values())
+    assert "dynamics against Pinocchio (40 states" in text and "MISMATCH" not in text
+    # Without Pinocchio, or without inertials, nothing is said about the dynamics.
+    report, text = _validate("panda", compare_pin=False)
+    assert report.dynamics is None and "dynamics" not in text
+    with open(sample_robot("arm7")) as f:
+        report, text = _validate(_strip_inertials(f.read()))
+    assert report.ok and report.dynamics is None and "dynamics" not in text
+
+
+def test_validate_detects_a_dynamics_mismatch(monkeypatch):
+    pytest.importorskip("pinocchio")
+    good = Chain.mass_matrix
+    monkeypatch.setattr(Chain, "mass_matrix", lambda self, q, **kw: good(self, q, **kw) * 1.001)
+    report, text = _validate("arm7")
+    assert not report.ok and report.status == "fail"
+    assert "FAIL: outside tolerance: mass matrix\n" in text

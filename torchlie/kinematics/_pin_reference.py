@@ -145,7 +145,9 @@ class _Pin:
         dD = (Ds[0] - 8.0 * Ds[1] + 8.0 * Ds[2] - Ds[3]) / (12.0 * h)
         return dD @ qd.numpy()
 
-    def dynamics(self, q64: Tensor, qd64: Tensor, qdd64: Tensor, gravity=None) -> dict[str, Tensor]:
+    def dynamics(
+        self, q64: Tensor, qd64: Tensor, qdd64: Tensor, gravity=None, derivatives: bool = True
+    ) -> dict[str, Tensor]:
         """Pinocchio's inverse dynamics, mass matrix, bias and gravity forces in torchlie's
         coordinates (``tau = D^T tau_pin`` at ``v = D qd``, ``a = D qdd + (dD/dt) qd``), the
         accelerations for ``tau = inverse dynamics`` by its ABA (where ``D`` is square) and the
@@ -176,7 +178,7 @@ class _Pin:
             if square:
                 ap = pin.aba(model, data, qp, v, tau_p)
                 out["aba"][b] = np.linalg.solve(D, ap - c)
-            if not self.has_moving_map():
+            if derivatives and not self.has_moving_map():
                 dq, dv, _ = pin.computeRNEADerivatives(model, data, qp, v, a)
                 out["dtau_dq"][b] = D.T @ dq @ D
                 out["dtau_dqd"][b] = D.T @ dv @ D
