@@ -376,22 +376,34 @@ def test_nan_stays_in_its_batch_element(arm):
 
 @pytest.mark.compile
 def test_compile_fullgraph_and_vmap():
-    chain = Chain.from_urdf(sample_robot("tree"))
-    chain.mass_matrix(torch.zeros(chain.n_dof))  # plans built eagerly
+    # float64, so that the comparison with eager mode is tight.
+    chain = Chain.from_urdf(sample_robot("arm7"), dtype=F64)
     q, qd, qdd = _state(chain, 8, seed=12)
+    f_ext = {"tool_tcp": torch.ones(6, dtype=F64)}
 
-    def f(q, qd, qdd):
-        tau = chain.inverse_dynamics(q, qd, qdd)
-        return tau, chain.forward_dynamics(q, qd, tau)
+    other = Chain.from_urdf(sample_robot("arm7"), dtype=F64)  # leaves chain's caches empty
+    tau = other.inverse_dynamics(q, qd, qdd, f_ext=f_ext)
 
-    tau, acc = torch.compile(f, fullgraph=True, backend="aot_eager")(q, qd, qdd)
-    tau_e, acc_e = f(q, qd, qdd)
-    torch.testing.assert_close(tau, tau_e, rtol=1e-5, atol=1e-4)
-    torch.testing.assert_close(acc, acc_e, rtol=1e-4, atol=1e-3)
+    def f(q, qd, tau):  # one forward-kinematics pass, the Newton-Euler sums and the CRBA
+        return chain.forward_dynamics(q, qd, tau, f_ext=f_ext)
+
+    acc = torch.compile(f, fullgraph=True, backend="aot_eager")(q, qd, tau)
+    assert "_dyn_plan" not in chain.__dict__  # tracing caches nothing
+    torch.testing.assert_close(acc, f(q, qd, tau), rtol=0, atol=1e-10)
+    torch.testing.assert_close(acc, qdd, rtol=0, atol=1e-9)
     tau_v = torch.func.vmap(chain.inverse_dynamics)(q, qd, qdd)
-    torch.testing.assert_close(tau_v, tau_e, rtol=1e-5, atol=1e-4)
+    torch.testing.assert_close(tau_v, chain.inverse_dynamics(q, qd, qdd), rtol=0, atol=1e-12)
     M_v = torch.func.vmap(chain.mass_matrix)(q)
-    torch.testing.assert_close(M_v, chain.mass_matrix(q), rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(M_v, chain.mass_matrix(q), rtol=0, atol=1e-12)
+
+
+@pytest.mark.compile
+@pytest.mark.slow
+def test_compile_inductor_arm():
+    arm = Chain.from_urdf(sample_robot("arm7"), dtype=F64)
+    q, qd, qdd = _state(arm, 16, seed=16)
+    f = torch.compile(arm.inverse_dynamics, fullgraph=True)
+    torch.testing.assert_close(f(q, qd, qdd), arm.inverse_dynamics(q, qd, qdd), rtol=0, atol=1e-10)
 
 
 # ----------------------------------------------------------------------------------------------

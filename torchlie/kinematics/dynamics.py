@@ -46,8 +46,9 @@ from torch import Tensor
 
 from .. import _checks, _coeffs
 from .. import so3 as _so3
+from .._autograd import fma
 from .._typing import Float
-from ._joints import _Link, _origin, rpy_matrix
+from ._joints import _Link
 from .urdf import RobotSpec, _some
 
 __all__ = ["Inertials", "DEFAULT_GRAVITY"]
@@ -90,7 +91,7 @@ class Inertials(NamedTuple):
 @dataclass
 class _DynPlan:
     bodies: tuple[int, ...]  # internal link index of each body
-    body_of: dict[int, tuple[int, Tensor]]  # link -> (body or -1, float64 T_body_link)
+    body_of: dict[int, int]  # link -> its body (-1: fixed to the root)
     targets: tuple[int, ...]  # links whose poses a pass needs: bodies, then column parents
     n_rot: int  # columns: n_rot constant rotations, then 3 per floating joint, then translations
     col_v: Tensor  # (n_const, 1, 3) directions of the constant columns in their parent frames
@@ -101,44 +102,62 @@ class _DynPlan:
     col_w: Tensor  # (K, 1) its weight (mimic multipliers)
     floats: list[tuple[int, int, int, Tensor]]  # parent pos in targets, body, rotvec DoF, O_R
     A: Tensor  # (n_bodies, K): 1 where the column's body is an ancestor-or-self of the body
+    At: Tensor  # A transposed, contiguous
+    Af: Tensor  # (K, K): 1 where column l's body is an ancestor-or-self of column k's frame
+    float_cols: Tensor  # (n_float,) the first rotation column of each floating joint
     sub: Tensor  # (n_bodies, n_bodies): 1 where the second is in the first's subtree
     anc: Tensor  # (K, K): 1 where column k's body is an ancestor-or-self of column l's
     anc_strict: Tensor  # (K, K): the same, strict
     W: Tensor  # (n_dof, K) folding of columns onto DoFs
+    W_is_identity: bool  # column k is DoF k with weight 1 (no mimic joint, DoF order)
     inertials64: tuple[Tensor, Tensor, Tensor]  # merged (mass, com, inertia), float64 CPU
     massless: list[str]  # DoFs whose moving subtree has neither mass nor inertia
 
 
-def _spatial_inertia64(mass: float, com: Tensor, inertia: Tensor) -> Tensor:
-    """6x6 spatial inertia (linear; angular) about a frame's origin, float64."""
-    c = _so3.hat(com)
-    top = torch.cat((mass * torch.eye(3, dtype=torch.float64), -mass * c), dim=1)
-    bottom = torch.cat((mass * c, inertia - mass * c @ c), dim=1)
-    return torch.cat((top, bottom), dim=0)
+# The merge of the inertials is written on Python floats: the plan is then the same whether
+# it is built eagerly or while torch.compile traces a first call.
+_M3 = list[list[float]]
 
 
-def _transform_inertia64(X: Tensor, T: Tensor) -> Tensor:
-    """The spatial inertia ``X`` given in a frame ``B``, expressed in the frame ``A`` where
-    ``T = T_A_B``."""
-    R, p = T[:3, :3], T[:3, 3]
-    # Motion transform A <- B: [[R, hat(p) R], [0, R]].
-    Xm = torch.zeros(6, 6, dtype=torch.float64)
-    Xm[:3, :3] = R
-    Xm[3:, 3:] = R
-    Xm[:3, 3:] = _so3.hat(p) @ R
-    Xf = torch.linalg.inv(Xm).T  # force transform A <- B
-    return Xf @ X @ torch.linalg.inv(Xm)
+def _rpy3(r: float, p: float, y: float) -> _M3:
+    """``Rz(y) Ry(p) Rx(r)`` (see :func:`~torchlie.kinematics.chain.rpy_matrix`)."""
+    cr, sr, cp, sp = math.cos(r), math.sin(r), math.cos(p), math.sin(p)
+    cy, sy = math.cos(y), math.sin(y)
+    return [
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ]
 
 
-def _inertial_parts64(X: Tensor) -> tuple[float, Tensor, Tensor]:
-    """(mass, centre of mass, inertia about it) of a 6x6 spatial inertia."""
-    m = float(X[0, 0])
-    if m == 0.0:
-        return 0.0, torch.zeros(3, dtype=torch.float64), X[3:, 3:].clone()
-    mc = _so3.vee(X[3:, :3])
-    c = mc / m
-    hc = _so3.hat(c)
-    return m, c, X[3:, 3:] + m * hc @ hc
+def _mul3(A: _M3, B: _M3) -> _M3:
+    return [[sum(A[i][k] * B[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
+
+
+def _mv3(A: _M3, v: list[float]) -> list[float]:
+    return [sum(A[i][k] * v[k] for k in range(3)) for i in range(3)]
+
+
+def _compose(T1: tuple[_M3, list[float]], T2: tuple[_M3, list[float]]):
+    """``T1 T2`` for poses ``(R, t)``."""
+    R1, t1 = T1
+    R2, t2 = T2
+    return _mul3(R1, R2), [a + b for a, b in zip(_mv3(R1, t2), t1, strict=True)]
+
+
+def _merge(parts: list[tuple[float, list[float], _M3]]) -> tuple[float, list[float], _M3]:
+    """One rigid body from several ``(mass, centre of mass, inertia about it)`` in one frame
+    (parallel-axis theorem)."""
+    m = sum(p[0] for p in parts)
+    c = [sum(p[0] * p[1][i] for p in parts) / m for i in range(3)] if m > 0 else [0.0] * 3
+    inertia = [[0.0] * 3 for _ in range(3)]
+    for mi, ci, Ii in parts:
+        d = [ci[k] - c[k] for k in range(3)]
+        d2 = sum(x * x for x in d)
+        for i in range(3):
+            for j in range(3):
+                inertia[i][j] += Ii[i][j] + mi * ((d2 if i == j else 0.0) - d[i] * d[j])
+    return m, c, inertia
 
 
 def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) -> _DynPlan:
@@ -147,38 +166,37 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
     body_ix = {i: b for b, i in enumerate(moving)}
     nb = len(moving)
     # Each link's body and its pose in the body's frame (fixed joints only in between).
-    body_of: dict[int, tuple[int, Tensor]] = {0: (-1, torch.eye(4, dtype=torch.float64))}
+    eye3 = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    body_of: dict[int, int] = {0: -1}
+    pose_in_body: dict[int, tuple[_M3, list[float]]] = {0: (eye3, [0.0] * 3)}
     for lk in links[1:]:
         if lk.index in body_ix:
-            body_of[lk.index] = (body_ix[lk.index], torch.eye(4, dtype=torch.float64))
+            body_of[lk.index] = body_ix[lk.index]
+            pose_in_body[lk.index] = (eye3, [0.0] * 3)
         else:
-            pb, T = body_of[lk.parent]
             assert lk.joint is not None
-            body_of[lk.index] = (pb, T @ _origin(lk.joint))
-    # Merged inertials, as 6x6 spatial inertias in the body frames.
+            body_of[lk.index] = body_of[lk.parent]
+            origin = (_rpy3(*lk.joint.rpy), list(lk.joint.xyz))
+            pose_in_body[lk.index] = _compose(pose_in_body[lk.parent], origin)
+    # Merged inertials in the body frames.
     spec_in = dict(zip(spec.links, spec.inertials, strict=True)) if spec.inertials else {}
-    X = [torch.zeros(6, 6, dtype=torch.float64) for _ in range(nb)]
+    per_body: list[list[tuple[float, list[float], _M3]]] = [[] for _ in range(nb)]
     for lk in links:
-        b, T = body_of[lk.index]
+        b = body_of[lk.index]
         ins = spec_in.get(lk.name)
         if b < 0 or ins is None:
             continue
-        R = rpy_matrix(*ins.rpy)
+        R, c = _compose(pose_in_body[lk.index], (_rpy3(*ins.rpy), list(ins.xyz)))
         ixx, ixy, ixz, iyy, iyz, izz = ins.inertia
-        I_c = torch.tensor([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]], dtype=torch.float64)
-        Ti = torch.eye(4, dtype=torch.float64)
-        Ti[:3, :3] = R
-        Ti[:3, 3] = torch.tensor(ins.xyz, dtype=torch.float64)
-        Xi = _spatial_inertia64(ins.mass, torch.zeros(3, dtype=torch.float64), I_c)
-        X[b] = X[b] + _transform_inertia64(Xi, T @ Ti)
-    parts = [_inertial_parts64(x) for x in X]
-    mass = torch.tensor([m for m, _, _ in parts], dtype=torch.float64)
-    com = torch.stack([c for _, c, _ in parts]) if nb else torch.zeros(0, 3, dtype=torch.float64)
-    inertia = (
-        torch.stack([i for _, _, i in parts]) if nb else torch.zeros(0, 3, 3, dtype=torch.float64)
-    )
+        I_f = [[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]]
+        Rt = [list(r) for r in zip(*R, strict=True)]
+        per_body[b].append((ins.mass, c, _mul3(_mul3(R, I_f), Rt)))
+    merged = [_merge(p) for p in per_body]
+    mass = torch.tensor([m for m, _, _ in merged], dtype=torch.float64)
+    com = torch.tensor([c for _, c, _ in merged], dtype=torch.float64).reshape(nb, 3)
+    inertia = torch.tensor([i for _, _, i in merged], dtype=torch.float64).reshape(nb, 3, 3)
 
-    parent_body = [body_of[links[i].parent][0] for i in moving]
+    parent_body = [body_of[links[i].parent] for i in moving]
     anc_sets: list[set[int]] = []
     for b in range(nb):
         s = {b}
@@ -208,7 +226,7 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
     col_body += [b for _, b, _, _ in floats_raw for _ in range(3)]
     col_body += [b for _, _, b, _, _ in tr]
     col_frame = [b for _, _, b, _, _ in rot] + [b for _, b, _, _ in floats_raw for _ in range(3)]
-    col_frame += [body_of[p][0] if body_of[p][0] >= 0 else nb for p, *_ in tr]
+    col_frame += [body_of[p] if body_of[p] >= 0 else nb for p, *_ in tr]
     col_dof = [d for *_, d, _ in rot] + [d0 + k for _, _, d0, _ in floats_raw for k in range(3)]
     col_dof += [d for *_, d, _ in tr]
     col_w = [w for *_, w in rot] + [1.0] * (3 * len(floats_raw)) + [w for *_, w in tr]
@@ -233,14 +251,23 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
     W = torch.zeros(n_dof, K, dtype=torch.float64)
     for k in range(K):
         W[col_dof[k], k] += col_w[k]
+    Af = torch.tensor(
+        [
+            [float(col_frame[k] < nb and col_body[j] in anc_sets[col_frame[k]]) for j in range(K)]
+            for k in range(K)
+        ],
+        dtype=torch.float64,
+    ).reshape(K, K)
 
     # DoFs whose subtree carries neither mass nor inertia (M has a zero row there).
     empty = [
-        bool(mass[list(s_b)].sum() == 0 and inertia[list(s_b)].abs().sum() == 0)
-        for s_b in ([c for c in range(nb) if b in anc_sets[c]] for b in range(nb))
+        all(merged[c][0] == 0.0 and not any(any(r) for r in merged[c][2]) for c in sub_b)
+        for sub_b in ([c for c in range(nb) if b in anc_sets[c]] for b in range(nb))
     ]
-    zero_cols = [[col_dof[k] for k in range(K) if col_body[k] == b] for b in range(nb)]
-    massless = sorted({joint_names[d] for b in range(nb) if empty[b] for d in zero_cols[b]})
+    massless = sorted(
+        {joint_names[col_dof[k]] for k in range(K) if empty[col_body[k]]},
+        key=joint_names.index,
+    )
     return _DynPlan(
         bodies=tuple(moving),
         body_of=body_of,
@@ -254,10 +281,16 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
         col_w=torch.tensor(col_w, dtype=torch.float64).reshape(K, 1),
         floats=[(pos[p], b, d0, O_R) for p, b, d0, O_R in floats_raw],
         A=A,
+        At=A.T.contiguous(),
+        Af=Af,
+        float_cols=torch.tensor(
+            [len(rot) + 3 * k for k in range(len(floats_raw))], dtype=torch.long
+        ),
         sub=sub,
         anc=anc,
         anc_strict=anc - same,
         W=W,
+        W_is_identity=col_dof == list(range(n_dof)) and all(w == 1.0 for w in col_w),
         inertials64=(mass, com, inertia),
         massless=massless,
     )
@@ -285,10 +318,14 @@ def _convert(plan: _DynPlan, dtype: torch.dtype, device: torch.device) -> _DynPl
         col_w=f(plan.col_w),
         floats=[(p, b, d0, f(O)) for p, b, d0, O in plan.floats],
         A=f(plan.A),
+        At=f(plan.At),
+        Af=f(plan.Af),
+        float_cols=i(plan.float_cols),
         sub=f(plan.sub),
         anc=f(plan.anc),
         anc_strict=f(plan.anc_strict),
         W=f(plan.W),
+        W_is_identity=plan.W_is_identity,
         inertials64=plan.inertials64,
         massless=plan.massless,
     )
@@ -323,28 +360,45 @@ def inertials(chain) -> Inertials:
 
 
 def _cross(a: Tensor, b: Tensor) -> Tensor:
-    return torch.linalg.cross(a, b, dim=-2)
+    """Cross product along dim -2 (component by component: several times faster than
+    ``torch.linalg.cross`` on these layouts)."""
+    a0, a1, a2 = a.unbind(-2)
+    b0, b1, b2 = b.unbind(-2)
+    return torch.stack(
+        (fma(a1 * b2, a2, b1, -1.0), fma(a2 * b0, a0, b2, -1.0), fma(a0 * b1, a1, b0, -1.0)),
+        dim=-2,
+    )
 
 
-def _mcross(v: Tensor, m: Tensor) -> Tensor:
-    """Spatial motion cross product ``v x m`` (6-vectors (linear; angular) on dim -2)."""
-    vl, va = v[..., :3, :], v[..., 3:, :]
-    ml, ma = m[..., :3, :], m[..., 3:, :]
-    return torch.cat((_cross(va, ml) + _cross(vl, ma), _cross(va, ma)), dim=-2)
+def _columns_times(cols: Tensor, x: Tensor) -> Tensor:
+    """``sum_k cols[..., k, :, :] * x[..., k, :]``: a 3x3 matrix given by its columns
+    ``(..., k, 3, B)`` times ``x (..., 3, B)``, as three multiply-adds."""
+    c0, c1, c2 = cols.unbind(-3)
+    x0, x1, x2 = x.unsqueeze(-2).unbind(-3)
+    return fma(fma(c0 * x0, c1, x1), c2, x2)
 
 
-def _fcross(v: Tensor, f: Tensor) -> Tensor:
-    """Spatial force cross product ``v x* f``."""
-    vl, va = v[..., :3, :], v[..., 3:, :]
-    fl, fa = f[..., :3, :], f[..., 3:, :]
-    return torch.cat((_cross(va, fl), _cross(va, fa) + _cross(vl, fl)), dim=-2)
+def _rot(RT: Tensor, x: Tensor) -> Tensor:
+    """``R x`` for internal transposed rotations ``RT (..., c, r, B)`` and ``x (..., 3, B)``."""
+    return _columns_times(RT, x)
+
+
+def _rot_t(RT: Tensor, x: Tensor) -> Tensor:
+    """``R^T x``."""
+    return _columns_times(RT.transpose(-3, -2), x)
+
+
+def _mat(M: Tensor, x: Tensor) -> Tensor:
+    """``M x`` for ``M (..., 3, 3, B|1)`` (rows, columns) and ``x (..., 3, B)``."""
+    return _columns_times(M.transpose(-3, -2), x)
 
 
 @dataclass
 class _Geometry:
-    S: Tensor  # (K, 6, B) joint columns, world Plücker coordinates
+    Sl: Tensor  # (K, 3, B) joint columns, linear part (world Plücker coordinates)
+    Sa: Tensor  # (K, 3, B) angular part
     p: Tensor  # (nb, 3, B) body origins
-    R: Tensor  # (nb, 3, 3, B) body rotations, R[r, c]
+    RT: Tensor  # (nb, 3, 3, B) body rotations, transposed: RT[c, r] = R[r, c]
     poses: Tensor  # (n_targets, 4, 4, B) internal poses (T^T) of the targets
     floats: list[tuple[Tensor, Tensor, Tensor]]  # per floating joint: R_parent O_R, r, p
 
@@ -358,15 +412,14 @@ def _geometry(chain, plan: _DynPlan, q2: Tensor, extra: tuple[int, ...]) -> _Geo
     out = chain._run(fk, q2)
     P = torch.stack([chain._pose(fk, out, i, B, q2) for i in targets])  # (n, c, r, B)
     nb = len(plan.bodies)
-    Pb = P[:nb]
-    p = Pb[:, 3, :3]  # (nb, 3, B)
-    R = Pb[:, :3, :3].transpose(1, 2)  # (nb, r, c, B)
+    p = P[:nb, 3, :3]  # (nb, 3, B)
+    RT = P[:nb, :3, :3]  # (nb, c, r, B)
     parts_u: list[Tensor] = []
     parts_p: list[Tensor] = []
     n_const = plan.col_v.shape[0]
     U = None
     if n_const:
-        Rp = P.index_select(0, plan.col_parent)[:, :3, :3]  # (n, c, r, B)
+        Rp = P[:, :3, :3].index_select(0, plan.col_parent)  # (n, c, r, B)
         U = torch.matmul(plan.col_v, Rp.reshape(n_const, 3, 3 * B)).view(n_const, 3, B)
         parts_u.append(U[: plan.n_rot])
         parts_p.append(p.index_select(0, plan.col_body[: plan.n_rot]))
@@ -379,19 +432,12 @@ def _geometry(chain, plan: _DynPlan, q2: Tensor, extra: tuple[int, ...]) -> _Geo
         parts_u.append(torch.einsum("rkb,kjb->jrb", RO, Jl))  # column j: RO Jl e_j
         parts_p.append(p[b].unsqueeze(0).expand(3, 3, B))
         floats.append((RO, r, p[b]))
-    cols: list[Tensor] = []
-    if parts_u:
-        Ur = torch.cat(parts_u) if len(parts_u) > 1 else parts_u[0]
-        Pr = torch.cat(parts_p) if len(parts_p) > 1 else parts_p[0]
-        cols.append(torch.cat((_cross(Pr, Ur), Ur), dim=1))
-    if U is not None and plan.n_rot < n_const:
-        Ut = U[plan.n_rot :]
-        cols.append(torch.cat((Ut, torch.zeros_like(Ut)), dim=1))
-    if cols:
-        S = torch.cat(cols) if len(cols) > 1 else cols[0]
-    else:
-        S = q2.new_zeros(0, 6, B)
-    return _Geometry(S, p, R, P, floats)
+    Ur = torch.cat(parts_u) if parts_u else q2.new_zeros(0, 3, B)
+    Pr = torch.cat(parts_p) if parts_p else q2.new_zeros(0, 3, B)
+    Ut = U[plan.n_rot :] if U is not None else q2.new_zeros(0, 3, B)
+    Sl = torch.cat((_cross(Pr, Ur), Ut))
+    Sa = torch.cat((Ur, torch.zeros_like(Ut)))
+    return _Geometry(Sl, Sa, p, RT, P, floats)
 
 
 def _batch_last(x: Tensor, batch: tuple[int, ...], trailing: int) -> Tensor:
@@ -404,25 +450,22 @@ def _batch_last(x: Tensor, batch: tuple[int, ...], trailing: int) -> Tensor:
     return x.permute(*range(1, trailing + 1), 0)
 
 
-def _world_inertia(geo: _Geometry, ins: Inertials, batch: tuple[int, ...]):
-    """Per body: mass ``(nb, 1, B|1)``, world centre of mass ``(nb, 3, B)`` and world rotational
-    inertia about it ``(nb, 3, 3, B)``."""
-    m = _batch_last(ins.mass, batch, 1).unsqueeze(1)  # (nb, 1, B|1)
-    c = _batch_last(ins.com, batch, 2)  # (nb, 3, B|1)
-    Ic = _batch_last(ins.inertia, batch, 3)  # (nb, 3, 3, B|1)
-    R = geo.R
-    cw = geo.p + (R * c.unsqueeze(1)).sum(2)
-    Iw = torch.einsum("nijb,njkb,nlkb->nilb", R, Ic.expand(*Ic.shape[:3], R.shape[-1]), R)
-    return m, cw, Iw
+def _body_inertia(geo: _Geometry, ins: Inertials, batch: tuple[int, ...]):
+    """Per body: mass ``(nb, 1, B|1)``, world centre of mass ``(nb, 3, B)`` and the rotational
+    inertia about it in the body frame ``(nb, 3, 3, B|1)``."""
+    m = _batch_last(ins.mass, batch, 1).unsqueeze(1)
+    c = _batch_last(ins.com, batch, 2)
+    Ic = _batch_last(ins.inertia, batch, 3)
+    return m, geo.p + _rot(geo.RT, c), Ic
 
 
-def _inertia_apply(m: Tensor, cw: Tensor, Iw: Tensor, s: Tensor) -> Tensor:
-    """World spatial inertia of bodies (mass, centre of mass, inertia about it) times motion
-    ``s (nb, 6, B)``: the spatial momentum, about the world origin."""
-    sl, sa = s[:, :3], s[:, 3:]
+def _inertia_apply(
+    m: Tensor, cw: Tensor, Ic: Tensor, RT: Tensor, sl: Tensor, sa: Tensor
+) -> tuple[Tensor, Tensor]:
+    """Spatial momentum (about the world origin) of bodies moving with ``(sl, sa)``:
+    ``m (sl + sa x c)`` and ``c x that + R Ic R^T sa``."""
     fl = m * (sl + _cross(sa, cw))
-    fa = _cross(cw, fl) + (Iw * sa.unsqueeze(1)).sum(2)
-    return torch.cat((fl, fa), dim=1)
+    return fl, _cross(cw, fl) + _rot(RT, _mat(Ic, _rot_t(RT, sa)))
 
 
 def _gather_cols(x: Tensor, plan: _DynPlan) -> Tensor:
@@ -430,19 +473,20 @@ def _gather_cols(x: Tensor, plan: _DynPlan) -> Tensor:
     return (x.mT.index_select(0, plan.col_dof) * plan.col_w).unsqueeze(1)
 
 
-def _float_bias(geo: _Geometry, qd2: Tensor, plan: _DynPlan) -> Tensor | None:
+def _float_bias(geo: _Geometry, qd2: Tensor, plan: _DynPlan) -> tuple[Tensor, Tensor] | None:
     """The acceleration terms ``(p x u; u)``, ``u = R_parent O_R (dJl/dt) rd``, of the floating
-    joints' rotation columns (their axes turn with the rotation vector), ``(n_float, 6, B)``."""
+    joints' rotation columns (their axes turn with the rotation vector), ``(n_float, 3, B)``
+    each."""
     if not plan.floats:
         return None
-    out = []
+    lin, ang = [], []
     for (RO, r, p), (_, _, d0, _) in zip(geo.floats, plan.floats, strict=True):
         rd = qd2[:, d0 : d0 + 3]
         t2 = (r * r).sum(-1, keepdim=True)
         rdot = (r * rd).sum(-1, keepdim=True)
         b = _coeffs.sinc3(t2)
-        a_dot = (2.0 * _coeffs.cosc4(t2) - b) * rdot
-        b_dot = -2.0 * _coeffs.q3(t2) * rdot
+        a_dot = (2.0 * _coeffs.cosc4(t2) - b) * rdot  # d/dt of cosc(|r|^2)
+        b_dot = -2.0 * _coeffs.q3(t2) * rdot  # d/dt of sinc3(|r|^2)
         rxrd = torch.linalg.cross(r, rd, dim=-1)
         u = (
             a_dot * rxrd
@@ -450,8 +494,14 @@ def _float_bias(geo: _Geometry, qd2: Tensor, plan: _DynPlan) -> Tensor | None:
             + b * torch.linalg.cross(rd, rxrd, dim=-1)
         )
         uw = (RO * u.mT.unsqueeze(0)).sum(1)  # (3, B)
-        out.append(torch.cat((torch.linalg.cross(p, uw, dim=0), uw), dim=0))
-    return torch.stack(out)
+        lin.append(_cross(p, uw))
+        ang.append(uw)
+    return torch.stack(lin), torch.stack(ang)
+
+
+def _mm(M: Tensor, x: Tensor) -> Tensor:
+    """``M (r, n)`` times ``x (n, 3, B)`` over the first dimension: ``(r, 3, B)``."""
+    return torch.mm(M, x.reshape(x.shape[0], -1)).view(M.shape[0], *x.shape[1:])
 
 
 def _rnea(
@@ -462,68 +512,81 @@ def _rnea(
     qd2: Tensor | None,
     qdd2: Tensor | None,
     g: Tensor,
-    fext: Tensor | None,
+    fext: tuple[Tensor, Tensor] | None,
 ) -> Tensor:
     """Generalised forces ``(n_dof, B)``; ``qd2``/``qdd2`` ``(B, n_dof)`` or None for zero,
-    ``g (3, B|1)`` gravity, ``fext (nb, 6, B)`` world-origin wrenches or None."""
-    S = geo.S
-    K, _, B = S.shape
+    ``g (3, B|1)`` gravity, ``fext`` world-origin wrenches per body ``(nb, 3, B)`` x 2."""
+    Sl, Sa = geo.Sl, geo.Sa
+    B = Sl.shape[-1]
     nb = len(plan.bodies)
-    m, cw, Iw = _world_inertia(geo, ins, batch)
-    a0 = torch.cat((-g, torch.zeros_like(g)), dim=0)  # (6, B|1)
+    m, cw, Ic = _body_inertia(geo, ins, batch)
+    acl = aca = None
     if qd2 is not None:
-        Vc = S * _gather_cols(qd2, plan)
-        v = torch.mm(plan.A, Vc.reshape(K, 6 * B)).view(nb, 6, B)
-        vf = torch.cat((v, v.new_zeros(1, 6, B))).index_select(0, plan.col_frame)
-        ac = _mcross(vf, Vc)
+        qdc = _gather_cols(qd2, plan)
+        Vl, Va = Sl * qdc, Sa * qdc
+        vl, va = _mm(plan.A, Vl), _mm(plan.A, Va)
+        # Each column's axis moves with its frame body: its rate of change is that body's
+        # velocity cross the column.
+        fl_, fa_ = _mm(plan.Af, Vl), _mm(plan.Af, Va)
+        acl = _cross(fa_, Vl) + _cross(fl_, Va)
+        aca = _cross(fa_, Va)
         fb = _float_bias(geo, qd2, plan)
         if fb is not None:
-            first = [plan.n_rot + 3 * k for k in range(len(plan.floats))]
-            ac = ac.index_add(0, torch.tensor(first, device=ac.device), fb)
-        if qdd2 is not None:
-            ac = ac + S * _gather_cols(qdd2, plan)
-    elif qdd2 is not None:
-        ac = S * _gather_cols(qdd2, plan)
+            acl = acl.index_add(0, plan.float_cols, fb[0])
+            aca = aca.index_add(0, plan.float_cols, fb[1])
+    if qdd2 is not None:
+        qddc = _gather_cols(qdd2, plan)
+        acl = Sl * qddc if acl is None else fma(acl, Sl, qddc)
+        aca = Sa * qddc if aca is None else fma(aca, Sa, qddc)
+    if acl is not None and aca is not None:
+        al, aa = _mm(plan.A, acl) - g, _mm(plan.A, aca)
     else:
-        ac = None
-    if ac is not None:
-        a = torch.mm(plan.A, ac.reshape(K, 6 * B)).view(nb, 6, B) + a0
-    else:
-        a = a0.expand(nb, 6, B)
-    f = _inertia_apply(m, cw, Iw, a)
+        al, aa = (-g).expand(nb, 3, B), Sl.new_zeros(nb, 3, B)
+    fl, fa = _inertia_apply(m, cw, Ic, geo.RT, al, aa)
     if qd2 is not None:
-        f = f + _fcross(v, _inertia_apply(m, cw, Iw, v))
+        hl, ha = _inertia_apply(m, cw, Ic, geo.RT, vl, va)
+        fl = fl + _cross(va, hl)
+        fa = fa + _cross(va, ha) + _cross(vl, hl)
     if fext is not None:
-        f = f - fext
-    F = torch.mm(plan.A.T, f.reshape(nb, 6 * B)).view(K, 6, B)
-    tau_c = (S * F).sum(1)  # (K, B)
-    return torch.mm(plan.W, tau_c)
+        fl, fa = fl - fext[0], fa - fext[1]
+    Fl, Fa = _mm(plan.At, fl), _mm(plan.At, fa)
+    t0, t1, t2 = fma(Sl * Fl, Sa, Fa).unbind(1)
+    tau_c = t0 + t1 + t2  # (K, B)
+    return tau_c if plan.W_is_identity else torch.mm(plan.W, tau_c)
 
 
 def _crba(plan: _DynPlan, geo: _Geometry, ins: Inertials, batch: tuple[int, ...]) -> Tensor:
     """Mass matrix ``(B, n_dof, n_dof)``."""
-    S = geo.S
-    K, _, B = S.shape
+    Sl, Sa = geo.Sl, geo.Sa
+    K, _, B = Sl.shape
     nb = len(plan.bodies)
-    m, cw, Iw = _world_inertia(geo, ins, batch)
+    m, cw, Ic = _body_inertia(geo, ins, batch)
     # Composite inertias in the 10-parameter form about the world origin: mass, first moment
-    # h = m c, rotational inertia I_O = Iw + m (|c|^2 1 - c c^T).
+    # h = m c, rotational inertia I_O = R Ic R^T + m (|c|^2 1 - c c^T).
     mB = m.expand(nb, 1, B)
-    h = mB * cw
-    eye = torch.eye(3, dtype=S.dtype, device=S.device).view(1, 3, 3, 1)
+    RT = geo.RT
+    # R Ic R^T column by column: column r' is R Ic (row r' of R); symmetric, so the result
+    # (r', nb, r, B) is read as (nb, r, r', B).
+    Iw = _rot(RT, _mat(Ic, RT.permute(2, 0, 1, 3))).transpose(0, 1)
+    eye = torch.eye(3, dtype=Sl.dtype, device=Sl.device).view(1, 3, 3, 1)
     IO = Iw + mB.unsqueeze(1) * (
         (cw * cw).sum(1, keepdim=True).unsqueeze(1) * eye - cw.unsqueeze(2) * cw.unsqueeze(1)
     )
-    params = torch.cat((mB, h, IO.reshape(nb, 9, B)), dim=1)  # (nb, 13, B)
+    params = torch.cat((mB, mB * cw, IO.reshape(nb, 9, B)), dim=1)  # (nb, 13, B)
     comp = torch.mm(plan.sub, params.reshape(nb, 13 * B)).view(nb, 13, B)
     cb = comp.index_select(0, plan.col_body)  # (K, 13, B)
-    mc, hc, Ic = cb[:, :1], cb[:, 1:4], cb[:, 4:].view(K, 3, 3, B)
-    sl, sa = S[:, :3], S[:, 3:]
-    Fl = mc * sl - _cross(hc, sa)
-    Fa = (Ic * sa.unsqueeze(1)).sum(2) + _cross(hc, sl)
-    F = torch.cat((Fl, Fa), dim=1)  # (K, 6, B)
-    Q = torch.einsum("kib,lib->klb", S, F)  # Q[k, l] = S_k . Ic_l S_l
+    mc, hc, Icb = cb[:, :1], cb[:, 1:4], cb[:, 4:].view(K, 3, 3, B)
+    Fl = mc * Sl - _cross(hc, Sa)
+    Fa = _mat(Icb, Sa) + _cross(hc, Sl)
+    # Q[k, l] = S_k . Ic_l S_l, summed component by component over (K, K, B).
+    Q = Sl[:, None, 0] * Fl[None, :, 0]
+    for i in (1, 2):
+        Q = fma(Q, Sl[:, None, i], Fl[None, :, i])
+    for i in range(3):
+        Q = fma(Q, Sa[:, None, i], Fa[None, :, i])
     Mc = Q * plan.anc.unsqueeze(-1) + (Q * plan.anc_strict.unsqueeze(-1)).transpose(0, 1)
+    if plan.W_is_identity:
+        return Mc.permute(2, 0, 1).contiguous()
     return torch.einsum("dk,klb,el->bde", plan.W, Mc, plan.W)
 
 
@@ -604,16 +667,17 @@ def _fext(
     f_ext: Mapping[str, Tensor],
     fn: str,
     batch: tuple[int, ...],
-) -> Tensor | None:
-    """The wrenches of ``f_ext`` summed per body, about the world origin, ``(nb, 6, B)``."""
+) -> tuple[Tensor, Tensor] | None:
+    """The wrenches of ``f_ext`` summed per body, about the world origin, ``(nb, 3, B)`` for
+    the forces and for the torques."""
     nb = len(plan.bodies)
-    B = geo.S.shape[-1]
+    B = geo.Sl.shape[-1]
     parts: list[Tensor] = []
     idx: list[int] = []
     for k, (name, w) in enumerate(f_ext.items()):
         t, _ = _checks.tensor(w, _NAME + fn, f"f_ext[{name!r}]", (6,))
         chain._check_like(t, _NAME + fn, f"f_ext[{name!r}]", w.dtype)
-        b, _ = plan.body_of[chain._index[name]]
+        b = plan.body_of[chain._index[name]]
         if b < 0:
             continue  # a link fixed to the world: the wrench acts on the world
         try:
@@ -629,8 +693,9 @@ def _fext(
         idx.append(b)
     if not parts:
         return None
-    out = geo.S.new_zeros(nb, 6, B)
-    return out.index_add(0, torch.tensor(idx, device=out.device), torch.stack(parts))
+    out = geo.Sl.new_zeros(nb, 6, B)
+    out = out.index_add(0, torch.tensor(idx, device=out.device), torch.stack(parts))
+    return out[:, :3], out[:, 3:]
 
 
 def _prepare(chain, q: Tensor, fn: str):
