@@ -173,9 +173,10 @@ def save_plot(fig: dict, path: Path) -> Path | None:
     ax1.set(xlabel="Gauss-Newton iteration", ylabel="payload mass (kg)")
     ax1.legend()
     ax1.grid(alpha=0.3)
-    ax2.semilogy(its, [e["rms_torque_residual_Nm"] for e in h], marker="o", label="RMS residual")
+    rms = [e["rms_torque_residual_Nm"] for e in h]
+    ax2.semilogy(its, rms, marker="o", label="RMS torque residual (N m)")
     ax2.semilogy(its, [max(e["com_error_m"], 1e-6) for e in h], marker="s", label="|c - c*| (m)")
-    ax2.axhline(fig["noise_Nm"], color="C0", ls=":", lw=1, label="noise std")
+    ax2.axhline(fig["noise_Nm"], color="C0", ls=":", lw=1, label="noise std (N m)")
     ax2.set(xlabel="Gauss-Newton iteration")
     ax2.legend()
     ax2.grid(alpha=0.3)

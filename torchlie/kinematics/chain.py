@@ -679,7 +679,7 @@ class Chain:
             >>> Chain.from_urdf(sample_robot("arm7")).body_names[-1]
             'link7'
         """
-        return _dyn.body_names(self)
+        return _dyn._body_names(self)
 
     @property
     def inertials(self) -> Inertials:
@@ -695,7 +695,7 @@ class Chain:
             >>> round(float(arm.inertials.mass[-1]), 3)  # link7 with its flange
             0.6
         """
-        return _dyn.inertials(self)
+        return _dyn._inertials(self)
 
     def inverse_dynamics(
         self,
@@ -726,7 +726,7 @@ class Chain:
             >>> arm.inverse_dynamics(q, q, q).shape  # holding still against gravity
             torch.Size([4, 7])
         """
-        return _dyn.inverse_dynamics(
+        return _dyn._inverse_dynamics(
             self, q, qd, qdd, gravity=gravity, f_ext=f_ext, inertials=inertials
         )
 
@@ -742,7 +742,7 @@ class Chain:
             >>> M.shape, bool(torch.allclose(M, M.mT))
             (torch.Size([7, 7]), True)
         """
-        return _dyn.mass_matrix(self, q, inertials=inertials)
+        return _dyn._mass_matrix(self, q, inertials=inertials)
 
     def forward_dynamics(
         self,
@@ -770,7 +770,7 @@ class Chain:
             >>> bool(torch.allclose(arm.forward_dynamics(q, qd, tau), qdd))
             True
         """
-        return _dyn.forward_dynamics(
+        return _dyn._forward_dynamics(
             self, q, qd, tau, gravity=gravity, f_ext=f_ext, inertials=inertials
         )
 
@@ -791,7 +791,7 @@ class Chain:
             >>> arm.bias_forces(torch.zeros(7), torch.ones(7)).shape
             torch.Size([7])
         """
-        return _dyn.inverse_dynamics(
+        return _dyn._inverse_dynamics(
             self, q, qd, None, gravity=gravity, inertials=inertials, _fn="bias_forces"
         )
 
@@ -811,6 +811,6 @@ class Chain:
             >>> float(arm.gravity_torques(torch.zeros(7))[0])  # the base yaw axis is vertical
             0.0
         """
-        return _dyn.inverse_dynamics(
+        return _dyn._inverse_dynamics(
             self, q, None, None, gravity=gravity, inertials=inertials, _fn="gravity_torques"
         )

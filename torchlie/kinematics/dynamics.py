@@ -342,12 +342,12 @@ def _plan(chain) -> _DynPlan:
     return plan
 
 
-def body_names(chain) -> tuple[str, ...]:
+def _body_names(chain) -> tuple[str, ...]:
     """The chain's bodies (links moved by a joint with degrees of freedom), internal order."""
     return tuple(chain._links[i].name for i in _plan(chain).bodies)
 
 
-def inertials(chain) -> Inertials:
+def _inertials(chain) -> Inertials:
     """The chain's merged inertials in its dtype and on its device (fresh tensors)."""
     m, c, inertia = _plan(chain).inertials64
     dt, dev = chain.dtype, chain.device
@@ -708,7 +708,7 @@ def _result(x: Tensor, batch: tuple[int, ...], n: int, out_dtype: torch.dtype) -
     return _checks.out(x.mT.reshape(*batch, n), out_dtype)
 
 
-def inverse_dynamics(
+def _inverse_dynamics(
     chain,
     q: Float[Tensor, "*b n_dof"],
     qd: Float[Tensor, "*b n_dof"],
@@ -732,7 +732,7 @@ def inverse_dynamics(
     return _result(tau, batch, chain.n_dof, out_dtype)
 
 
-def mass_matrix(
+def _mass_matrix(
     chain, q: Float[Tensor, "*b n_dof"], *, inertials: Inertials | None = None
 ) -> Float[Tensor, "*b n_dof n_dof"]:
     """Joint-space mass matrix: see :meth:`Chain.mass_matrix`."""
@@ -744,7 +744,7 @@ def mass_matrix(
     return _checks.out(M.reshape(*batch, chain.n_dof, chain.n_dof), out_dtype)
 
 
-def forward_dynamics(
+def _forward_dynamics(
     chain,
     q: Float[Tensor, "*b n_dof"],
     qd: Float[Tensor, "*b n_dof"],
