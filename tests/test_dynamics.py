@@ -449,6 +449,20 @@ def test_massless_moving_subtree_is_named():
         chain.forward_dynamics(q, qd, qdd)
 
 
+def test_robot_without_degrees_of_freedom():
+    chain = Chain.from_urdf(
+        '<robot name="r"><link name="a"/><link name="b"><inertial><mass value="1"/>'
+        '<inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial></link>'
+        '<joint name="j" type="fixed"><parent link="a"/><child link="b"/></joint></robot>'
+    )
+    q = torch.zeros(3, 0)
+    assert chain.body_names == () and chain.inertials.mass.shape == (0,)
+    assert chain.inverse_dynamics(q, q, q).shape == (3, 0)
+    assert chain.mass_matrix(q).shape == (3, 0, 0)
+    assert chain.forward_dynamics(q, q, q).shape == (3, 0)
+    assert chain.gravity_torques(q, gravity=torch.ones(3)).shape == (3, 0)
+
+
 def test_bad_inertial_elements():
     from torchlie.kinematics import URDFError
 
@@ -491,6 +505,8 @@ def test_bad_arguments(arm):
         arm.mass_matrix(q, inertials=Inertials(ins.mass[:3], ins.com, ins.inertia))
     with pytest.raises(TypeError, match="expected inertials to be an Inertials"):
         arm.mass_matrix(q, inertials={"mass": ins.mass})
+    with pytest.raises(ValueError, match=r"inertials.mass has batch shape \(3,\), which does"):
+        arm.mass_matrix(q, inertials=Inertials(ins.mass.expand(3, 7), ins.com, ins.inertia))
 
 
 # ----------------------------------------------------------------------------------------------

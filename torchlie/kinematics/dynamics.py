@@ -595,7 +595,9 @@ def _crba(plan: _DynPlan, geo: _Geometry, ins: Inertials, batch: tuple[int, ...]
 # ----------------------------------------------------------------------------------------------
 
 
-def _check_inertials(chain, inertials: Inertials | None, fn: str) -> Inertials:
+def _check_inertials(
+    chain, inertials: Inertials | None, fn: str, batch: tuple[int, ...]
+) -> Inertials:
     if inertials is None:
         return chain.inertials
     if not isinstance(inertials, tuple) or len(inertials) != 3:
@@ -610,6 +612,16 @@ def _check_inertials(chain, inertials: Inertials | None, fn: str) -> Inertials:
     ):
         t, _ = _checks.tensor(x, _NAME + fn, f"inertials.{name}", trailing)
         chain._check_like(t, _NAME + fn, f"inertials.{name}", x.dtype)
+        lead = tuple(t.shape[: t.dim() - len(trailing)])
+        try:
+            ok = torch.broadcast_shapes(lead, batch) == batch
+        except RuntimeError:
+            ok = False
+        if not ok:
+            raise ValueError(
+                f"{_NAME}{fn}: inertials.{name} has batch shape {lead}, which does not "
+                f"broadcast to q's batch shape {batch}"
+            )
         out.append(t)
     return Inertials(*out)
 
@@ -723,9 +735,11 @@ def _inverse_dynamics(
     q2, out_dtype, batch, plan = _prepare(chain, q, _fn)
     qd2 = None if qd is None else _check_vec(chain, qd, _fn, "qd", batch)
     qdd2 = None if qdd is None else _check_vec(chain, qdd, _fn, "qdd", batch)
-    ins = _check_inertials(chain, inertials, _fn)
+    ins = _check_inertials(chain, inertials, _fn, batch)
     g = _gravity(chain, gravity, _fn, batch, q2)
     extra = _fext_links(chain, f_ext, _fn)
+    if not plan.bodies:  # no degree of freedom
+        return _checks.out(q2.new_zeros(*batch, 0), out_dtype)
     geo = _geometry(chain, plan, q2, extra)
     fx = None if f_ext is None else _fext(chain, plan, geo, f_ext, _fn, batch)
     tau = _rnea(plan, geo, ins, batch, qd2, qdd2, g, fx)
@@ -738,7 +752,9 @@ def _mass_matrix(
     """Joint-space mass matrix: see :meth:`Chain.mass_matrix`."""
     fn = "mass_matrix"
     q2, out_dtype, batch, plan = _prepare(chain, q, fn)
-    ins = _check_inertials(chain, inertials, fn)
+    ins = _check_inertials(chain, inertials, fn, batch)
+    if not plan.bodies:  # no degree of freedom
+        return _checks.out(q2.new_zeros(*batch, 0, 0), out_dtype)
     geo = _geometry(chain, plan, q2, ())
     M = _crba(plan, geo, ins, batch)
     return _checks.out(M.reshape(*batch, chain.n_dof, chain.n_dof), out_dtype)
@@ -765,9 +781,11 @@ def _forward_dynamics(
         )
     qd2 = _check_vec(chain, qd, fn, "qd", batch)
     tau2 = _check_vec(chain, tau, fn, "tau", batch)
-    ins = _check_inertials(chain, inertials, fn)
+    ins = _check_inertials(chain, inertials, fn, batch)
     g = _gravity(chain, gravity, fn, batch, q2)
     extra = _fext_links(chain, f_ext, fn)
+    if not plan.bodies:  # no degree of freedom
+        return _checks.out(q2.new_zeros(*batch, 0), out_dtype)
     geo = _geometry(chain, plan, q2, extra)
     fx = None if f_ext is None else _fext(chain, plan, geo, f_ext, fn, batch)
     h = _rnea(plan, geo, ins, batch, qd2, None, g, fx)  # (n, B)
