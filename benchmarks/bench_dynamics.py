@@ -23,10 +23,12 @@ import time
 
 
 def _time(fn, min_run_time: float) -> float:
+    """Fastest block of ``torch.utils.benchmark``'s blocked runs, seconds per call (the least
+    disturbed by other processes on a shared machine)."""
     import torch.utils.benchmark as tb
 
     t = tb.Timer(stmt="fn()", globals={"fn": fn}, num_threads=1)
-    return t.blocked_autorange(min_run_time=min_run_time).median
+    return min(t.blocked_autorange(min_run_time=min_run_time).times)
 
 
 def _per_call(fn, reps: int) -> float:
@@ -45,6 +47,7 @@ def main() -> None:
     parser.add_argument("--robot", default="arm7", help="bundled robot name or URDF path")
     parser.add_argument("--sizes", default="1,16,64,256,1024,4096")
     parser.add_argument("--quick", action="store_true", help="shorter timing runs")
+    parser.add_argument("--rounds", type=int, default=3, help="interleaved timing rounds")
     args = parser.parse_args()
     import pinocchio as pin
     import torch
@@ -98,14 +101,16 @@ def main() -> None:
         for B in sizes:
             x64 = (q[:B], qd[:B], qdd[:B], tau[:B])
             x32 = tuple(v.float() for v in x64)
-            t64 = _time(lambda x64=x64, tl=tl, B=B: tl(chain, B, x64), min_run)
-            t32 = _time(lambda x32=x32, tl=tl, B=B: tl(c32, B, x32), min_run)
 
             def loop(B=B, pn=pn):
                 for i in range(B):
                     pn(i)
 
-            tl_loop = _time(loop, min_run)
+            t64 = t32 = tl_loop = float("inf")
+            for _ in range(1 if args.quick else args.rounds):
+                t64 = min(t64, _time(lambda x64=x64, tl=tl, B=B: tl(chain, B, x64), min_run))
+                t32 = min(t32, _time(lambda x32=x32, tl=tl, B=B: tl(c32, B, x32), min_run))
+                tl_loop = min(tl_loop, _time(loop, min_run))
             bound = per_call * B
             if cross_loop is None and t64 <= tl_loop:
                 cross_loop = B
