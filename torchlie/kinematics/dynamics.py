@@ -111,6 +111,8 @@ class _DynPlan:
     W: Tensor  # (n_dof, K) folding of columns onto DoFs
     W_is_identity: bool  # column k is DoF k with weight 1 (no mimic joint, DoF order)
     inertials64: tuple[Tensor, Tensor, Tensor]  # merged (mass, com, inertia), float64 CPU
+    inertials: Inertials  # the same in the chain's dtype and device (internal, never handed out)
+    gravity: Tensor  # (3, 1) DEFAULT_GRAVITY in the chain's dtype and device
     massless: list[str]  # DoFs whose moving subtree has neither mass nor inertia
 
 
@@ -292,6 +294,8 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
         W=W,
         W_is_identity=col_dof == list(range(n_dof)) and all(w == 1.0 for w in col_w),
         inertials64=(mass, com, inertia),
+        inertials=Inertials(mass, com, inertia),
+        gravity=torch.tensor(DEFAULT_GRAVITY, dtype=torch.float64).unsqueeze(-1),
         massless=massless,
     )
 
@@ -327,6 +331,8 @@ def _convert(plan: _DynPlan, dtype: torch.dtype, device: torch.device) -> _DynPl
         W=f(plan.W),
         W_is_identity=plan.W_is_identity,
         inertials64=plan.inertials64,
+        inertials=Inertials(*(f(x) for x in plan.inertials)),
+        gravity=f(plan.gravity),
         massless=plan.massless,
     )
 
@@ -599,7 +605,7 @@ def _check_inertials(
     chain, inertials: Inertials | None, fn: str, batch: tuple[int, ...]
 ) -> Inertials:
     if inertials is None:
-        return chain.inertials
+        return _plan(chain).inertials
     if not isinstance(inertials, tuple) or len(inertials) != 3:
         raise TypeError(
             f"{_NAME}{fn}: expected inertials to be an Inertials (mass, com, inertia), got "
@@ -641,7 +647,7 @@ def _check_vec(chain, x: Tensor, fn: str, name: str, batch: tuple[int, ...]) -> 
 
 def _gravity(chain, gravity, fn: str, batch: tuple[int, ...], like: Tensor) -> Tensor:
     if gravity is None:
-        return torch.tensor(DEFAULT_GRAVITY, dtype=like.dtype, device=like.device).unsqueeze(-1)
+        return _plan(chain).gravity
     if not isinstance(gravity, Tensor):
         gravity = torch.as_tensor(gravity, dtype=like.dtype, device=like.device)
     g, _ = _checks.tensor(gravity, _NAME + fn, "gravity", (3,))
