@@ -141,6 +141,36 @@ def test_float32_against_pinocchio(name):
         assert v <= TOL32[k], (name, k, v)
 
 
+def test_against_mujoco():
+    # MuJoCo reads the URDF itself (fixed links fused, no armature or damping in this file):
+    # mj_inverse, mj_fullM and mj_forward's accelerations under the same torques.
+    mujoco = pytest.importorskip("mujoco")
+    import numpy as np
+
+    path = sample_robot("arm7")
+    model = mujoco.MjModel.from_xml_path(path)
+    data = mujoco.MjData(model)
+    chain = Chain.from_urdf(path, dtype=F64)
+    assert [model.joint(i).name for i in range(model.njnt)] == list(chain.joint_names)
+    q, qd, qdd = _state(chain, 100, seed=17)
+    tau, M = chain.inverse_dynamics(q, qd, qdd), chain.mass_matrix(q)
+    acc = chain.forward_dynamics(q, qd, tau)
+    err = {"tau": 0.0, "M": 0.0, "qdd": 0.0}
+    Mf = np.zeros((model.nv, model.nv))
+    for b in range(100):
+        data.qpos[:], data.qvel[:], data.qacc[:] = q[b].numpy(), qd[b].numpy(), qdd[b].numpy()
+        mujoco.mj_inverse(model, data)
+        mujoco.mj_fullM(model, data, Mf)
+        ref_tau = torch.from_numpy(data.qfrc_inverse.copy())
+        err["tau"] = max(err["tau"], _rel(tau[b], ref_tau))
+        err["M"] = max(err["M"], _rel(M[b], torch.from_numpy(Mf.copy())))
+        data.qfrc_applied[:] = tau[b].numpy()
+        mujoco.mj_forward(model, data)
+        err["qdd"] = max(err["qdd"], _rel(acc[b], torch.from_numpy(data.qacc.copy())))
+    print("arm7 against MuJoCo: " + ", ".join(f"{k} {v:.1e}" for k, v in err.items()))
+    assert err["tau"] <= TOL["tau"] and err["M"] <= TOL["M"] and err["qdd"] <= TOL["aba"]
+
+
 # ----------------------------------------------------------------------------------------------
 # Without Pinocchio: identities, gradients, batching, compile, bad input
 # ----------------------------------------------------------------------------------------------
