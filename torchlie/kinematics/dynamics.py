@@ -106,8 +106,7 @@ class _DynPlan:
     Af: Tensor  # (K, K): 1 where column l's body is an ancestor-or-self of column k's frame
     float_cols: Tensor  # (n_float,) the first rotation column of each floating joint
     sub: Tensor  # (n_bodies, n_bodies): 1 where the second is in the first's subtree
-    anc: Tensor  # (K, K): 1 where column k's body is an ancestor-or-self of column l's
-    anc_strict: Tensor  # (K, K): the same, strict
+    m_gather: Tensor  # (K * K,) where each entry of the mass matrix is read (see _crba)
     W: Tensor  # (n_dof, K) folding of columns onto DoFs
     W_is_identity: bool  # column k is DoF k with weight 1 (no mimic joint, DoF order)
     inertials64: tuple[Tensor, Tensor, Tensor]  # merged (mass, com, inertia), float64 CPU
@@ -242,14 +241,10 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
         [[1.0 if b in anc_sets[c] else 0.0 for c in range(nb)] for b in range(nb)],
         dtype=torch.float64,
     ).reshape(nb, nb)
-    anc = torch.tensor(
-        [[float(col_body[k] in anc_sets[col_body[j]]) for j in range(K)] for k in range(K)],
-        dtype=torch.float64,
-    ).reshape(K, K)
-    same = torch.tensor(
-        [[1.0 if col_body[k] == col_body[j] else 0.0 for j in range(K)] for k in range(K)],
-        dtype=torch.float64,
-    ).reshape(K, K)
+
+    def anc(k: int, j: int) -> bool:  # column k's body is an ancestor-or-self of column j's
+        return col_body[k] in anc_sets[col_body[j]]
+
     W = torch.zeros(n_dof, K, dtype=torch.float64)
     for k in range(K):
         W[col_dof[k], k] += col_w[k]
@@ -289,8 +284,14 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
             [len(rot) + 3 * k for k in range(len(floats_raw))], dtype=torch.long
         ),
         sub=sub,
-        anc=anc,
-        anc_strict=anc - same,
+        m_gather=torch.tensor(
+            [
+                k * K + j if anc(k, j) else (j * K + k if anc(j, k) else K * K)
+                for k in range(K)
+                for j in range(K)
+            ],
+            dtype=torch.long,
+        ),
         W=W,
         W_is_identity=col_dof == list(range(n_dof)) and all(w == 1.0 for w in col_w),
         inertials64=(mass, com, inertia),
@@ -326,8 +327,7 @@ def _convert(plan: _DynPlan, dtype: torch.dtype, device: torch.device) -> _DynPl
         Af=f(plan.Af),
         float_cols=i(plan.float_cols),
         sub=f(plan.sub),
-        anc=f(plan.anc),
-        anc_strict=f(plan.anc_strict),
+        m_gather=i(plan.m_gather),
         W=f(plan.W),
         W_is_identity=plan.W_is_identity,
         inertials64=plan.inertials64,
@@ -590,10 +590,13 @@ def _crba(plan: _DynPlan, geo: _Geometry, ins: Inertials, batch: tuple[int, ...]
         Q = fma(Q, Sl[:, None, i], Fl[None, :, i])
     for i in range(3):
         Q = fma(Q, Sa[:, None, i], Fa[None, :, i])
-    Mc = Q * plan.anc.unsqueeze(-1) + (Q * plan.anc_strict.unsqueeze(-1)).transpose(0, 1)
+    # M[k, l] = Q[k, l] where column k's body is an ancestor of column l's, Q[l, k] where it is
+    # the other way round, 0 between branches: one gather into the (B, K, K) layout.
+    Qz = torch.cat((Q.view(K * K, B), Q.new_zeros(1, B)))
+    Mc = Qz.mT.index_select(1, plan.m_gather).view(B, K, K)
     if plan.W_is_identity:
-        return Mc.permute(2, 0, 1).contiguous()
-    return torch.einsum("dk,klb,el->bde", plan.W, Mc, plan.W)
+        return Mc
+    return plan.W @ Mc @ plan.W.T
 
 
 # ----------------------------------------------------------------------------------------------

@@ -680,7 +680,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="torchlie-validate",
         description="Compare torchlie's forward kinematics and Jacobians of a URDF robot with "
-        "pytorch-kinematics, Pinocchio and an exact float64 reference.",
+        "pytorch-kinematics, Pinocchio and an exact float64 reference, and its dynamics with "
+        "Pinocchio.",
     )
     parser.add_argument(
         "robot",
