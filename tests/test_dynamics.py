@@ -411,20 +411,27 @@ def test_compile_fullgraph_and_vmap():
     q, qd, qdd = _state(chain, 8, seed=12)
     f_ext = {"tool_tcp": torch.ones(6, dtype=F64)}
 
-    other = Chain.from_urdf(sample_robot("arm7"), dtype=F64)  # leaves chain's caches empty
-    tau = other.inverse_dynamics(q, qd, qdd, f_ext=f_ext)
+    def f(q, qd, qdd):  # one forward-kinematics pass and the Newton-Euler sums
+        return chain.inverse_dynamics(q, qd, qdd, f_ext=f_ext)
 
-    def f(q, qd, tau):  # one forward-kinematics pass, the Newton-Euler sums and the CRBA
-        return chain.forward_dynamics(q, qd, tau, f_ext=f_ext)
-
-    acc = torch.compile(f, fullgraph=True, backend="aot_eager")(q, qd, tau)
+    tau = torch.compile(f, fullgraph=True, backend="aot_eager")(q, qd, qdd)
     assert "_dyn_plan" not in chain.__dict__  # tracing caches nothing
-    torch.testing.assert_close(acc, f(q, qd, tau), rtol=0, atol=1e-10)
-    torch.testing.assert_close(acc, qdd, rtol=0, atol=1e-9)
+    torch.testing.assert_close(tau, f(q, qd, qdd), rtol=0, atol=1e-10)
     tau_v = torch.func.vmap(chain.inverse_dynamics)(q, qd, qdd)
     torch.testing.assert_close(tau_v, chain.inverse_dynamics(q, qd, qdd), rtol=0, atol=1e-12)
     M_v = torch.func.vmap(chain.mass_matrix)(q)
     torch.testing.assert_close(M_v, chain.mass_matrix(q), rtol=0, atol=1e-12)
+
+
+@pytest.mark.compile
+@pytest.mark.slow
+def test_compile_forward_dynamics():
+    # The whole pipeline (kinematics, Newton-Euler, composite inertias, Cholesky) in one graph.
+    chain = Chain.from_urdf(sample_robot("arm7"), dtype=F64)
+    q, qd, qdd = _state(chain, 8, seed=13)
+    tau = chain.inverse_dynamics(q, qd, qdd)
+    f = torch.compile(chain.forward_dynamics, fullgraph=True, backend="aot_eager")
+    torch.testing.assert_close(f(q, qd, tau), qdd, rtol=0, atol=1e-9)
 
 
 @pytest.mark.compile
