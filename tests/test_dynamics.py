@@ -141,6 +141,33 @@ def test_float32_against_pinocchio(name):
         assert v <= TOL32[k], (name, k, v)
 
 
+def test_external_wrenches_against_pinocchio():
+    # Pinocchio's fext: per joint, the wrench in the joint's (= its child link's) local frame.
+    pin = pytest.importorskip("pinocchio")
+    import numpy as np
+
+    path = sample_robot("arm7")
+    chain = Chain.from_urdf(path, dtype=F64)
+    model = pin.buildModelFromUrdf(path)
+    data = model.createData()
+    q, qd, qdd = _state(chain, 50, seed=18)
+    gen = torch.Generator().manual_seed(19)
+    links = {"link3": "upper_arm_roll", "link7": "flange_roll"}
+    w = {k: torch.randn(50, 6, generator=gen, dtype=F64) for k in links}
+    tau = chain.inverse_dynamics(q, qd, qdd, f_ext=w)
+    T = chain.forward_kinematics(q, list(links))
+    err = 0.0
+    for b in range(50):
+        fext = [pin.Force.Zero() for _ in range(model.njoints)]
+        for link, joint in links.items():
+            Rt = T[link][b, :3, :3].T
+            local = torch.cat((Rt @ w[link][b, :3], Rt @ w[link][b, 3:])).numpy()
+            fext[model.getJointId(joint)] = pin.Force(np.ascontiguousarray(local))
+        ref = pin.rnea(model, data, q[b].numpy(), qd[b].numpy(), qdd[b].numpy(), fext)
+        err = max(err, _rel(tau[b], torch.from_numpy(ref.copy())))
+    assert err <= TOL["tau"], err
+
+
 def test_against_mujoco():
     # MuJoCo reads the URDF itself (fixed links fused, no armature or damping in this file):
     # mj_inverse, mj_fullM and mj_forward's accelerations under the same torques.
