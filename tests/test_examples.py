@@ -20,6 +20,9 @@ OPTIONS = {
         "--quick --robots --samples --dtypes --brief --out --threads".split()
     ),
     "rotation_regression": "--quick --steps --out --no-plot --seed --threads".split(),
+    "payload_identification": (
+        "--quick --states --payload --noise --iterations --out --no-plot --seed --threads".split()
+    ),
     "pose_graph": (
         "--quick --poses --laps --optimizer --representation --iterations --seed --out "
         "--no-plot --threads"
@@ -95,6 +98,12 @@ def test_out_folder_is_ignored_by_git():
             "pose_graph.json",
             "pose_graph.png",
         ),
+        (
+            "payload_identification",
+            ["--states", "20", "--iterations", "1"],
+            "payload_identification.json",
+            "payload_identification.png",
+        ),
     ],
 )
 def test_missing_matplotlib_is_said_once_on_stderr(
@@ -150,6 +159,26 @@ def test_rotation_regression(tmp_path, capsys):
     assert saved["results"]["rotvec"]["curve"][-1] == list(res["rotvec"]["curve"][-1])
     if has_matplotlib():
         assert fig["plot"] == plot and plot.stat().st_size > 1000
+    else:
+        assert fig["plot"] is None and not plot.exists()
+
+
+def test_payload_identification(tmp_path, capsys):
+    plot = tmp_path / "payload_identification.png"
+    fig = load("payload_identification").main(["--quick", "--out", str(tmp_path)])
+    assert fig["states"] == 200 and fig["true_mass_kg"] == 1.5
+    # From no payload to the payload within the noise: mass to 0.5 %, position to 2 mm, the
+    # torque residual down to the measurement noise (0.05 N m).
+    h = fig["history"]
+    assert h[0]["mass_kg"] == 0.0 and h[0]["rms_torque_residual_Nm"] >= 1.0
+    assert fig["mass_error_rel"] <= 5e-3
+    assert fig["com_error_m"] <= 2e-3
+    assert fig["rms_torque_residual_Nm"] <= 1.1 * fig["noise_Nm"]
+    assert "payload identification" in capsys.readouterr().out
+    saved = json.loads((tmp_path / "payload_identification.json").read_text())
+    assert saved["mass_kg"] == fig["mass_kg"] and saved["history"] == h
+    if has_matplotlib():
+        assert fig["plot"] == str(plot) and plot.stat().st_size > 1000
     else:
         assert fig["plot"] is None and not plot.exists()
 

@@ -16,9 +16,11 @@ torch.Size([1000, 6, 7])
 
 Conventions (joint coordinates, ``q`` layout, Jacobian kinds) are in
 :mod:`torchlie.kinematics.chain`, the inverse kinematics solver in
-:mod:`torchlie.kinematics.ik`.  ``python -m torchlie.kinematics.validate ROBOT.urdf`` checks
-every link pose and the end links' Jacobians against pytorch-kinematics, Pinocchio (where
-installed) and an exact float64 reference.
+:mod:`torchlie.kinematics.ik`, rigid-body dynamics (``Chain.inverse_dynamics``,
+``mass_matrix``, ``forward_dynamics``, ...) in :mod:`torchlie.kinematics.dynamics`.
+``python -m torchlie.kinematics.validate ROBOT.urdf`` checks every link pose and the end links'
+Jacobians against pytorch-kinematics, Pinocchio (where installed) and an exact float64
+reference, and the dynamics against Pinocchio.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .chain import Chain
+from .dynamics import Inertials
 from .ik import IKResult
 from .mjcf import MJCFError, parse_mjcf
 from .sdf import SDFError, parse_sdf
@@ -34,6 +37,7 @@ from .urdf import JOINT_TYPES, JointSpec, MimicSpec, RobotSpec, URDFError, parse
 __all__ = [
     "Chain",
     "IKResult",
+    "Inertials",
     "JOINT_TYPES",
     "JointSpec",
     "MimicSpec",

@@ -128,6 +128,64 @@ class _Pin:
             {k: torch.from_numpy(v) for k, v in jacs.items()},
         )
 
+    def has_moving_map(self) -> bool:
+        """Whether ``D`` depends on ``q`` (a planar or floating joint): then Pinocchio's
+        acceleration is ``D qdd + (dD/dt) qd``."""
+        return any(kind in ("planar", "free") for kind, *_ in self.joints)
+
+    def _d_dot_qd(self, q: Tensor, qd: Tensor):
+        """``(dD/dt) qd`` by a 4th-order central difference of ``D`` along ``qd`` (``D`` is
+        smooth; the step's error is far below float64's round-off of the dynamics)."""
+        import numpy as np
+
+        if not self.has_moving_map():
+            return np.zeros(self.model.nv)
+        h = 1e-3
+        Ds = [self._q_and_map(q + k * h * qd)[1] for k in (-2, -1, 1, 2)]
+        dD = (Ds[0] - 8.0 * Ds[1] + 8.0 * Ds[2] - Ds[3]) / (12.0 * h)
+        return dD @ qd.numpy()
+
+    def dynamics(
+        self, q64: Tensor, qd64: Tensor, qdd64: Tensor, gravity=None, derivatives: bool = True
+    ) -> dict[str, Tensor]:
+        """Pinocchio's inverse dynamics, mass matrix, bias and gravity forces in torchlie's
+        coordinates (``tau = D^T tau_pin`` at ``v = D qd``, ``a = D qdd + (dD/dt) qd``), the
+        accelerations for ``tau = inverse dynamics`` by its ABA (where ``D`` is square) and the
+        RNEA derivatives (``D^T dtau D``, where ``D`` is constant), per configuration."""
+        import numpy as np
+
+        pin, model, data = self.pin, self.model, self.data
+        if gravity is not None:
+            model.gravity.linear = np.asarray(gravity, dtype=float)
+        B, n = q64.shape[0], self.n
+        out = {k: np.zeros((B, n)) for k in ("tau", "bias", "gravity", "aba")}
+        out["M"] = np.zeros((B, n, n))
+        out["dtau_dq"] = np.zeros((B, n, n))
+        out["dtau_dqd"] = np.zeros((B, n, n))
+        square = model.nv == n
+        for b in range(B):
+            qp, D = self._q_and_map(q64[b])
+            v = D @ qd64[b].numpy()
+            c = self._d_dot_qd(q64[b], qd64[b])
+            a = D @ qdd64[b].numpy() + c
+            tau_p = pin.rnea(model, data, qp, v, a).copy()
+            out["tau"][b] = D.T @ tau_p
+            Mp = pin.crba(model, data, qp).copy()
+            Mp = np.triu(Mp) + np.triu(Mp, 1).T
+            out["M"][b] = D.T @ Mp @ D
+            out["bias"][b] = D.T @ (pin.nonLinearEffects(model, data, qp, v) + Mp @ c)
+            out["gravity"][b] = D.T @ pin.computeGeneralizedGravity(model, data, qp)
+            if square:
+                ap = pin.aba(model, data, qp, v, tau_p)
+                out["aba"][b] = np.linalg.solve(D, ap - c)
+            if derivatives and not self.has_moving_map():
+                dq, dv, _ = pin.computeRNEADerivatives(model, data, qp, v, a)
+                out["dtau_dq"][b] = D.T @ dq @ D
+                out["dtau_dqd"][b] = D.T @ dv @ D
+        if gravity is not None:
+            model.gravity.linear = np.array([0.0, 0.0, -9.81])
+        return {k: torch.from_numpy(v) for k, v in out.items()}
+
 
 def _unit_axis(axis) -> list[float]:
     n = math.hypot(*axis)

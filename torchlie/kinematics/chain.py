@@ -91,6 +91,7 @@ from torch import Tensor
 
 from .. import _checks
 from .._typing import Float
+from . import dynamics as _dyn
 from ._fk_plan import _build_plan, _Plan, _pose, _run
 from ._jacobian import _dof_index, _frame_jacobian, _jacobian_plan, _JacPlan, _link_columns
 from ._joints import (
@@ -103,6 +104,7 @@ from ._joints import (
     _velocity_layout,
     rpy_matrix,
 )
+from .dynamics import Inertials
 from .ik import IKResult
 from .ik import inverse_kinematics as _inverse_kinematics
 from .urdf import RobotSpec, _some, parse_urdf
@@ -763,3 +765,153 @@ class Chain:
             (torch.Size([3, 7]), [True, True, True])
         """
         return _inverse_kinematics(self, targets, link, **options)
+
+    # ------------------------------------------------------------------------------------------
+    # Dynamics (conventions and method in torchlie.kinematics.dynamics)
+    # ------------------------------------------------------------------------------------------
+
+    @property
+    def body_names(self) -> tuple[str, ...]:
+        """The bodies of the dynamics: the links moved by a joint with degrees of freedom, in
+        the order of :attr:`inertials` (links on fixed joints are merged into them).
+
+        Example:
+            >>> from torchlie.kinematics import sample_robot
+            >>> Chain.from_urdf(sample_robot("arm7")).body_names[-1]
+            'link7'
+        """
+        return _dyn._body_names(self)
+
+    @property
+    def inertials(self) -> Inertials:
+        """The bodies' inertial parameters from the URDF's ``<inertial>`` elements, merged
+        through fixed joints, as fresh tensors in the chain's dtype and device:
+        :class:`~torchlie.kinematics.dynamics.Inertials` ``(mass, com, inertia)``.  Change
+        them, or make them require gradients, and pass them back as ``inertials=`` to the
+        dynamics methods.
+
+        Example:
+            >>> from torchlie.kinematics import sample_robot
+            >>> arm = Chain.from_urdf(sample_robot("arm7"), dtype=torch.float64)
+            >>> round(float(arm.inertials.mass[-1]), 3)  # link7 with its flange
+            0.6
+        """
+        return _dyn._inertials(self)
+
+    def inverse_dynamics(
+        self,
+        q: Float[Tensor, "*b n_dof"],
+        qd: Float[Tensor, "*b n_dof"],
+        qdd: Float[Tensor, "*b n_dof"],
+        *,
+        gravity: Tensor | None = None,
+        f_ext: Mapping[str, Tensor] | None = None,
+        inertials: Inertials | None = None,
+    ) -> Float[Tensor, "*b n_dof"]:
+        """Joint torques (forces for prismatic joints) producing the motion ``(q, qd, qdd)``:
+        recursive Newton-Euler, ``tau = M(q) qdd + h(q, qd) - sum J^T f_ext``.
+
+        Args:
+            q, qd, qdd: ``(..., n_dof)`` positions, velocities, accelerations (``qd``, ``qdd``
+                broadcast to ``q``'s batch shape).
+            gravity: ``(3,)`` or ``(..., 3)`` acceleration of free fall in the root frame
+                (default ``(0, 0, -9.81)``).
+            f_ext: dict link name -> ``(..., 6)`` wrench (force; torque) on the link, world
+                coordinates, torque about the link's origin.
+            inertials: other inertial parameters (default :attr:`inertials`).
+
+        Example:
+            >>> from torchlie.kinematics import sample_robot
+            >>> arm = Chain.from_urdf(sample_robot("arm7"))
+            >>> q = torch.zeros(4, 7)
+            >>> arm.inverse_dynamics(q, q, q).shape  # holding still against gravity
+            torch.Size([4, 7])
+        """
+        return _dyn._inverse_dynamics(
+            self, q, qd, qdd, gravity=gravity, f_ext=f_ext, inertials=inertials
+        )
+
+    def mass_matrix(
+        self, q: Float[Tensor, "*b n_dof"], *, inertials: Inertials | None = None
+    ) -> Float[Tensor, "*b n_dof n_dof"]:
+        """Joint-space mass matrix ``M(q)`` ``(..., n_dof, n_dof)`` (composite rigid bodies).
+
+        Example:
+            >>> from torchlie.kinematics import sample_robot
+            >>> arm = Chain.from_urdf(sample_robot("arm7"))
+            >>> M = arm.mass_matrix(torch.zeros(7))
+            >>> M.shape, bool(torch.allclose(M, M.mT))
+            (torch.Size([7, 7]), True)
+        """
+        return _dyn._mass_matrix(self, q, inertials=inertials)
+
+    def forward_dynamics(
+        self,
+        q: Float[Tensor, "*b n_dof"],
+        qd: Float[Tensor, "*b n_dof"],
+        tau: Float[Tensor, "*b n_dof"],
+        *,
+        gravity: Tensor | None = None,
+        f_ext: Mapping[str, Tensor] | None = None,
+        inertials: Inertials | None = None,
+    ) -> Float[Tensor, "*b n_dof"]:
+        """Joint accelerations under the joint forces ``tau``: ``M(q)^-1 (tau - h(q, qd) +
+        sum J^T f_ext)`` by a batched Cholesky solve.  Arguments as for
+        :meth:`inverse_dynamics`.
+
+        Raises:
+            ValueError: a DoF moves no mass and no inertia (``M`` would be singular).
+
+        Example:
+            >>> from torchlie.kinematics import sample_robot
+            >>> arm = Chain.from_urdf(sample_robot("arm7"), dtype=torch.float64)
+            >>> q = arm.random_configuration(3)
+            >>> qd, qdd = torch.randn(2, 3, 7, dtype=torch.float64)
+            >>> tau = arm.inverse_dynamics(q, qd, qdd)
+            >>> bool(torch.allclose(arm.forward_dynamics(q, qd, tau), qdd))
+            True
+        """
+        return _dyn._forward_dynamics(
+            self, q, qd, tau, gravity=gravity, f_ext=f_ext, inertials=inertials
+        )
+
+    def bias_forces(
+        self,
+        q: Float[Tensor, "*b n_dof"],
+        qd: Float[Tensor, "*b n_dof"],
+        *,
+        gravity: Tensor | None = None,
+        inertials: Inertials | None = None,
+    ) -> Float[Tensor, "*b n_dof"]:
+        """Coriolis, centrifugal and gravity forces ``h(q, qd)`` (inverse dynamics at
+        ``qdd = 0``; Pinocchio's ``nonLinearEffects``).
+
+        Example:
+            >>> from torchlie.kinematics import sample_robot
+            >>> arm = Chain.from_urdf(sample_robot("arm7"))
+            >>> arm.bias_forces(torch.zeros(7), torch.ones(7)).shape
+            torch.Size([7])
+        """
+        return _dyn._inverse_dynamics(
+            self, q, qd, None, gravity=gravity, inertials=inertials, _fn="bias_forces"
+        )
+
+    def gravity_torques(
+        self,
+        q: Float[Tensor, "*b n_dof"],
+        *,
+        gravity: Tensor | None = None,
+        inertials: Inertials | None = None,
+    ) -> Float[Tensor, "*b n_dof"]:
+        """Joint forces holding the robot still against gravity, ``g(q)`` (Pinocchio's
+        ``computeGeneralizedGravity``).
+
+        Example:
+            >>> from torchlie.kinematics import sample_robot
+            >>> arm = Chain.from_urdf(sample_robot("arm7"))
+            >>> float(arm.gravity_torques(torch.zeros(7))[0])  # the base yaw axis is vertical
+            0.0
+        """
+        return _dyn._inverse_dynamics(
+            self, q, None, None, gravity=gravity, inertials=inertials, _fn="gravity_torques"
+        )

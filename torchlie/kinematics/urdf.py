@@ -1,8 +1,10 @@
 """URDF parsing into a validated, immutable robot description.
 
-Only the kinematic part of URDF is read: ``<robot>``, ``<link name>`` and ``<joint>`` with its
+Only the kinematic and inertial parts of URDF are read: ``<robot>``, ``<link name>`` with its
+``<inertial>`` (``<origin>``, ``<mass value>``, ``<inertia ixx ixy ixz iyy iyz izz>``; both
+``<mass>`` and ``<inertia>`` required, the mass not negative) and ``<joint>`` with its
 ``<parent>``, ``<child>``, ``<origin>``, ``<axis>``, ``<limit>`` and ``<mimic>`` elements.
-Everything else (visuals, inertia, transmissions, gazebo tags, ...) is ignored.
+Everything else (visuals, collisions, transmissions, gazebo tags, ...) is ignored.
 
 The parser is the standard library's :mod:`xml.etree.ElementTree`: it is always present, so
 kinematics adds no runtime dependency, and URDF's kinematic subset is small enough that the
@@ -45,6 +47,7 @@ from dataclasses import dataclass
 __all__ = [
     "JOINT_TYPES",
     "URDFError",
+    "InertialSpec",
     "JointSpec",
     "MimicSpec",
     "RobotSpec",
@@ -130,11 +133,25 @@ class JointSpec:
 
 
 @dataclass(frozen=True)
+class InertialSpec:
+    """A link's ``<inertial>``: ``mass`` (kg), the centre of mass and the frame of ``inertia``
+    (``xyz``, ``rpy`` of its ``<origin>``, in the link's frame) and the rotational inertia
+    about the centre of mass in that frame, ``(ixx, ixy, ixz, iyy, iyz, izz)`` (kg m^2)."""
+
+    mass: float
+    xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    inertia: tuple[float, float, float, float, float, float] = (0.0,) * 6
+
+
+@dataclass(frozen=True)
 class RobotSpec:
     """A parsed, validated robot: a tree of links joined by joints.
 
     ``links`` and ``joints`` are in document order; ``root`` is the one link that is no joint's
-    child; ``source`` is the file name or ``"<string>"``.
+    child; ``source`` is the file name or ``"<string>"``; ``inertials`` holds each link's
+    :class:`InertialSpec` (``None`` for a link without ``<inertial>``) in ``links`` order, or
+    is empty (no link has one).
     """
 
     name: str
@@ -142,6 +159,7 @@ class RobotSpec:
     joints: tuple[JointSpec, ...]
     root: str
     source: str
+    inertials: tuple[InertialSpec | None, ...] = ()
 
     def joint(self, name: str) -> JointSpec:
         """The joint called ``name`` (``KeyError`` if there is none)."""
@@ -309,6 +327,40 @@ def _read_joint(r: _Reader, el: ET.Element, index: int) -> JointSpec:
     )
 
 
+def _read_inertial(r: _Reader, link: ET.Element, lname: str, index: int) -> InertialSpec | None:
+    where = _describe("link", lname, index, "inertial")
+    subs: dict[str, list[ET.Element]] = {}
+    for c in link:
+        subs.setdefault(_local(c.tag), []).append(c)
+    el = r.single(subs, "inertial", _describe("link", lname, index))
+    if el is None:
+        return None
+    inner: dict[str, list[ET.Element]] = {}
+    for c in el:
+        inner.setdefault(_local(c.tag), []).append(c)
+    xyz = rpy = None
+    origin = r.single(inner, "origin", where)
+    if origin is not None:
+        xyz = r.vec3(origin, "xyz", f"{where} <origin>")
+        rpy = r.vec3(origin, "rpy", f"{where} <origin>")
+    mass_el = r.single(inner, "mass", where)
+    if mass_el is None:
+        raise r.fail(where, "missing required element <mass>")
+    w = f"{where} <mass>"
+    mass = r.number(r.attr(mass_el, "value", w), "value", w)
+    if mass < 0.0:
+        raise r.fail(w, f"the mass is negative: {mass!r}")
+    inertia_el = r.single(inner, "inertia", where)
+    if inertia_el is None:
+        raise r.fail(where, "missing required element <inertia>")
+    w = f"{where} <inertia>"
+    keys = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+    ixx, ixy, ixz, iyy, iyz, izz = (r.number(r.attr(inertia_el, k, w), k, w) for k in keys)
+    return InertialSpec(
+        mass, xyz or (0.0, 0.0, 0.0), rpy or (0.0, 0.0, 0.0), (ixx, ixy, ixz, iyy, iyz, izz)
+    )
+
+
 def _check_tree(r: _Reader, links: list[str], joints: list[JointSpec]) -> str:
     """Check the links and joints form one tree; return its root link."""
     link_set = set(links)
@@ -406,12 +458,12 @@ def _parse_root(r: _Reader, root: ET.Element) -> RobotSpec:
         raise r.fail(f"<{_local(root.tag)}>", "the root element must be <robot>")
     name = r.attr(root, "name", "<robot>")
 
-    links: dict[str, None] = {}  # an ordered set: document order, constant-time lookups
+    links: dict[str, InertialSpec | None] = {}  # ordered: document order, constant-time lookups
     for i, el in enumerate(r.children(root, "link")):
         lname = r.attr(el, "name", _describe("link", None, i))
         if lname in links:
             raise r.fail(_describe("link", lname, i), "duplicate link name")
-        links[lname] = None
+        links[lname] = _read_inertial(r, el, lname, i)
     if not links:
         raise r.fail("<robot>", "no <link> elements")
 
@@ -426,7 +478,8 @@ def _parse_root(r: _Reader, root: ET.Element) -> RobotSpec:
 
     root_link = _check_tree(r, list(links), joints)
     _check_mimics(r, joints)
-    return RobotSpec(name, tuple(links), tuple(joints), root_link, r.source)
+    inertials = tuple(links.values()) if any(v is not None for v in links.values()) else ()
+    return RobotSpec(name, tuple(links), tuple(joints), root_link, r.source, inertials)
 
 
 def _looks_like_xml(text: str) -> bool:

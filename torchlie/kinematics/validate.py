@@ -57,6 +57,15 @@ Jacobian of every end link (a link without children) computed by :class:`Chain` 
     pytorch-kinematics.  A planar joint whose axis is not +z in its frame cannot be modelled
     by Pinocchio's (xy-plane) planar joint: the links below it are not compared with it.
 
+With Pinocchio installed and a robot with ``<inertial>`` elements, the dynamics are compared
+too, in float64 (or float32) on the same configurations with random velocities and
+accelerations: :meth:`Chain.inverse_dynamics <torchlie.kinematics.Chain.inverse_dynamics>`,
+``mass_matrix``, ``bias_forces``, ``gravity_torques`` and ``forward_dynamics`` against its
+``rnea``, ``crba``, ``nonLinearEffects``, ``computeGeneralizedGravity`` and ``aba`` (forward
+dynamics against the accelerations that produced the torques where mimic joints make
+Pinocchio's coordinates differ), largest error relative to ``1 + |reference|``, at
+:data:`TOL_DYNAMICS`.
+
 It prints a table (per link: largest position error in m and rotation error in rad, per end
 link: largest Jacobian error per comparison) and timings of torchlie and pytorch-kinematics
 (Pinocchio computes one configuration per call: it is compared, not timed), shows a progress
@@ -122,6 +131,20 @@ class TextStream(Protocol):
 
 TOL_REFERENCE = {torch.float64: 1e-12, torch.float32: 1e-5}
 
+#: Tolerances of the dynamics against Pinocchio, relative to ``1 + |reference|``.
+TOL_DYNAMICS = {
+    torch.float64: {"tau": 1e-9, "M": 1e-10, "bias": 1e-9, "gravity": 1e-9, "qdd": 1e-8},
+    # float32 forward dynamics inherit the condition number of M (the tree's 40 g fingers)
+    torch.float32: {"tau": 1e-4, "M": 1e-4, "bias": 1e-4, "gravity": 1e-4, "qdd": 5e-2},
+}
+_DYN_NAMES = {
+    "tau": "inverse dynamics",
+    "M": "mass matrix",
+    "bias": "bias forces",
+    "gravity": "gravity torques",
+    "qdd": "forward dynamics",
+}
+
 #: :attr:`ValidationReport.status` values.
 PASS, FAIL, NOTHING_TO_COMPARE = "pass", "fail", "nothing to compare"
 
@@ -181,6 +204,8 @@ class ValidationReport:
     pin_deviations: list[str] = field(default_factory=list)
     ok: bool = True
     status: str = PASS
+    #: Largest relative errors of the dynamics against Pinocchio (None: not compared).
+    dynamics: dict[str, float] | None = None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -448,6 +473,10 @@ def validate(
             ok = ok and all(e <= tol_ref * scale for e in js[2].values())
         report.jacobians.append(JacobianResult(n, js[0], js[1], ok, js[2]))
     report.ok = all(r.ok for r in report.links) and all(r.ok for r in report.jacobians)
+    if pinc is not None and spec.inertials and not pinc.skipped:
+        report.dynamics = _pin_dynamics(pinc, chain, q, seed)
+        tol = TOL_DYNAMICS[dtype]
+        report.ok = report.ok and all(v <= tol[k] for k, v in report.dynamics.items())
     report.status = PASS if report.ok else FAIL
 
     # Timings on one batch: FK of all links (dict) and the first end link's Jacobian.
@@ -480,6 +509,30 @@ def _pin_compare(
         for n in leaves:
             err = float((Jt[n].to(torch.float64) - J[(n, kind)]).abs().max())
             jstats[n][2][kind] = _worse(jstats[n][2][kind], err)
+
+
+def _pin_dynamics(pinc: _Pin, chain: Chain, q: Tensor, seed: int) -> dict[str, float]:
+    """Largest errors of the dynamics against Pinocchio, relative to ``1 + |reference|``."""
+    gen = torch.Generator().manual_seed(seed + 1)
+    q64 = q.to(torch.float64)
+    qd64 = torch.randn(q.shape, generator=gen, dtype=torch.float64)
+    qdd64 = torch.randn(q.shape, generator=gen, dtype=torch.float64)
+    ref = pinc.dynamics(q64, qd64, qdd64, derivatives=False)
+    qd, qdd = qd64.to(chain.dtype), qdd64.to(chain.dtype)
+    tau_ref = ref["tau"].to(chain.dtype)
+
+    def rel(x: Tensor, r: Tensor) -> float:
+        e = float(((x.to(torch.float64) - r) / (1.0 + r.abs())).abs().max())
+        return math.nan if math.isnan(e) or math.isinf(e) else e
+
+    square = pinc.model.nv == chain.n_dof
+    return {
+        "tau": rel(chain.inverse_dynamics(q, qd, qdd), ref["tau"]),
+        "M": rel(chain.mass_matrix(q), ref["M"]),
+        "bias": rel(chain.bias_forces(q, qd), ref["bias"]),
+        "gravity": rel(chain.gravity_torques(q), ref["gravity"]),
+        "qdd": rel(chain.forward_dynamics(q, qd, tau_ref), ref["aba"] if square else qdd64),
+    }
 
 
 def _time_all(
@@ -604,6 +657,15 @@ def _print_report(
             if not math.isnan(pk_t["jacobian"]):
                 w(f", Jacobian {pk_t['jacobian'] / tl_t['jacobian']:.1f}x")
             w("\n")
+    if report.dynamics is not None:
+        tol = TOL_DYNAMICS[report.dtype]
+        w(
+            f"\ndynamics against Pinocchio ({report.samples} states, random velocities and "
+            "accelerations; largest error relative to 1 + |reference|):\n"
+        )
+        for k, v in report.dynamics.items():
+            flag = "ok" if v <= tol[k] else "MISMATCH"
+            w(f"  {_DYN_NAMES[k]:<20}{_fmt(v):>10}   (tolerance {tol[k]:g})  {flag}\n")
     worst_ref = max([r.ref_position for r in report.links] + [0.0])
     if report.ok:
         w(
@@ -613,6 +675,9 @@ def _print_report(
     else:
         bad = [r.link for r in report.links if not r.ok]
         bad += [f"Jacobian of {r.link}" for r in report.jacobians if not r.ok]
+        if report.dynamics is not None:
+            tol = TOL_DYNAMICS[report.dtype]
+            bad += [_DYN_NAMES[k] for k, v in report.dynamics.items() if not v <= tol[k]]
         w(f"\nFAIL: outside tolerance: {', '.join(bad)}\n")
 
 
@@ -642,7 +707,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="torchlie-validate",
         description="Compare torchlie's forward kinematics and Jacobians of a URDF robot with "
-        "pytorch-kinematics, Pinocchio and an exact float64 reference.",
+        "pytorch-kinematics, Pinocchio and an exact float64 reference, and its dynamics with "
+        "Pinocchio.",
     )
     parser.add_argument(
         "robot",

@@ -1,0 +1,277 @@
+"""The dynamics' plan of a chain, built once from the parsed URDF: its bodies (links moved by
+a joint with degrees of freedom, with the inertials of the links fixed to them merged in), its
+joint columns and the constant 0/1 matrices that turn the Newton-Euler recursions into sums
+over the tree (see :mod:`torchlie.kinematics.dynamics`).
+
+Apart from :mod:`torchlie.kinematics.dynamics` because it runs once per chain, on the parsed
+Python numbers (nothing here sees a batch), like :mod:`torchlie.kinematics._joints` for the
+kinematics.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from ._joints import _Link
+from .urdf import RobotSpec
+
+#: Gravity in the root frame when none is given, m/s^2.
+DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
+
+
+# ----------------------------------------------------------------------------------------------
+# The plan: bodies, joint columns and the ancestor matrices, built once per chain
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _DynPlan:
+    bodies: tuple[int, ...]  # internal link index of each body
+    body_of: dict[int, int]  # link -> its body (-1: fixed to the root)
+    targets: tuple[int, ...]  # links whose poses a pass needs: bodies, then column parents
+    n_rot: int  # columns: n_rot constant rotations, then 3 per floating joint, then translations
+    col_v: Tensor  # (n_const, 1, 3) directions of the constant columns in their parent frames
+    col_parent: Tensor  # (n_const,) position in targets of each constant column's parent link
+    col_body: Tensor  # (K,) body moved by each column
+    col_frame: Tensor  # (K,) body whose velocity carries the column (n_bodies: the world)
+    col_dof: Tensor  # (K,) the DoF of each column
+    col_w: Tensor  # (K, 1) its weight (mimic multipliers)
+    floats: list[tuple[int, int, int, Tensor]]  # parent pos in targets, body, rotvec DoF, O_R
+    A: Tensor  # (n_bodies, K): 1 where the column's body is an ancestor-or-self of the body
+    At: Tensor  # A transposed, contiguous
+    Af: Tensor  # (K, K): 1 where column l's body is an ancestor-or-self of column k's frame
+    float_cols: Tensor  # (n_float,) the first rotation column of each floating joint
+    sub: Tensor  # (n_bodies, n_bodies): 1 where the second is in the first's subtree
+    m_gather: Tensor  # (K * K,) where each entry of the mass matrix is read (see _crba)
+    W: Tensor  # (n_dof, K) folding of columns onto DoFs
+    W_is_identity: bool  # column k is DoF k with weight 1 (no mimic joint, DoF order)
+    inertials64: tuple[Tensor, Tensor, Tensor]  # merged (mass, com, inertia), float64 CPU
+    inertials: tuple[Tensor, Tensor, Tensor]  # the same in the chain's dtype and device
+    gravity: Tensor  # (3, 1) DEFAULT_GRAVITY in the chain's dtype and device
+    massless: list[str]  # DoFs whose moving subtree has neither mass nor inertia
+
+
+# The merge of the inertials is written on Python floats: the plan is then the same whether
+# it is built eagerly or while torch.compile traces a first call.
+_M3 = list[list[float]]
+
+
+def _rpy3(r: float, p: float, y: float) -> _M3:
+    """``Rz(y) Ry(p) Rx(r)`` (see :func:`~torchlie.kinematics.chain.rpy_matrix`)."""
+    cr, sr, cp, sp = math.cos(r), math.sin(r), math.cos(p), math.sin(p)
+    cy, sy = math.cos(y), math.sin(y)
+    return [
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ]
+
+
+def _mul3(A: _M3, B: _M3) -> _M3:
+    return [[sum(A[i][k] * B[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
+
+
+def _mv3(A: _M3, v: list[float]) -> list[float]:
+    return [sum(A[i][k] * v[k] for k in range(3)) for i in range(3)]
+
+
+def _compose(T1: tuple[_M3, list[float]], T2: tuple[_M3, list[float]]):
+    """``T1 T2`` for poses ``(R, t)``."""
+    R1, t1 = T1
+    R2, t2 = T2
+    return _mul3(R1, R2), [a + b for a, b in zip(_mv3(R1, t2), t1, strict=True)]
+
+
+def _merge(parts: list[tuple[float, list[float], _M3]]) -> tuple[float, list[float], _M3]:
+    """One rigid body from several ``(mass, centre of mass, inertia about it)`` in one frame
+    (parallel-axis theorem)."""
+    m = sum(p[0] for p in parts)
+    c = [sum(p[0] * p[1][i] for p in parts) / m for i in range(3)] if m > 0 else [0.0] * 3
+    inertia = [[0.0] * 3 for _ in range(3)]
+    for mi, ci, Ii in parts:
+        d = [ci[k] - c[k] for k in range(3)]
+        d2 = sum(x * x for x in d)
+        for i in range(3):
+            for j in range(3):
+                inertia[i][j] += Ii[i][j] + mi * ((d2 if i == j else 0.0) - d[i] * d[j])
+    return m, c, inertia
+
+
+def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) -> _DynPlan:
+    n_dof = len(joint_names)
+    moving = [lk.index for lk in links[1:] if lk.cols or lk.float_rot is not None]
+    body_ix = {i: b for b, i in enumerate(moving)}
+    nb = len(moving)
+    # Each link's body and its pose in the body's frame (fixed joints only in between).
+    eye3 = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    body_of: dict[int, int] = {0: -1}
+    pose_in_body: dict[int, tuple[_M3, list[float]]] = {0: (eye3, [0.0] * 3)}
+    for lk in links[1:]:
+        if lk.index in body_ix:
+            body_of[lk.index] = body_ix[lk.index]
+            pose_in_body[lk.index] = (eye3, [0.0] * 3)
+        else:
+            assert lk.joint is not None
+            body_of[lk.index] = body_of[lk.parent]
+            origin = (_rpy3(*lk.joint.rpy), list(lk.joint.xyz))
+            pose_in_body[lk.index] = _compose(pose_in_body[lk.parent], origin)
+    # Merged inertials in the body frames.
+    spec_in = dict(zip(spec.links, spec.inertials, strict=True)) if spec.inertials else {}
+    per_body: list[list[tuple[float, list[float], _M3]]] = [[] for _ in range(nb)]
+    for lk in links:
+        b = body_of[lk.index]
+        ins = spec_in.get(lk.name)
+        if b < 0 or ins is None:
+            continue
+        R, c = _compose(pose_in_body[lk.index], (_rpy3(*ins.rpy), list(ins.xyz)))
+        ixx, ixy, ixz, iyy, iyz, izz = ins.inertia
+        I_f = [[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]]
+        Rt = [list(r) for r in zip(*R, strict=True)]
+        per_body[b].append((ins.mass, c, _mul3(_mul3(R, I_f), Rt)))
+    merged = [_merge(p) for p in per_body]
+    mass = torch.tensor([m for m, _, _ in merged], dtype=torch.float64)
+    com = torch.tensor([c for _, c, _ in merged], dtype=torch.float64).reshape(nb, 3)
+    inertia = torch.tensor([i for _, _, i in merged], dtype=torch.float64).reshape(nb, 3, 3)
+
+    parent_body = [body_of[links[i].parent] for i in moving]
+    anc_sets: list[set[int]] = []
+    for b in range(nb):
+        s = {b}
+        p = parent_body[b]
+        while p >= 0:
+            s.add(p)
+            p = parent_body[p]
+        anc_sets.append(s)
+
+    # Columns: constant rotations, floating rotations, translations.
+    rot: list[tuple[int, tuple[float, ...], int, int, float]] = []  # parent, v, body, d, w
+    tr: list[tuple[int, tuple[float, ...], int, int, float]] = []
+    floats_raw: list[tuple[int, int, int, Tensor]] = []
+    for i in moving:
+        lk = links[i]
+        b = body_ix[i]
+        for kind, v, d, w in lk.cols:
+            (rot if kind == "rot" else tr).append((lk.parent, v, b, d, w))
+        if lk.float_rot is not None:
+            d0, O_R = lk.float_rot
+            floats_raw.append((lk.parent, b, d0, torch.tensor(O_R, dtype=torch.float64)))
+    const = rot + tr
+    parents = sorted({p for p, *_ in const} | {p for p, *_ in floats_raw})
+    targets = tuple(moving) + tuple(p for p in parents if p not in body_ix)
+    pos = {t: k for k, t in enumerate(targets)}
+    col_body = [b for _, _, b, _, _ in rot]
+    col_body += [b for _, b, _, _ in floats_raw for _ in range(3)]
+    col_body += [b for _, _, b, _, _ in tr]
+    col_frame = [b for _, _, b, _, _ in rot] + [b for _, b, _, _ in floats_raw for _ in range(3)]
+    col_frame += [body_of[p] if body_of[p] >= 0 else nb for p, *_ in tr]
+    col_dof = [d for *_, d, _ in rot] + [d0 + k for _, _, d0, _ in floats_raw for k in range(3)]
+    col_dof += [d for *_, d, _ in tr]
+    col_w = [w for *_, w in rot] + [1.0] * (3 * len(floats_raw)) + [w for *_, w in tr]
+    K = len(col_body)
+    A = torch.zeros(nb, K, dtype=torch.float64)
+    for b in range(nb):
+        for k in range(K):
+            if col_body[k] in anc_sets[b]:
+                A[b, k] = 1.0
+    sub = torch.tensor(
+        [[1.0 if b in anc_sets[c] else 0.0 for c in range(nb)] for b in range(nb)],
+        dtype=torch.float64,
+    ).reshape(nb, nb)
+
+    def anc(k: int, j: int) -> bool:  # column k's body is an ancestor-or-self of column j's
+        return col_body[k] in anc_sets[col_body[j]]
+
+    W = torch.zeros(n_dof, K, dtype=torch.float64)
+    for k in range(K):
+        W[col_dof[k], k] += col_w[k]
+    Af = torch.tensor(
+        [
+            [float(col_frame[k] < nb and col_body[j] in anc_sets[col_frame[k]]) for j in range(K)]
+            for k in range(K)
+        ],
+        dtype=torch.float64,
+    ).reshape(K, K)
+
+    # DoFs whose subtree carries neither mass nor inertia (M has a zero row there).
+    empty = [
+        all(merged[c][0] == 0.0 and not any(any(r) for r in merged[c][2]) for c in sub_b)
+        for sub_b in ([c for c in range(nb) if b in anc_sets[c]] for b in range(nb))
+    ]
+    massless = sorted(
+        {joint_names[col_dof[k]] for k in range(K) if empty[col_body[k]]},
+        key=joint_names.index,
+    )
+    return _DynPlan(
+        bodies=tuple(moving),
+        body_of=body_of,
+        targets=targets,
+        n_rot=len(rot),
+        col_v=torch.tensor([list(v) for _, v, *_ in const], dtype=torch.float64).reshape(-1, 1, 3),
+        col_parent=torch.tensor([pos[p] for p, *_ in const], dtype=torch.long),
+        col_body=torch.tensor(col_body, dtype=torch.long),
+        col_frame=torch.tensor(col_frame, dtype=torch.long),
+        col_dof=torch.tensor(col_dof, dtype=torch.long),
+        col_w=torch.tensor(col_w, dtype=torch.float64).reshape(K, 1),
+        floats=[(pos[p], b, d0, O_R) for p, b, d0, O_R in floats_raw],
+        A=A,
+        At=A.T.contiguous(),
+        Af=Af,
+        float_cols=torch.tensor(
+            [len(rot) + 3 * k for k in range(len(floats_raw))], dtype=torch.long
+        ),
+        sub=sub,
+        m_gather=torch.tensor(
+            [
+                k * K + j if anc(k, j) else (j * K + k if anc(j, k) else K * K)
+                for k in range(K)
+                for j in range(K)
+            ],
+            dtype=torch.long,
+        ),
+        W=W,
+        W_is_identity=col_dof == list(range(n_dof)) and all(w == 1.0 for w in col_w),
+        inertials64=(mass, com, inertia),
+        inertials=(mass, com, inertia),
+        gravity=torch.tensor(DEFAULT_GRAVITY, dtype=torch.float64).unsqueeze(-1),
+        massless=massless,
+    )
+
+
+def _convert(plan: _DynPlan, dtype: torch.dtype, device: torch.device) -> _DynPlan:
+    """The plan's float tensors in ``dtype`` on ``device`` (index tensors moved only)."""
+
+    def f(x: Tensor) -> Tensor:
+        return x.to(dtype=dtype, device=device)
+
+    def i(x: Tensor) -> Tensor:
+        return x.to(device=device)
+
+    return _DynPlan(
+        bodies=plan.bodies,
+        body_of=plan.body_of,
+        targets=plan.targets,
+        n_rot=plan.n_rot,
+        col_v=f(plan.col_v),
+        col_parent=i(plan.col_parent),
+        col_body=i(plan.col_body),
+        col_frame=i(plan.col_frame),
+        col_dof=i(plan.col_dof),
+        col_w=f(plan.col_w),
+        floats=[(p, b, d0, f(O)) for p, b, d0, O in plan.floats],
+        A=f(plan.A),
+        At=f(plan.At),
+        Af=f(plan.Af),
+        float_cols=i(plan.float_cols),
+        sub=f(plan.sub),
+        m_gather=i(plan.m_gather),
+        W=f(plan.W),
+        W_is_identity=plan.W_is_identity,
+        inertials64=plan.inertials64,
+        inertials=(f(plan.inertials[0]), f(plan.inertials[1]), f(plan.inertials[2])),
+        gravity=f(plan.gravity),
+        massless=plan.massless,
+    )

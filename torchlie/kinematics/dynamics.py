@@ -1,0 +1,547 @@
+"""Rigid-body dynamics of a :class:`~torchlie.kinematics.Chain`: inverse dynamics (recursive
+Newton-Euler), the joint-space mass matrix (composite rigid bodies), forward dynamics, bias
+forces and gravity torques, batched and differentiable, also with respect to the inertials.
+
+Conventions (see also ``docs/dynamics.md``):
+
+* Coordinates: ``q``, ``qd = dq/dt``, ``qdd`` and ``tau`` are ``(..., n_dof)`` in
+  :attr:`Chain.joint_names` order, exactly the coordinates of the kinematics (for a floating
+  joint: its translation and the time derivatives of its rotation vector; for a planar joint
+  ``(x, y, theta)``).  The equations of motion are ``M(q) qdd + h(q, qd) = tau + sum_links
+  J_link(q)^T f_link``, ``tau`` the generalised forces (torques of revolute joints, forces of
+  prismatic ones) that do virtual work ``tau . dq``.  A mimic joint has no coordinate: its
+  motion is ``m qd[J]`` and its torque is added, times ``m``, to the torque of the joint it
+  follows (the reduced equations of the mimic constraint).
+* Bodies: every link moved by a joint with degrees of freedom (a mimic joint included) is a
+  body; links attached through fixed joints merge their inertials into their nearest moving
+  ancestor (links fixed to the root do not move and are ignored).  :attr:`Chain.inertials`
+  holds, per body (:attr:`Chain.body_names`), its mass, centre of mass and rotational inertia
+  about the centre of mass, both in the body's (link) frame.
+* Gravity ``(3,)`` or ``(..., 3)`` is the acceleration of free fall in the root (world) frame,
+  default ``(0, 0, -9.81)``.  External wrenches ``f_ext`` map a link name to a ``(..., 6)``
+  wrench ``(force; torque)`` acting on that link, in world coordinates, the torque taken about
+  the link's origin (the dual of :meth:`Chain.jacobian`'s default ``frame="world"``: the
+  wrench contributes ``J^T f`` to the equations).
+
+Method: spatial vectors are 6-vectors (linear; angular) in world coordinates at the world
+origin (Plücker coordinates).  In that frame every recursion of the Newton-Euler algorithm is
+a sum along the tree: body velocities and accelerations are sums of their joints' motions over
+the ancestors, and joint forces sums of body forces over the subtree, so each is one product
+with a constant 0/1 ancestor matrix, batch innermost, instead of a loop over links.  The mass
+matrix follows from composite inertias (one product with the subtree matrix) and the joint
+axes; forward dynamics solves ``M qdd = tau - h`` by a batched Cholesky factorisation (the
+articulated-body algorithm would be a Python loop over the tree's depth; for the tens of
+degrees of freedom of a robot the Cholesky solve is as exact and costs fewer torch calls).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import torch
+from torch import Tensor
+
+from .. import _checks, _coeffs
+from .. import so3 as _so3
+from .._autograd import fma
+from .._typing import Float
+from ._dyn_plan import DEFAULT_GRAVITY, _build, _convert, _DynPlan
+from .urdf import _some
+
+__all__ = ["Inertials", "DEFAULT_GRAVITY"]
+
+_NAME = "torchlie.kinematics.Chain."
+
+
+class Inertials(NamedTuple):
+    """Inertial parameters of a chain's bodies (:attr:`Chain.body_names` order).
+
+    Attributes:
+        mass: ``(..., n_bodies)`` kg.
+        com: ``(..., n_bodies, 3)`` centre of mass in the body's frame, m.
+        inertia: ``(..., n_bodies, 3, 3)`` rotational inertia about the centre of mass, axes of
+            the body's frame, kg m^2.
+
+    Leading batch dimensions are allowed (they broadcast with ``q``'s); the tensors may require
+    gradients (system identification).
+
+    Example:
+        >>> from torchlie.kinematics import Chain, sample_robot
+        >>> arm = Chain.from_urdf(sample_robot("arm7"))
+        >>> arm.inertials.mass.shape, arm.body_names[:2]
+        (torch.Size([7]), ('link1', 'link2'))
+    """
+
+    mass: Tensor
+    com: Tensor
+    inertia: Tensor
+
+
+def _plan(chain) -> _DynPlan:
+    plan = chain.__dict__.get("_dyn_plan")
+    if plan is None:
+        plan = _convert(
+            _build(chain.spec, chain._links, chain.joint_names), chain.dtype, chain.device
+        )
+        if not torch.compiler.is_compiling():
+            chain.__dict__["_dyn_plan"] = plan
+    return plan
+
+
+def _body_names(chain) -> tuple[str, ...]:
+    """The chain's bodies (links moved by a joint with degrees of freedom), internal order."""
+    return tuple(chain._links[i].name for i in _plan(chain).bodies)
+
+
+def _inertials(chain) -> Inertials:
+    """The chain's merged inertials in its dtype and on its device (fresh tensors)."""
+    m, c, inertia = _plan(chain).inertials64
+    dt, dev = chain.dtype, chain.device
+    return Inertials(*(x.to(device=dev, dtype=dt, copy=True) for x in (m, c, inertia)))
+
+
+# ----------------------------------------------------------------------------------------------
+# The computation, batch innermost: spatial 6-vectors are (n, 6, B), 3-vectors (n, 3, B)
+# ----------------------------------------------------------------------------------------------
+
+
+def _cross(a: Tensor, b: Tensor) -> Tensor:
+    """Cross product along dim -2 (component by component: several times faster than
+    ``torch.linalg.cross`` on these layouts)."""
+    a0, a1, a2 = a.unbind(-2)
+    b0, b1, b2 = b.unbind(-2)
+    return torch.stack(
+        (fma(a1 * b2, a2, b1, -1.0), fma(a2 * b0, a0, b2, -1.0), fma(a0 * b1, a1, b0, -1.0)),
+        dim=-2,
+    )
+
+
+def _columns_times(cols: Tensor, x: Tensor) -> Tensor:
+    """``sum_k cols[..., k, :, :] * x[..., k, :]``: a 3x3 matrix given by its columns
+    ``(..., k, 3, B)`` times ``x (..., 3, B)``, as three multiply-adds."""
+    c0, c1, c2 = cols.unbind(-3)
+    x0, x1, x2 = x.unsqueeze(-2).unbind(-3)
+    return fma(fma(c0 * x0, c1, x1), c2, x2)
+
+
+def _rot(RT: Tensor, x: Tensor) -> Tensor:
+    """``R x`` for internal transposed rotations ``RT (..., c, r, B)`` and ``x (..., 3, B)``."""
+    return _columns_times(RT, x)
+
+
+def _rot_t(RT: Tensor, x: Tensor) -> Tensor:
+    """``R^T x``."""
+    return _columns_times(RT.transpose(-3, -2), x)
+
+
+def _mat(M: Tensor, x: Tensor) -> Tensor:
+    """``M x`` for ``M (..., 3, 3, B|1)`` (rows, columns) and ``x (..., 3, B)``."""
+    return _columns_times(M.transpose(-3, -2), x)
+
+
+@dataclass
+class _Geometry:
+    Sl: Tensor  # (K, 3, B) joint columns, linear part (world Plücker coordinates)
+    Sa: Tensor  # (K, 3, B) angular part
+    p: Tensor  # (nb, 3, B) body origins
+    RT: Tensor  # (nb, 3, 3, B) body rotations, transposed: RT[c, r] = R[r, c]
+    poses: Tensor  # (n_targets, 4, 4, B) internal poses (T^T) of the targets
+    floats: list[tuple[Tensor, Tensor, Tensor]]  # per floating joint: R_parent O_R, r, p
+
+
+def _geometry(chain, plan: _DynPlan, q2: Tensor, extra: tuple[int, ...]) -> _Geometry:
+    """Poses and joint columns for ``q2 (B, n_dof)``; ``extra``: more links whose poses are
+    wanted (after the plan's targets in ``poses``)."""
+    B = q2.shape[0]
+    targets = plan.targets + extra
+    fk = chain._plan(targets)
+    out = chain._run(fk, q2)
+    P = torch.stack([chain._pose(fk, out, i, B, q2) for i in targets])  # (n, c, r, B)
+    nb = len(plan.bodies)
+    p = P[:nb, 3, :3]  # (nb, 3, B)
+    RT = P[:nb, :3, :3]  # (nb, c, r, B)
+    parts_u: list[Tensor] = []
+    parts_p: list[Tensor] = []
+    n_const = plan.col_v.shape[0]
+    U = None
+    if n_const:
+        Rp = P[:, :3, :3].index_select(0, plan.col_parent)  # (n, c, r, B)
+        U = torch.matmul(plan.col_v, Rp.reshape(n_const, 3, 3 * B)).view(n_const, 3, B)
+        parts_u.append(U[: plan.n_rot])
+        parts_p.append(p.index_select(0, plan.col_body[: plan.n_rot]))
+    floats = []
+    for ppos, b, d0, O_R in plan.floats:
+        Rp = P[ppos, :3, :3]  # (c, r, B)
+        RO = torch.einsum("crb,ck->rkb", Rp, O_R)  # R_parent O_R, (3, 3, B)
+        r = q2[:, d0 : d0 + 3]
+        Jl = _so3.jac_left(r).permute(1, 2, 0)  # (3, 3, B)
+        parts_u.append(torch.einsum("rkb,kjb->jrb", RO, Jl))  # column j: RO Jl e_j
+        parts_p.append(p[b].unsqueeze(0).expand(3, 3, B))
+        floats.append((RO, r, p[b]))
+    Ur = torch.cat(parts_u) if parts_u else q2.new_zeros(0, 3, B)
+    Pr = torch.cat(parts_p) if parts_p else q2.new_zeros(0, 3, B)
+    Ut = U[plan.n_rot :] if U is not None else q2.new_zeros(0, 3, B)
+    Sl = torch.cat((_cross(Pr, Ur), Ut))
+    Sa = torch.cat((Ur, torch.zeros_like(Ut)))
+    return _Geometry(Sl, Sa, p, RT, P, floats)
+
+
+def _batch_last(x: Tensor, batch: tuple[int, ...], trailing: int) -> Tensor:
+    """``x (*b, *t)`` (``b`` broadcasting to ``batch``, ``trailing`` dims ``t``) as
+    ``(*t, B)`` or ``(*t, 1)`` when ``x`` has no batch dimensions."""
+    if x.dim() == trailing:
+        return x.unsqueeze(-1)
+    t = tuple(x.shape[x.dim() - trailing :])
+    x = x.broadcast_to(batch + t).reshape((math.prod(batch),) + t)
+    return x.permute(*range(1, trailing + 1), 0)
+
+
+def _body_inertia(geo: _Geometry, ins: Inertials, batch: tuple[int, ...]):
+    """Per body: mass ``(nb, 1, B|1)``, world centre of mass ``(nb, 3, B)`` and the rotational
+    inertia about it in the body frame ``(nb, 3, 3, B|1)``."""
+    m = _batch_last(ins.mass, batch, 1).unsqueeze(1)
+    c = _batch_last(ins.com, batch, 2)
+    Ic = _batch_last(ins.inertia, batch, 3)
+    return m, geo.p + _rot(geo.RT, c), Ic
+
+
+def _inertia_apply(
+    m: Tensor, cw: Tensor, Ic: Tensor, RT: Tensor, sl: Tensor, sa: Tensor
+) -> tuple[Tensor, Tensor]:
+    """Spatial momentum (about the world origin) of bodies moving with ``(sl, sa)``:
+    ``m (sl + sa x c)`` and ``c x that + R Ic R^T sa``."""
+    fl = m * (sl + _cross(sa, cw))
+    return fl, _cross(cw, fl) + _rot(RT, _mat(Ic, _rot_t(RT, sa)))
+
+
+def _gather_cols(x: Tensor, plan: _DynPlan) -> Tensor:
+    """Per column, ``x[:, col_dof] * col_w``, as ``(K, 1, B)`` from ``x (B, n_dof)``."""
+    return (x.mT.index_select(0, plan.col_dof) * plan.col_w).unsqueeze(1)
+
+
+def _float_bias(geo: _Geometry, qd2: Tensor, plan: _DynPlan) -> tuple[Tensor, Tensor] | None:
+    """The acceleration terms ``(p x u; u)``, ``u = R_parent O_R (dJl/dt) rd``, of the floating
+    joints' rotation columns (their axes turn with the rotation vector), ``(n_float, 3, B)``
+    each."""
+    if not plan.floats:
+        return None
+    lin, ang = [], []
+    for (RO, r, p), (_, _, d0, _) in zip(geo.floats, plan.floats, strict=True):
+        rd = qd2[:, d0 : d0 + 3]
+        t2 = (r * r).sum(-1, keepdim=True)
+        rdot = (r * rd).sum(-1, keepdim=True)
+        b = _coeffs.sinc3(t2)
+        a_dot = (2.0 * _coeffs.cosc4(t2) - b) * rdot  # d/dt of cosc(|r|^2)
+        b_dot = -2.0 * _coeffs.q3(t2) * rdot  # d/dt of sinc3(|r|^2)
+        rxrd = torch.linalg.cross(r, rd, dim=-1)
+        u = (
+            a_dot * rxrd
+            + b_dot * torch.linalg.cross(r, rxrd, dim=-1)
+            + b * torch.linalg.cross(rd, rxrd, dim=-1)
+        )
+        uw = (RO * u.mT.unsqueeze(0)).sum(1)  # (3, B)
+        lin.append(_cross(p, uw))
+        ang.append(uw)
+    return torch.stack(lin), torch.stack(ang)
+
+
+def _mm(M: Tensor, x: Tensor) -> Tensor:
+    """``M (r, n)`` times ``x (n, 3, B)`` over the first dimension: ``(r, 3, B)``."""
+    return torch.mm(M, x.reshape(x.shape[0], -1)).view(M.shape[0], *x.shape[1:])
+
+
+def _rnea(
+    plan: _DynPlan,
+    geo: _Geometry,
+    ins: Inertials,
+    batch: tuple[int, ...],
+    qd2: Tensor | None,
+    qdd2: Tensor | None,
+    g: Tensor,
+    fext: tuple[Tensor, Tensor] | None,
+) -> Tensor:
+    """Generalised forces ``(n_dof, B)``; ``qd2``/``qdd2`` ``(B, n_dof)`` or None for zero,
+    ``g (3, B|1)`` gravity, ``fext`` world-origin wrenches per body ``(nb, 3, B)`` x 2."""
+    Sl, Sa = geo.Sl, geo.Sa
+    B = Sl.shape[-1]
+    nb = len(plan.bodies)
+    m, cw, Ic = _body_inertia(geo, ins, batch)
+    acl = aca = None
+    if qd2 is not None:
+        qdc = _gather_cols(qd2, plan)
+        Vl, Va = Sl * qdc, Sa * qdc
+        vl, va = _mm(plan.A, Vl), _mm(plan.A, Va)
+        # Each column's axis moves with its frame body: its rate of change is that body's
+        # velocity cross the column.
+        fl_, fa_ = _mm(plan.Af, Vl), _mm(plan.Af, Va)
+        acl = _cross(fa_, Vl) + _cross(fl_, Va)
+        aca = _cross(fa_, Va)
+        fb = _float_bias(geo, qd2, plan)
+        if fb is not None:
+            acl = acl.index_add(0, plan.float_cols, fb[0])
+            aca = aca.index_add(0, plan.float_cols, fb[1])
+    if qdd2 is not None:
+        qddc = _gather_cols(qdd2, plan)
+        acl = Sl * qddc if acl is None else fma(acl, Sl, qddc)
+        aca = Sa * qddc if aca is None else fma(aca, Sa, qddc)
+    if acl is not None and aca is not None:
+        al, aa = _mm(plan.A, acl) - g, _mm(plan.A, aca)
+    else:
+        al, aa = (-g).expand(nb, 3, B), Sl.new_zeros(nb, 3, B)
+    fl, fa = _inertia_apply(m, cw, Ic, geo.RT, al, aa)
+    if qd2 is not None:
+        hl, ha = _inertia_apply(m, cw, Ic, geo.RT, vl, va)
+        fl = fl + _cross(va, hl)
+        fa = fa + _cross(va, ha) + _cross(vl, hl)
+    if fext is not None:
+        fl, fa = fl - fext[0], fa - fext[1]
+    Fl, Fa = _mm(plan.At, fl), _mm(plan.At, fa)
+    t0, t1, t2 = fma(Sl * Fl, Sa, Fa).unbind(1)
+    tau_c = t0 + t1 + t2  # (K, B)
+    return tau_c if plan.W_is_identity else torch.mm(plan.W, tau_c)
+
+
+def _crba(plan: _DynPlan, geo: _Geometry, ins: Inertials, batch: tuple[int, ...]) -> Tensor:
+    """Mass matrix ``(B, n_dof, n_dof)``."""
+    Sl, Sa = geo.Sl, geo.Sa
+    K, _, B = Sl.shape
+    nb = len(plan.bodies)
+    m, cw, Ic = _body_inertia(geo, ins, batch)
+    # Composite inertias in the 10-parameter form about the world origin: mass, first moment
+    # h = m c, rotational inertia I_O = R Ic R^T + m (|c|^2 1 - c c^T).
+    mB = m.expand(nb, 1, B)
+    RT = geo.RT
+    # R Ic R^T column by column: column r' is R Ic (row r' of R); symmetric, so the result
+    # (r', nb, r, B) is read as (nb, r, r', B).
+    Iw = _rot(RT, _mat(Ic, RT.permute(2, 0, 1, 3))).transpose(0, 1)
+    eye = torch.eye(3, dtype=Sl.dtype, device=Sl.device).view(1, 3, 3, 1)
+    IO = Iw + mB.unsqueeze(1) * (
+        (cw * cw).sum(1, keepdim=True).unsqueeze(1) * eye - cw.unsqueeze(2) * cw.unsqueeze(1)
+    )
+    params = torch.cat((mB, mB * cw, IO.reshape(nb, 9, B)), dim=1)  # (nb, 13, B)
+    comp = torch.mm(plan.sub, params.reshape(nb, 13 * B)).view(nb, 13, B)
+    cb = comp.index_select(0, plan.col_body)  # (K, 13, B)
+    mc, hc, Icb = cb[:, :1], cb[:, 1:4], cb[:, 4:].view(K, 3, 3, B)
+    Fl = mc * Sl - _cross(hc, Sa)
+    Fa = _mat(Icb, Sa) + _cross(hc, Sl)
+    # Q[k, l] = S_k . Ic_l S_l, summed component by component over (K, K, B).
+    Q = Sl[:, None, 0] * Fl[None, :, 0]
+    for i in (1, 2):
+        Q = fma(Q, Sl[:, None, i], Fl[None, :, i])
+    for i in range(3):
+        Q = fma(Q, Sa[:, None, i], Fa[None, :, i])
+    # M[k, l] = Q[k, l] where column k's body is an ancestor of column l's, Q[l, k] where it is
+    # the other way round, 0 between branches: one gather into the (B, K, K) layout.
+    Qz = torch.cat((Q.view(K * K, B), Q.new_zeros(1, B)))
+    Mc = Qz.mT.index_select(1, plan.m_gather).view(B, K, K)
+    if plan.W_is_identity:
+        return Mc
+    return plan.W @ Mc @ plan.W.T
+
+
+# ----------------------------------------------------------------------------------------------
+# Argument handling of the Chain methods
+# ----------------------------------------------------------------------------------------------
+
+
+def _check_inertials(
+    chain, inertials: Inertials | None, fn: str, batch: tuple[int, ...]
+) -> Inertials:
+    if inertials is None:
+        return Inertials(*_plan(chain).inertials)
+    if not isinstance(inertials, tuple) or len(inertials) != 3:
+        raise TypeError(
+            f"{_NAME}{fn}: expected inertials to be an Inertials (mass, com, inertia), got "
+            f"{type(inertials).__name__}"
+        )
+    nb = len(_plan(chain).bodies)
+    out = []
+    for name, x, trailing in zip(
+        ("mass", "com", "inertia"), inertials, ((nb,), (nb, 3), (nb, 3, 3)), strict=True
+    ):
+        t, _ = _checks.tensor(x, _NAME + fn, f"inertials.{name}", trailing)
+        chain._check_like(t, _NAME + fn, f"inertials.{name}", x.dtype)
+        lead = tuple(t.shape[: t.dim() - len(trailing)])
+        try:
+            ok = torch.broadcast_shapes(lead, batch) == batch
+        except RuntimeError:
+            ok = False
+        if not ok:
+            raise ValueError(
+                f"{_NAME}{fn}: inertials.{name} has batch shape {lead}, which does not "
+                f"broadcast to q's batch shape {batch}"
+            )
+        out.append(t)
+    return Inertials(*out)
+
+
+def _check_vec(chain, x: Tensor, fn: str, name: str, batch: tuple[int, ...]) -> Tensor:
+    t, _ = _checks.tensor(x, _NAME + fn, name, (chain.n_dof,))
+    chain._check_like(t, _NAME + fn, name, x.dtype)
+    try:
+        t = t.broadcast_to(batch + (chain.n_dof,))
+    except RuntimeError:
+        raise ValueError(
+            f"{_NAME}{fn}: {name} of shape {tuple(x.shape)} does not broadcast to q's batch "
+            f"shape {batch}"
+        ) from None
+    return t.reshape(math.prod(batch), chain.n_dof)
+
+
+def _gravity(chain, gravity, fn: str, batch: tuple[int, ...], like: Tensor) -> Tensor:
+    if gravity is None:
+        return _plan(chain).gravity
+    if not isinstance(gravity, Tensor):
+        gravity = torch.as_tensor(gravity, dtype=like.dtype, device=like.device)
+    g, _ = _checks.tensor(gravity, _NAME + fn, "gravity", (3,))
+    chain._check_like(g, _NAME + fn, "gravity", gravity.dtype)
+    try:
+        return _batch_last(g, batch, 1)
+    except RuntimeError:
+        raise ValueError(
+            f"{_NAME}{fn}: gravity of shape {tuple(gravity.shape)} does not broadcast to q's "
+            f"batch shape {batch}"
+        ) from None
+
+
+def _fext_links(chain, f_ext: Mapping[str, Tensor] | None, fn: str) -> tuple[int, ...]:
+    if f_ext is None:
+        return ()
+    if not isinstance(f_ext, Mapping):
+        raise TypeError(
+            f"{_NAME}{fn}: expected f_ext to be a dict link name -> (..., 6) wrench, got "
+            f"{type(f_ext).__name__}"
+        )
+    for k in f_ext:
+        if k not in chain._index:
+            raise ValueError(
+                f"{_NAME}{fn}: f_ext names unknown link {k!r} (the links are "
+                f"{_some(chain.link_names)})"
+            )
+    return tuple(chain._index[k] for k in f_ext)
+
+
+def _fext(
+    chain,
+    plan: _DynPlan,
+    geo: _Geometry,
+    f_ext: Mapping[str, Tensor],
+    fn: str,
+    batch: tuple[int, ...],
+) -> tuple[Tensor, Tensor] | None:
+    """The wrenches of ``f_ext`` summed per body, about the world origin, ``(nb, 3, B)`` for
+    the forces and for the torques."""
+    nb = len(plan.bodies)
+    B = geo.Sl.shape[-1]
+    parts: list[Tensor] = []
+    idx: list[int] = []
+    for k, (name, w) in enumerate(f_ext.items()):
+        t, _ = _checks.tensor(w, _NAME + fn, f"f_ext[{name!r}]", (6,))
+        chain._check_like(t, _NAME + fn, f"f_ext[{name!r}]", w.dtype)
+        b = plan.body_of[chain._index[name]]
+        if b < 0:
+            continue  # a link fixed to the world: the wrench acts on the world
+        try:
+            wb = _batch_last(t, batch, 1).expand(6, B)
+        except RuntimeError:
+            raise ValueError(
+                f"{_NAME}{fn}: f_ext[{name!r}] of shape {tuple(w.shape)} does not broadcast "
+                f"to q's batch shape {batch}"
+            ) from None
+        p = geo.poses[len(plan.targets) + k, 3, :3]  # the link's origin, (3, B)
+        f, n = wb[:3], wb[3:]
+        parts.append(torch.cat((f, n + torch.linalg.cross(p, f, dim=0)), dim=0))
+        idx.append(b)
+    if not parts:
+        return None
+    out = geo.Sl.new_zeros(nb, 6, B)
+    out = out.index_add(0, torch.tensor(idx, device=out.device), torch.stack(parts))
+    return out[:, :3], out[:, 3:]
+
+
+def _prepare(chain, q: Tensor, fn: str):
+    q2, out_dtype, batch = chain._prepare(q, fn)
+    return q2, out_dtype, batch, _plan(chain)
+
+
+def _result(x: Tensor, batch: tuple[int, ...], n: int, out_dtype: torch.dtype) -> Tensor:
+    """``(n, B)`` -> ``(*batch, n)``."""
+    return _checks.out(x.mT.reshape(*batch, n), out_dtype)
+
+
+def _inverse_dynamics(
+    chain,
+    q: Float[Tensor, "*b n_dof"],
+    qd: Float[Tensor, "*b n_dof"],
+    qdd: Float[Tensor, "*b n_dof"],
+    *,
+    gravity: Tensor | None = None,
+    f_ext: Mapping[str, Tensor] | None = None,
+    inertials: Inertials | None = None,
+    _fn: str = "inverse_dynamics",
+) -> Float[Tensor, "*b n_dof"]:
+    """Joint forces for the motion ``(q, qd, qdd)``: see :meth:`Chain.inverse_dynamics`."""
+    q2, out_dtype, batch, plan = _prepare(chain, q, _fn)
+    qd2 = None if qd is None else _check_vec(chain, qd, _fn, "qd", batch)
+    qdd2 = None if qdd is None else _check_vec(chain, qdd, _fn, "qdd", batch)
+    ins = _check_inertials(chain, inertials, _fn, batch)
+    g = _gravity(chain, gravity, _fn, batch, q2)
+    extra = _fext_links(chain, f_ext, _fn)
+    if not plan.bodies:  # no degree of freedom
+        return _checks.out(q2.new_zeros(*batch, 0), out_dtype)
+    geo = _geometry(chain, plan, q2, extra)
+    fx = None if f_ext is None else _fext(chain, plan, geo, f_ext, _fn, batch)
+    tau = _rnea(plan, geo, ins, batch, qd2, qdd2, g, fx)
+    return _result(tau, batch, chain.n_dof, out_dtype)
+
+
+def _mass_matrix(
+    chain, q: Float[Tensor, "*b n_dof"], *, inertials: Inertials | None = None
+) -> Float[Tensor, "*b n_dof n_dof"]:
+    """Joint-space mass matrix: see :meth:`Chain.mass_matrix`."""
+    fn = "mass_matrix"
+    q2, out_dtype, batch, plan = _prepare(chain, q, fn)
+    ins = _check_inertials(chain, inertials, fn, batch)
+    if not plan.bodies:  # no degree of freedom
+        return _checks.out(q2.new_zeros(*batch, 0, 0), out_dtype)
+    geo = _geometry(chain, plan, q2, ())
+    M = _crba(plan, geo, ins, batch)
+    return _checks.out(M.reshape(*batch, chain.n_dof, chain.n_dof), out_dtype)
+
+
+def _forward_dynamics(
+    chain,
+    q: Float[Tensor, "*b n_dof"],
+    qd: Float[Tensor, "*b n_dof"],
+    tau: Float[Tensor, "*b n_dof"],
+    *,
+    gravity: Tensor | None = None,
+    f_ext: Mapping[str, Tensor] | None = None,
+    inertials: Inertials | None = None,
+) -> Float[Tensor, "*b n_dof"]:
+    """Joint accelerations: see :meth:`Chain.forward_dynamics`."""
+    fn = "forward_dynamics"
+    q2, out_dtype, batch, plan = _prepare(chain, q, fn)
+    if inertials is None and plan.massless:
+        raise ValueError(
+            f"{_NAME}{fn}: the mass matrix is singular: no mass or inertia moves with "
+            f"{_some(plan.massless)} (links without <inertial>?); give those links inertials "
+            "or pass inertials="
+        )
+    qd2 = _check_vec(chain, qd, fn, "qd", batch)
+    tau2 = _check_vec(chain, tau, fn, "tau", batch)
+    ins = _check_inertials(chain, inertials, fn, batch)
+    g = _gravity(chain, gravity, fn, batch, q2)
+    extra = _fext_links(chain, f_ext, fn)
+    if not plan.bodies:  # no degree of freedom
+        return _checks.out(q2.new_zeros(*batch, 0), out_dtype)
+    geo = _geometry(chain, plan, q2, extra)
+    fx = None if f_ext is None else _fext(chain, plan, geo, f_ext, fn, batch)
+    h = _rnea(plan, geo, ins, batch, qd2, None, g, fx)  # (n, B)
+    M = _crba(plan, geo, ins, batch)  # (B, n, n)
+    L, _ = torch.linalg.cholesky_ex(M)
+    qdd = torch.cholesky_solve((tau2 - h.mT).unsqueeze(-1), L).squeeze(-1)  # (B, n)
+    return _checks.out(qdd.reshape(*batch, chain.n_dof), out_dtype)
