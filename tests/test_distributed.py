@@ -1,0 +1,226 @@
+"""torchlie's layers and custom autograd Functions under DistributedDataParallel.
+
+Two processes, backend gloo, CPU, a few SGD steps of a small rotation regressor whose graph
+runs through torchlie's own Functions (``so3.exp`` in the rotation-vector head, ``so3.log`` in
+``so3.rminus``, ``so3.act``).  The ranks meet on 127.0.0.1 at a free port; every process start
+is bounded by a timeout (and every collective by the process group's), so a hang fails the
+test instead of hanging CI.  One spawn serves several checks: each rank saves its parameters
+after every step and the names of the autograd nodes of its loss, and this process compares
+them with a single-process run on the concatenated global batch.
+"""
+
+from __future__ import annotations
+
+import datetime
+import os
+import socket
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+import torch.distributed as dist
+from torch import nn
+from torch.nn.parallel import DistributedDataParallel
+
+from torchlie import so3
+from torchlie.nn import RotationHead
+
+WORLD = 2
+BATCH = 8  # per rank; the global batch is WORLD * BATCH
+STEPS = 4
+FEATURES = 12
+SEED = 0
+LR = 0.2
+#: Seconds for the ranks to start (spawn, import torch), train and exit; the compiled run also
+#: compiles.  Generous: CI runs several test files at once on few cores.
+TIMEOUT = 180
+TIMEOUT_COMPILE = 420
+#: Seconds a rank waits in a collective for the other before it fails.
+COLLECTIVE_TIMEOUT = 60
+
+#: Parameters after each step agree with the single-process run within this (absolute; the
+#: parameters are O(1)).  Both runs compute the same gradient in float32; only the order of
+#: the sums differs: DDP sums each rank's half of the batch on its own and then the two halves
+#: (the all-reduce), the single process sums the whole batch in one pass.  Each step's update
+#: then differs by about one ulp of the parameters (float32 eps 1.2e-7), and later steps carry
+#: it on through the gradient's dependence on the parameters, which at this step size hardly
+#: amplifies it: the runs differ by at most 1.2e-7 after STEPS steps, eager or compiled, and
+#: 1e-6 (8 ulp of an O(1) parameter) leaves room for other CPUs' and torch versions' kernels.
+ATOL = 1e-6
+
+
+class Regressor(nn.Module):
+    """Features -> rotation matrices through a rotation-vector head (``so3.exp``)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.body = nn.Sequential(nn.Linear(FEATURES, 16), nn.Tanh())
+        self.head = RotationHead(16, representation="rotvec")
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.head(self.body(x))
+
+
+def make_model() -> Regressor:
+    torch.manual_seed(SEED)
+    return Regressor()
+
+
+def global_batch(step: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Inputs ``(WORLD * BATCH, FEATURES)``, target rotations and points of step ``step``."""
+    gen = torch.Generator().manual_seed(1000 + step)
+    x = torch.randn(WORLD * BATCH, FEATURES, generator=gen)
+    R = so3.random(WORLD * BATCH, generator=gen)
+    p = torch.randn(WORLD * BATCH, 5, 3, generator=gen)
+    return x, R, p
+
+
+def loss_fn(R_pred: torch.Tensor, R: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+    """Squared log error (``so3.rminus``) plus the error of the moved points (``so3.act``)."""
+    log_error = so3.rminus(R_pred, R).square().sum(-1).mean()
+    moved = so3.act(R_pred.unsqueeze(-3), p) - so3.act(R.unsqueeze(-3), p)
+    return log_error + moved.square().sum(-1).mean()
+
+
+def flat_params(model: nn.Module) -> torch.Tensor:
+    return torch.cat([q.detach().flatten() for q in model.parameters()])
+
+
+def node_names(t: torch.Tensor) -> set[str]:
+    """Names of the autograd nodes ``t`` depends on."""
+    names, stack, seen = set(), [t.grad_fn], set()
+    while stack:
+        node = stack.pop()
+        if node is None or node in seen:
+            continue
+        seen.add(node)
+        names.add(type(node).__name__)
+        stack.extend(n for n, _ in node.next_functions)
+    return names
+
+
+def train(model: nn.Module, shard, record) -> list[torch.Tensor]:
+    """``STEPS`` SGD steps on ``shard(step)``; parameters before and after every step."""
+    opt = torch.optim.SGD(model.parameters(), lr=LR)
+    params = [flat_params(model)]
+    for step in range(STEPS):
+        x, R, p = shard(step)
+        loss = loss_fn(model(x), R, p)
+        record(loss)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        params.append(flat_params(model))
+    return params
+
+
+def loopback_interface() -> str:
+    """Name of the loopback network interface (read on Linux, the usual name elsewhere)."""
+    net = Path("/sys/class/net")
+    if net.is_dir():
+        for iface in sorted(net.iterdir()):
+            try:
+                if int((iface / "flags").read_text(), 16) & 0x8:  # IFF_LOOPBACK
+                    return iface.name
+            except (OSError, ValueError):
+                continue
+    return "lo0" if sys.platform == "darwin" else "lo"
+
+
+def _rank(rank: int, port: int, out: str, compile_model: bool) -> None:
+    """One rank: DDP (no unused-parameter search) around the model, optionally compiled."""
+    torch.set_num_threads(1)
+    os.environ.setdefault("GLOO_SOCKET_IFNAME", loopback_interface())
+    dist.init_process_group(
+        "gloo",
+        init_method=f"tcp://127.0.0.1:{port}",
+        rank=rank,
+        world_size=WORLD,
+        timeout=datetime.timedelta(seconds=COLLECTIVE_TIMEOUT),
+    )
+    try:
+        model = make_model()
+        ddp = DistributedDataParallel(model, find_unused_parameters=False)
+        net = torch.compile(ddp) if compile_model else ddp
+        rows = slice(rank * BATCH, (rank + 1) * BATCH)
+        names: set[str] = set()
+        params = train(
+            net,
+            lambda step: tuple(t[rows] for t in global_batch(step)),
+            lambda loss: names.update(node_names(loss)),
+        )
+        torch.save({"params": torch.stack(params), "nodes": sorted(names)}, f"{out}/{rank}.pt")
+    finally:
+        dist.destroy_process_group()
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def run_ranks(tmp_path: Path, compile_model: bool, timeout: float) -> list[dict]:
+    """Spawn the ranks, wait at most ``timeout`` seconds (then kill them and fail); return
+    what each saved."""
+    ctx = torch.multiprocessing.start_processes(
+        _rank,
+        args=(free_port(), str(tmp_path), compile_model),
+        nprocs=WORLD,
+        join=False,
+        start_method="spawn",
+    )
+    deadline = time.monotonic() + timeout
+    try:
+        while not ctx.join(timeout=max(deadline - time.monotonic(), 0.0)):
+            if time.monotonic() >= deadline:
+                pytest.fail(f"the {WORLD} ranks did not finish within {timeout} s")
+    finally:
+        for proc in ctx.processes:
+            if proc.is_alive():
+                proc.kill()
+            proc.join()
+    return [torch.load(tmp_path / f"{r}.pt") for r in range(WORLD)]
+
+
+def reference() -> torch.Tensor:
+    """Parameters of one process trained on the whole global batch, ``(STEPS + 1, n)``."""
+    return torch.stack(train(make_model(), global_batch, lambda loss: None))
+
+
+def check_steps(ranks: list[dict]) -> None:
+    ref = reference()
+    for r, saved in enumerate(ranks):
+        params = saved["params"]
+        assert params.shape == ref.shape
+        # every rank holds the same parameters after every step: the all-reduce gives every
+        # rank the same averaged gradient (with two ranks a + b = b + a exactly), and the
+        # same SGD step on the same numbers gives the same numbers
+        assert torch.equal(params, ranks[0]["params"]), f"rank {r} differs from rank 0"
+        for step in range(STEPS + 1):
+            err = float((params[step] - ref[step]).abs().max())
+            assert err <= ATOL, f"rank {r}, step {step}: {err:.2e} from the one-process run"
+    # the parameters moved (the comparison is not between two untrained models)
+    assert float((ref[-1] - ref[0]).abs().max()) > 1e-2
+
+
+def test_ddp_matches_one_process_through_custom_functions(tmp_path):
+    ranks = run_ranks(tmp_path, compile_model=False, timeout=TIMEOUT)
+    check_steps(ranks)
+    # the losses ran through torchlie's own Functions, so DDP's hooks saw their gradients
+    for saved in ranks:
+        nodes = " ".join(saved["nodes"])
+        for fn in ("So3Exp", "So3Log", "So3Act"):
+            assert fn in nodes, (fn, saved["nodes"])
+
+
+@pytest.mark.compile
+def test_ddp_of_compiled_model_matches_one_process(tmp_path):
+    ranks = run_ranks(tmp_path, compile_model=True, timeout=TIMEOUT_COMPILE)
+    check_steps(ranks)
+    # the model's graph was compiled (its backward is one compiled node, not torchlie's own)
+    for saved in ranks:
+        assert "So3ExpEagerFunctionBackward" not in saved["nodes"], saved["nodes"]
+        assert any("Compiled" in n for n in saved["nodes"]), saved["nodes"]
