@@ -1,12 +1,13 @@
-"""torchlie's layers and custom autograd Functions under DistributedDataParallel.
+"""torchlie's layers and custom autograd Functions under torch's distributed data parallelism.
 
 Two processes, backend gloo, CPU, a few SGD steps of a small rotation regressor whose graph
 runs through torchlie's own Functions (``so3.exp`` in the rotation-vector head, ``so3.log`` in
-``so3.rminus``, ``so3.act``).  The ranks meet on 127.0.0.1 at a free port; every process start
-is bounded by a timeout (and every collective by the process group's), so a hang fails the
-test instead of hanging CI.  One spawn serves several checks: each rank saves its parameters
-after every step and the names of the autograd nodes of its loss, and this process compares
-them with a single-process run on the concatenated global batch.
+``so3.rminus``, ``so3.act``), wrapped in DistributedDataParallel (eager, and compiled with
+``torch.compile``) and in FSDP2's ``fully_shard``.  The ranks meet on 127.0.0.1 at a free port;
+every process start is bounded by a timeout (and every collective by the process group's), so
+a hang fails the test instead of hanging CI.  One spawn serves several checks: each rank saves
+its parameters after every step and the names of the autograd nodes of its loss, and this
+process compares them with a single-process run on the concatenated global batch.
 """
 
 from __future__ import annotations
@@ -16,12 +17,15 @@ import os
 import socket
 import sys
 import time
+import warnings
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 import torch
 import torch.distributed as dist
 from torch import nn
+from torch.distributed.fsdp import fully_shard
 from torch.nn.parallel import DistributedDataParallel
 
 from torchlie import so3
@@ -101,10 +105,12 @@ def node_names(t: torch.Tensor) -> set[str]:
     return names
 
 
-def train(model: nn.Module, shard, record) -> list[torch.Tensor]:
-    """``STEPS`` SGD steps on ``shard(step)``; parameters before and after every step."""
+def train(model: nn.Module, shard, record, params=None) -> list[torch.Tensor]:
+    """``STEPS`` SGD steps on ``shard(step)``; ``params()`` (default: the model's parameters
+    flattened) before and after every step."""
+    params = params or (lambda: flat_params(model))
     opt = torch.optim.SGD(model.parameters(), lr=LR)
-    params = [flat_params(model)]
+    snapshots = [params()]
     for step in range(STEPS):
         x, R, p = shard(step)
         loss = loss_fn(model(x), R, p)
@@ -112,8 +118,8 @@ def train(model: nn.Module, shard, record) -> list[torch.Tensor]:
         opt.zero_grad()
         loss.backward()
         opt.step()
-        params.append(flat_params(model))
-    return params
+        snapshots.append(params())
+    return snapshots
 
 
 def loopback_interface() -> str:
@@ -129,10 +135,28 @@ def loopback_interface() -> str:
     return "lo0" if sys.platform == "darwin" else "lo"
 
 
-def _rank(rank: int, port: int, out: str, compile_model: bool) -> None:
-    """One rank: DDP (no unused-parameter search) around the model, optionally compiled."""
+def wrap(model: nn.Module, mode: str) -> tuple[nn.Module, Callable[[], torch.Tensor]]:
+    """The model wrapped for ``mode`` and a function reading its full parameters."""
+    if mode == "fsdp":
+        # FSDP2 shards each parameter over the ranks; ``full_tensor`` gathers it back.
+        fully_shard(model.body)
+        fully_shard(model)
+
+        def gathered() -> torch.Tensor:
+            return torch.cat([q.full_tensor().detach().flatten() for q in model.parameters()])
+
+        return model, gathered
+    ddp = DistributedDataParallel(model, find_unused_parameters=False)
+    return torch.compile(ddp) if mode == "ddp-compiled" else ddp, lambda: flat_params(model)
+
+
+def _rank(rank: int, port: int, out: str, modes: tuple[str, ...]) -> None:
+    """One rank: train a fresh model under each of ``modes`` and save what it saw."""
     torch.set_num_threads(1)
     os.environ.setdefault("GLOO_SOCKET_IFNAME", loopback_interface())
+    # FSDP2 warns that the root's output is a view (the head's 3x3 reshape of 9 numbers): it
+    # matters only to in-place changes of the output, which nothing here makes.
+    warnings.filterwarnings("ignore", message="FSDP2-wrapped module", category=UserWarning)
     dist.init_process_group(
         "gloo",
         init_method=f"tcp://127.0.0.1:{port}",
@@ -141,17 +165,19 @@ def _rank(rank: int, port: int, out: str, compile_model: bool) -> None:
         timeout=datetime.timedelta(seconds=COLLECTIVE_TIMEOUT),
     )
     try:
-        model = make_model()
-        ddp = DistributedDataParallel(model, find_unused_parameters=False)
-        net = torch.compile(ddp) if compile_model else ddp
         rows = slice(rank * BATCH, (rank + 1) * BATCH)
-        names: set[str] = set()
-        params = train(
-            net,
-            lambda step: tuple(t[rows] for t in global_batch(step)),
-            lambda loss: names.update(node_names(loss)),
-        )
-        torch.save({"params": torch.stack(params), "nodes": sorted(names)}, f"{out}/{rank}.pt")
+        saved = {}
+        for mode in modes:
+            net, params = wrap(make_model(), mode)
+            names: set[str] = set()
+            steps = train(
+                net,
+                lambda step: tuple(t[rows] for t in global_batch(step)),
+                lambda loss, names=names: names.update(node_names(loss)),
+                params,
+            )
+            saved[mode] = {"params": torch.stack(steps), "nodes": sorted(names)}
+        torch.save(saved, f"{out}/{rank}.pt")
     finally:
         dist.destroy_process_group()
 
@@ -162,12 +188,12 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def run_ranks(tmp_path: Path, compile_model: bool, timeout: float) -> list[dict]:
+def run_ranks(tmp_path: Path, modes: tuple[str, ...], timeout: float) -> list[dict]:
     """Spawn the ranks, wait at most ``timeout`` seconds (then kill them and fail); return
     what each saved."""
     ctx = torch.multiprocessing.start_processes(
         _rank,
-        args=(free_port(), str(tmp_path), compile_model),
+        args=(free_port(), str(tmp_path), modes),
         nprocs=WORLD,
         join=False,
         start_method="spawn",
@@ -191,13 +217,15 @@ def reference() -> torch.Tensor:
 
 
 def check_steps(ranks: list[dict]) -> None:
+    """Every rank's parameters after every step: identical, and the one-process run's."""
     ref = reference()
     for r, saved in enumerate(ranks):
         params = saved["params"]
         assert params.shape == ref.shape
-        # every rank holds the same parameters after every step: the all-reduce gives every
-        # rank the same averaged gradient (with two ranks a + b = b + a exactly), and the
-        # same SGD step on the same numbers gives the same numbers
+        # every rank holds the same parameters after every step: the all-reduce (DDP) or
+        # reduce-scatter (FSDP) gives every rank the same averaged gradient (with two ranks
+        # a + b = b + a exactly), and the same SGD step on the same numbers gives the same
+        # numbers
         assert torch.equal(params, ranks[0]["params"]), f"rank {r} differs from rank 0"
         for step in range(STEPS + 1):
             err = float((params[step] - ref[step]).abs().max())
@@ -206,21 +234,26 @@ def check_steps(ranks: list[dict]) -> None:
     assert float((ref[-1] - ref[0]).abs().max()) > 1e-2
 
 
-def test_ddp_matches_one_process_through_custom_functions(tmp_path):
-    ranks = run_ranks(tmp_path, compile_model=False, timeout=TIMEOUT)
-    check_steps(ranks)
-    # the losses ran through torchlie's own Functions, so DDP's hooks saw their gradients
-    for saved in ranks:
-        nodes = " ".join(saved["nodes"])
-        for fn in ("So3Exp", "So3Log", "So3Act"):
-            assert fn in nodes, (fn, saved["nodes"])
+def test_ddp_and_fsdp_match_one_process_through_custom_functions(tmp_path):
+    ranks = run_ranks(tmp_path, ("ddp", "fsdp"), timeout=TIMEOUT)
+    for mode in ("ddp", "fsdp"):
+        check_steps([saved[mode] for saved in ranks])
+        # the losses ran through torchlie's own Functions, whose gradients reached DDP's hooks
+        # (DDP's find_unused_parameters=False raises if a parameter's gradient goes missing)
+        for saved in ranks:
+            nodes = saved[mode]["nodes"]
+            for fn in ("So3Exp", "So3Log", "So3Act"):
+                assert f"{fn}EagerFunctionBackward" in nodes, (mode, fn, nodes)
 
 
 @pytest.mark.compile
 def test_ddp_of_compiled_model_matches_one_process(tmp_path):
-    ranks = run_ranks(tmp_path, compile_model=True, timeout=TIMEOUT_COMPILE)
-    check_steps(ranks)
-    # the model's graph was compiled (its backward is one compiled node, not torchlie's own)
+    ranks = run_ranks(tmp_path, ("ddp-compiled",), timeout=TIMEOUT_COMPILE)
+    check_steps([saved["ddp-compiled"] for saved in ranks])
+    # the model was compiled (its backward is one compiled node, so3.exp's included); the loss
+    # outside it runs torchlie's eager Functions
     for saved in ranks:
-        assert "So3ExpEagerFunctionBackward" not in saved["nodes"], saved["nodes"]
-        assert any("Compiled" in n for n in saved["nodes"]), saved["nodes"]
+        nodes = saved["ddp-compiled"]["nodes"]
+        assert "CompiledFunctionBackward" in nodes, nodes
+        assert "So3ExpEagerFunctionBackward" not in nodes, nodes
+        assert "So3LogEagerFunctionBackward" in nodes, nodes
