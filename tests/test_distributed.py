@@ -28,8 +28,15 @@ from torch import nn
 from torch.distributed.fsdp import fully_shard
 from torch.nn.parallel import DistributedDataParallel
 
-from torchlie import so3
-from torchlie.nn import RotationHead
+from torchlie import se3, so3
+from torchlie.nn import (
+    REPRESENTATIONS,
+    PoseHead,
+    RotationHead,
+    geodesic_loss,
+    representation_to_matrix,
+    se3_geodesic_loss,
+)
 
 WORLD = 2
 BATCH = 8  # per rank; the global batch is WORLD * BATCH
@@ -257,3 +264,51 @@ def test_ddp_of_compiled_model_matches_one_process(tmp_path):
         assert "CompiledFunctionBackward" in nodes, nodes
         assert "So3ExpEagerFunctionBackward" not in nodes, nodes
         assert "So3LogEagerFunctionBackward" in nodes, nodes
+
+
+# ----------------------------------------------------------------------------------------------
+# Mixed precision, as docs/distributed.md describes it (CPU autocast, bfloat16)
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("rep", sorted(REPRESENTATIONS))
+def test_heads_under_autocast_compute_the_map_in_float32(rep):
+    # autocast runs the head's nn.Linear in bfloat16; torchlie computes the rotation of that
+    # bfloat16 vector in float32 and returns it rounded to bfloat16, the input's dtype
+    torch.manual_seed(0)
+    rot, pose = RotationHead(16, representation=rep), PoseHead(16, representation=rep)
+    features = torch.randn(64, 16)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        R, T = rot(features), pose(features)
+        raw_R, raw_T = rot.raw(features), pose.linear(features)
+    assert R.dtype == T.dtype == raw_R.dtype == torch.bfloat16
+    assert torch.equal(R, representation_to_matrix(raw_R.float(), rep).bfloat16())
+    R_T = representation_to_matrix(raw_T[..., :-3].float(), rep)
+    assert torch.equal(T, se3.from_rt(R_T, raw_T[..., -3:].float()).bfloat16())
+
+
+def test_head_and_loss_outside_autocast_are_float32():
+    # the pattern of docs/distributed.md: the network's body under autocast, the head and the
+    # loss outside it on float32 features: the loss and its gradient are those of float32
+    torch.manual_seed(0)
+    body, head = nn.Linear(8, 16), PoseHead(16)
+    x, T = torch.randn(32, 8), se3.random(32, generator=torch.Generator().manual_seed(1))
+
+    def head_and_loss(features: torch.Tensor) -> torch.Tensor:
+        T_pred = head(features)
+        rotation = geodesic_loss(T_pred[..., :3, :3], T[..., :3, :3])  # so3.distance
+        return rotation + se3_geodesic_loss(T_pred, T, kind="chordal")
+
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        features = body(x)
+        assert features.dtype == torch.bfloat16
+        with torch.autocast("cpu", enabled=False):
+            loss = head_and_loss(features.float())
+    (grad,) = torch.autograd.grad(loss, head.linear.weight, retain_graph=True)
+    loss_ref = head_and_loss(features.detach().float())
+    (grad_ref,) = torch.autograd.grad(loss_ref, head.linear.weight)
+    assert loss.dtype == grad.dtype == torch.float32
+    assert torch.equal(loss, loss_ref) and torch.equal(grad, grad_ref)
+    assert body.weight.grad is None
+    loss.backward()  # the gradient reaches the body through the bfloat16 features
+    assert body.weight.grad is not None and bool(body.weight.grad.isfinite().all())
