@@ -114,6 +114,7 @@ def train(rank: int, world: int, local_rank: int, cfg: argparse.Namespace) -> di
     X_test, T_test = make_data(template, cfg.test_size, cfg.noise, gen)
     X_test, T_test = X_test.to(device), T_test.to(device)
 
+    # --8<-- [start:ddp]
     torch.manual_seed(cfg.seed + 1)  # the same initial weights on every rank (DDP also
     model = PoseRegressor(cfg.points, cfg.hidden).to(device)  # broadcasts rank 0's at start)
     ddp = DistributedDataParallel(model, device_ids=[local_rank] if device.type == "cuda" else None)
@@ -121,12 +122,9 @@ def train(rank: int, world: int, local_rank: int, cfg: argparse.Namespace) -> di
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.steps)
 
     # Each rank reads its shard (batch / world samples) of every global batch.
-    sampler = DistributedSampler(
-        TensorDataset(X_train, T_train), num_replicas=world, rank=rank, seed=cfg.seed + 2
-    )
-    loader = DataLoader(
-        TensorDataset(X_train, T_train), batch_size=cfg.batch // world, sampler=sampler
-    )
+    train_set = TensorDataset(X_train, T_train)
+    sampler = DistributedSampler(train_set, num_replicas=world, rank=rank, seed=cfg.seed + 2)
+    loader = DataLoader(train_set, batch_size=cfg.batch // world, sampler=sampler)
 
     curve_loss, curve_error = [], [(0, *errors(model, X_test, T_test))]
     step, epoch = 0, 0
@@ -148,6 +146,7 @@ def train(rank: int, world: int, local_rank: int, cfg: argparse.Namespace) -> di
                 curve_error.append((step, *errors(model, X_test, T_test)))
             if step == cfg.steps:
                 break
+    # --8<-- [end:ddp]
 
     # The replicas are identical: gather every rank's parameters and compare them.
     flat = torch.cat([p.detach().flatten() for p in model.parameters()])
@@ -295,10 +294,17 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     cuda = torch.cuda.is_available()
     if cfg.backend == "auto":
         cfg.backend = "nccl" if cuda else "gloo"
+    if cfg.backend == "nccl" and not cuda:
+        raise SystemExit(f"{NAME}: the nccl backend needs CUDA; use --backend gloo on CPU")
     if "world_size" not in cfg:
         cfg.world_size = torch.cuda.device_count() if cfg.backend == "nccl" else 2
     if cfg.steps < 1 or cfg.world_size < 1:
         raise SystemExit(f"{NAME}: --steps and --world-size must be at least 1")
+    gpus = torch.cuda.device_count()
+    if cfg.backend == "nccl" and not under_torchrun() and cfg.world_size > gpus:
+        raise SystemExit(
+            f"{NAME}: nccl takes one GPU per rank: --world-size {cfg.world_size} with {gpus} GPUs"
+        )
     cfg.points, cfg.hidden, cfg.batch, cfg.lr = 32, 128, 64, 2e-3
     cfg.noise, cfg.train_size, cfg.test_size = 0.01, 8192, 1000
     cfg.eval_every = max(cfg.steps // 20, 1)
@@ -343,10 +349,13 @@ def main(argv: list[str] | None = None) -> dict | None:
     """Train with DDP (spawned ranks, or this rank under torchrun); rank 0 reports and returns
     the figures, other ranks return ``None``."""
     cfg = parse(argv)
+    if under_torchrun():
+        cfg.world_size = int(os.environ["WORLD_SIZE"])
+    if cfg.batch % cfg.world_size:
+        raise SystemExit(f"{NAME}: the global batch {cfg.batch} must divide by the world size")
     t0 = time.perf_counter()
     if under_torchrun():
-        rank, world = int(os.environ["RANK"]), int(os.environ["WORLD_SIZE"])
-        cfg.world_size = world
+        rank, world = int(os.environ["RANK"]), cfg.world_size
         local_rank = int(os.environ["LOCAL_RANK"])
         torch.set_num_threads(cfg.threads)
         dist.init_process_group(cfg.backend, timeout=datetime.timedelta(seconds=cfg.timeout))
@@ -357,8 +366,6 @@ def main(argv: list[str] | None = None) -> dict | None:
         if fig is None:
             return None
     else:
-        if cfg.batch % cfg.world_size:
-            raise SystemExit(f"{NAME}: the global batch {cfg.batch} must divide by --world-size")
         cfg.out.mkdir(parents=True, exist_ok=True)
         figures = cfg.out / f"{NAME}.json"
         figures.unlink(missing_ok=True)
