@@ -208,6 +208,7 @@ def spawned(rank: int, world: int, cfg: argparse.Namespace, port: int, figures: 
         fig = train(rank, world, rank, cfg)
         if fig is not None:
             figures.write_text(json.dumps(fig, indent=1) + "\n")
+        dist.barrier()  # no rank tears its connections down while another still uses them
     finally:
         dist.destroy_process_group()
 
@@ -361,6 +362,7 @@ def main(argv: list[str] | None = None) -> dict | None:
         dist.init_process_group(cfg.backend, timeout=datetime.timedelta(seconds=cfg.timeout))
         try:
             fig = train(rank, world, local_rank, cfg)
+            dist.barrier()  # no rank tears its connections down while another still uses them
         finally:
             dist.destroy_process_group()
         if fig is None:

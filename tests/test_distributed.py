@@ -13,6 +13,7 @@ process compares them with a single-process run on the concatenated global batch
 from __future__ import annotations
 
 import datetime
+import faulthandler
 import os
 import socket
 import sys
@@ -163,8 +164,11 @@ def wrap(model: nn.Module, mode: str) -> tuple[nn.Module, Callable[[], torch.Ten
     return ddp, lambda: flat_params(model)
 
 
-def _rank(rank: int, port: int, out: str, modes: tuple[str, ...]) -> None:
+def _rank(rank: int, port: int, out: str, modes: tuple[str, ...], timeout: float) -> None:
     """One rank: train a fresh model under each of ``modes`` and save what it saw."""
+    # a rank still running when the parent gives up prints where it is (to the test's
+    # captured output) and exits
+    faulthandler.dump_traceback_later(timeout - 10, exit=True)
     torch.set_num_threads(1)
     os.environ.setdefault("GLOO_SOCKET_IFNAME", loopback_interface())
     # FSDP2 warns that the root's output is a view (the head's 3x3 reshape of 9 numbers): it
@@ -191,6 +195,9 @@ def _rank(rank: int, port: int, out: str, modes: tuple[str, ...]) -> None:
             )
             saved[mode] = {"params": torch.stack(steps), "nodes": sorted(names)}
         torch.save(saved, f"{out}/{rank}.pt")
+        # no rank tears its connections down while another still uses them (gloo may abort
+        # or hang then)
+        dist.barrier()
     finally:
         dist.destroy_process_group()
 
@@ -206,7 +213,7 @@ def run_ranks(tmp_path: Path, modes: tuple[str, ...], timeout: float) -> list[di
     what each saved."""
     ctx = torch.multiprocessing.start_processes(
         _rank,
-        args=(free_port(), str(tmp_path), modes),
+        args=(free_port(), str(tmp_path), modes, timeout),
         nprocs=WORLD,
         join=False,
         start_method="spawn",
