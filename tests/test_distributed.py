@@ -166,9 +166,9 @@ def wrap(model: nn.Module, mode: str) -> tuple[nn.Module, Callable[[], torch.Ten
 
 def _rank(rank: int, port: int, out: str, modes: tuple[str, ...], timeout: float) -> None:
     """One rank: train a fresh model under each of ``modes`` and save what it saw."""
-    # a rank still running when the parent gives up prints where it is (to the test's
-    # captured output) and exits
-    faulthandler.dump_traceback_later(timeout - 10, exit=True)
+    # a rank still running near the parent's deadline (which counts this process's start,
+    # torch's import included) prints where it is, to the test's captured output, and exits
+    faulthandler.dump_traceback_later(0.8 * timeout, exit=True)
     torch.set_num_threads(1)
     os.environ.setdefault("GLOO_SOCKET_IFNAME", loopback_interface())
     # FSDP2 warns that the root's output is a view (the head's 3x3 reshape of 9 numbers): it
