@@ -6,7 +6,9 @@ from __future__ import annotations
 import importlib.util
 import json
 import math
+import os
 import re
+import subprocess
 import sys
 from pathlib import Path
 
@@ -16,6 +18,9 @@ EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
 # Every option of each example (besides -h); each must be listed by --help with a default.
 OPTIONS = {
+    "distributed_training": (
+        "--quick --steps --world-size --backend --out --no-plot --seed --threads".split()
+    ),
     "kinematics_validation": (
         "--quick --robots --samples --dtypes --brief --out --threads".split()
     ),
@@ -181,6 +186,39 @@ def test_payload_identification(tmp_path, capsys):
         assert fig["plot"] == str(plot) and plot.stat().st_size > 1000
     else:
         assert fig["plot"] is None and not plot.exists()
+
+
+@pytest.mark.slow
+def test_distributed_training(tmp_path):
+    # a subprocess, as users start it: the spawned ranks import the script as their main module
+    script = EXAMPLES / "distributed_training.py"
+    path = [str(EXAMPLES.parent), os.environ.get("PYTHONPATH", "")]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in path if p)}
+    run = subprocess.run(
+        [sys.executable, str(script), "--quick", "--backend", "gloo", "--world-size", "2"]
+        + ["--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=300,  # a hang fails the test
+        env=env,
+    )
+    assert run.returncode == 0, run.stderr
+    fig = json.loads((tmp_path / "distributed_training.json").read_text())
+    assert fig["world_size"] == 2 and fig["backend"] == "gloo" and fig["steps"] == 300
+    assert fig["replicas_identical"]
+    # an untrained network is about as wrong as a random rotation (mean 126.5 degrees)
+    assert 90.0 <= fig["initial_rotation_error_deg"] <= 160.0
+    # 300 steps: a few degrees (4.6 at seed 0), the translation error down 10x
+    assert fig["final_rotation_error_deg"] <= 8.0
+    assert fig["final_translation_error"] <= fig["initial_translation_error"] / 10
+    assert len(fig["loss_curve"]) == 300
+    assert fig["loss_curve"][-1][1] <= fig["loss_curve"][0][1] / 100
+    assert f"final geodesic error: {fig['final_rotation_error_deg']:.2f} deg" in run.stdout
+    plot = tmp_path / "distributed_training.png"
+    if has_matplotlib():
+        assert plot.stat().st_size > 1000
+    else:
+        assert not plot.exists() and "matplotlib is not installed" in run.stderr
 
 
 @pytest.mark.slow
