@@ -248,7 +248,7 @@ def test_residual_jacobian_is_the_exact_derivative(robot, links):
     q = chain.random_configuration(N, generator=gen)
     T_star = chain.forward_kinematics(chain.random_configuration(N, generator=gen), links)
     tasks = [
-        ik_module._Task(name, chain._index[name], True,
+        ik_module._Task(name, True,
                         se3.inverse(T_star[name]).reshape(N, 16).mT.reshape(4, 4, N))
         for name in links
     ]  # fmt: skip
@@ -285,7 +285,7 @@ def test_solver_residual_is_the_world_frame_residual(robot, links):
         qs = q if at_solution else chain.random_configuration(N, generator=gen)
         T_star = chain.forward_kinematics(qs, links)
         tasks = [
-            ik_module._Task(name, chain._index[name], True,
+            ik_module._Task(name, True,
                             se3.inverse(T_star[name]).reshape(N, 16).mT.reshape(4, 4, N))
             for name in links
         ]  # fmt: skip
