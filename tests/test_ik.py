@@ -551,6 +551,9 @@ def test_interface_methods():
         tree.poses_and_jacobians(q, links)
     with pytest.raises(ValueError, match=r"Chain\.moving_dofs: unknown link 'nope'"):
         tree.moving_dofs(["nope"])
+    with pytest.raises(TypeError, match=r"Chain\.sampling_bounds: expected lower to be None or a "
+                       r"float64 CPU tensor of shape \(21,\)"):  # fmt: skip
+        tree.sampling_bounds(torch.zeros(tree.n_dof), None)
     # Sampling bounds: finite bounds as given; free ranges on the side of a finite bound.
     n = tree.n_dof
     lower = torch.full((n,), 0.5, dtype=F64)

@@ -370,8 +370,9 @@ class Chain:
 
         Where a bound is finite it is the bound: the chain's limit, or ``lower``/``upper`` when
         given (float64 CPU ``(n_dof,)``, replacing the chain's).  Where it is infinite it is the
-        free range stated in :meth:`random_configuration`, moved to the finite side of the
-        other bound when that one is finite (so that ``lo <= hi``).  Reads no device value.
+        chain's own range (its limit, or where it has none the free range stated in
+        :meth:`random_configuration`), moved to the finite side of the other bound when that
+        one is finite (so that ``lo <= hi``).  Reads no device value.
 
         Example:
             >>> from torchlie.kinematics import sample_robot
@@ -381,6 +382,17 @@ class Chain:
             >>> float(tree.lower[k]), float(lo[k]), float(hi[k])
             (-inf, -1.0, 1.0)
         """
+        for name, v in (("lower", lower), ("upper", upper)):
+            if v is not None and not (
+                isinstance(v, Tensor)
+                and v.shape == (self.n_dof,)
+                and v.dtype == torch.float64
+                and v.device.type == "cpu"
+            ):
+                raise TypeError(
+                    f"{_NAME}sampling_bounds: expected {name} to be None or a float64 CPU tensor "
+                    f"of shape ({self.n_dof},), got {reprlib.repr(v)}"
+                )
         lo64 = self._limits64[0] if lower is None else lower
         hi64 = self._limits64[1] if upper is None else upper
         free_lo, free_hi = self._sample64
