@@ -100,7 +100,7 @@ def pk_rows(chain, chain64, link, T, args):
     serial = pk.SerialChain(pk_chain, link)
     names = serial.get_joint_parameter_names()
     idx = [chain.joint_names.index(n) for n in names]
-    lo, hi = chain._sampling_bounds()  # the limits, and torchlie's ranges where there are none
+    lo, hi = chain.sampling_bounds()  # the limits, and torchlie's ranges where there are none
     limits = torch.stack((lo[idx], hi[idx]), 1).float()
     # The tree's arm: 5 joints, so J J^T is singular and pk's default regularisation (1e-9)
     # fails in float32 ("input matrix is singular"); and continuous joints, whose infinite

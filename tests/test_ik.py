@@ -248,7 +248,7 @@ def test_residual_jacobian_is_the_exact_derivative(robot, links):
     q = chain.random_configuration(N, generator=gen)
     T_star = chain.forward_kinematics(chain.random_configuration(N, generator=gen), links)
     tasks = [
-        ik_module._Task(name, chain._index[name], True,
+        ik_module._Task(name, True,
                         se3.inverse(T_star[name]).reshape(N, 16).mT.reshape(4, 4, N))
         for name in links
     ]  # fmt: skip
@@ -285,7 +285,7 @@ def test_solver_residual_is_the_world_frame_residual(robot, links):
         qs = q if at_solution else chain.random_configuration(N, generator=gen)
         T_star = chain.forward_kinematics(qs, links)
         tasks = [
-            ik_module._Task(name, chain._index[name], True,
+            ik_module._Task(name, True,
                             se3.inverse(T_star[name]).reshape(N, 16).mT.reshape(4, 4, N))
             for name in links
         ]  # fmt: skip
@@ -495,3 +495,74 @@ def test_inverse_kinematics_example_quick_run(tmp_path, capsys):
         assert (tmp_path / "convergence.png").stat().st_size > 1000
     else:
         assert fig["plot"] is None and "matplotlib is not installed" in out
+
+
+# ----------------------------------------------------------------------------------------------
+# The interface the solver uses of a chain
+# ----------------------------------------------------------------------------------------------
+
+
+def test_solver_uses_only_the_stated_interface():
+    """ik.py reads no private member of a chain, only the attributes and methods SolverChain
+    states, and chain.py does not import the solver at module level (no import circle)."""
+    import ast
+
+    tree = ast.parse(Path(ik_module.__file__).read_text())
+    private = [
+        f"{node.value.id}.{node.attr} (line {node.lineno})"
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Attribute)
+        and isinstance(node.value, ast.Name)
+        and node.value.id == "chain"
+        and node.attr.startswith("_")
+    ]
+    assert private == []
+    used = {
+        node.attr
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Attribute)
+        and isinstance(node.value, ast.Name)
+        and node.value.id == "chain"
+    }
+    stated = set(ik_module.SolverChain.__annotations__) | {
+        "poses_and_jacobians", "moving_dofs", "sampling_bounds"
+    }  # fmt: skip
+    assert used <= stated, used - stated
+    # chain.py imports the solver only inside Chain.inverse_kinematics (and for type checking).
+    chain_src = ast.parse((Path(ik_module.__file__).parent / "chain.py").read_text())
+    top = [node.module for node in chain_src.body if isinstance(node, ast.ImportFrom)]
+    assert "ik" not in top and "torchlie.kinematics.ik" not in top
+
+
+def test_interface_methods():
+    tree = TREE
+    q = tree.random_configuration(3, generator=torch.Generator().manual_seed(2))
+    links = ["left_tcp", "puck_tool"]
+    dofs = tree.moving_dofs(links)
+    assert dofs == tuple(sorted(dofs)) and dofs == tree.moving_dofs(links[::-1])
+    J_all = tree.jacobian(q, links)
+    off = [i for i in range(tree.n_dof) if i not in set(dofs)]
+    for name, P, J in zip(links, *tree.poses_and_jacobians(q.mT, links, dofs), strict=True):
+        torch.testing.assert_close(P.permute(2, 1, 0), _fk(tree, q, name), atol=0, rtol=0)
+        torch.testing.assert_close(J.permute(2, 1, 0), J_all[name][..., list(dofs)], atol=0,
+                                   rtol=0)  # fmt: skip
+        assert bool((J_all[name][..., off] == 0).all())
+    with pytest.raises(ValueError, match=r"Chain\.poses_and_jacobians: expected q_t of shape"):
+        tree.poses_and_jacobians(q, links)
+    with pytest.raises(ValueError, match=r"Chain\.moving_dofs: unknown link 'nope'"):
+        tree.moving_dofs(["nope"])
+    with pytest.raises(TypeError, match=r"Chain\.sampling_bounds: expected lower to be None or a "
+                       r"float64 CPU tensor of shape \(21,\)"):  # fmt: skip
+        tree.sampling_bounds(torch.zeros(tree.n_dof), None)
+    # Sampling bounds: finite bounds as given; free ranges on the side of a finite bound.
+    n = tree.n_dof
+    lower = torch.full((n,), 0.5, dtype=F64)
+    upper = torch.full((n,), math.inf, dtype=F64)
+    lo, hi = tree.sampling_bounds(lower, upper)
+    assert lo.dtype == F64 and lo.device.type == "cpu"
+    assert torch.equal(lo, lower) and bool((hi >= lo).all()) and bool(torch.isfinite(hi).all())
+    lo, hi = tree.sampling_bounds()
+    finite = torch.isfinite(tree.lower)
+    assert torch.equal(lo[finite], tree.lower[finite])
+    assert torch.equal(hi[finite], tree.upper[finite])
+    assert bool(torch.isfinite(lo).all()) and bool((lo < hi).all())

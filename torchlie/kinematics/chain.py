@@ -84,7 +84,7 @@ import operator
 import os
 import reprlib
 from collections.abc import Callable, Hashable, Mapping, Sequence
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import torch
 from torch import Tensor
@@ -105,9 +105,10 @@ from ._joints import (
     rpy_matrix,
 )
 from .dynamics import Inertials
-from .ik import IKResult
-from .ik import inverse_kinematics as _inverse_kinematics
 from .urdf import RobotSpec, _some, parse_urdf
+
+if TYPE_CHECKING:  # the solver is imported when it is called: it depends on Chain, not back
+    from .ik import IKResult
 
 __all__ = ["Chain", "rpy_matrix"]
 
@@ -138,6 +139,11 @@ class Chain:
     coordinates, ``q`` layout, Jacobian meaning).  A chain holds constants in one dtype and on
     one device (float32 on the CPU by default); :meth:`to` returns a converted copy, rebuilt
     from the float64 values parsed from the file.
+
+    Solvers use a chain through its attributes and three methods, the interface
+    :class:`~torchlie.kinematics.ik.SolverChain` states: :meth:`poses_and_jacobians` (poses
+    and world Jacobians of several links from one pass, batch last), :meth:`moving_dofs` and
+    :meth:`sampling_bounds`.
 
     Attributes:
         spec: the parsed :class:`~torchlie.kinematics.RobotSpec`.
@@ -358,10 +364,43 @@ class Chain:
     # Sampling
     # ------------------------------------------------------------------------------------------
 
-    def _sampling_bounds(self) -> tuple[Tensor, Tensor]:
-        """float64 CPU ``(lower, upper)`` of :meth:`random_configuration`: the limits, and the
-        free ranges it states where a coordinate has none (copies)."""
-        return self._sample64[0].clone(), self._sample64[1].clone()
+    def sampling_bounds(
+        self, lower: Tensor | None = None, upper: Tensor | None = None
+    ) -> tuple[Tensor, Tensor]:
+        """The float64 CPU box ``(lo, hi)`` that uniform joint values are drawn from
+        (:meth:`random_configuration`, the starts of :meth:`inverse_kinematics`).
+
+        Where a bound is finite it is the bound: the chain's limit, or ``lower``/``upper`` when
+        given (float64 CPU ``(n_dof,)``, replacing the chain's).  Where it is infinite it is the
+        chain's own range (its limit, or where it has none the free range stated in
+        :meth:`random_configuration`), moved to the finite side of the other bound when that
+        one is finite (so that ``lo <= hi``).  Reads no device value.
+
+        Example:
+            >>> from torchlie.kinematics import sample_robot
+            >>> tree = Chain.from_urdf(sample_robot("tree"))
+            >>> lo, hi = tree.sampling_bounds()
+            >>> k = tree.joint_names.index("drone_free:x")
+            >>> float(tree.lower[k]), float(lo[k]), float(hi[k])
+            (-inf, -1.0, 1.0)
+        """
+        for name, v in (("lower", lower), ("upper", upper)):
+            if v is not None and not (
+                isinstance(v, Tensor)
+                and v.shape == (self.n_dof,)
+                and v.dtype == torch.float64
+                and v.device.type == "cpu"
+            ):
+                raise TypeError(
+                    f"{_NAME}sampling_bounds: expected {name} to be None or a float64 CPU tensor "
+                    f"of shape ({self.n_dof},), got {reprlib.repr(v)}"
+                )
+        lo64 = self._limits64[0] if lower is None else lower
+        hi64 = self._limits64[1] if upper is None else upper
+        free_lo, free_hi = self._sample64
+        lo = torch.where(torch.isfinite(lo64), lo64, torch.minimum(free_lo, hi64))
+        hi = torch.where(torch.isfinite(hi64), hi64, torch.maximum(free_hi, lo64))
+        return lo, hi
 
     def random_configuration(
         self, *batch: int, generator: torch.Generator | None = None
@@ -399,7 +438,7 @@ class Chain:
                 raise ValueError(f"{fn}: expected batch sizes >= 0, got batch={batch!r}")
             sizes.append(size)
         _checks.batch_dims(fn, len(sizes), "(one per batch size)")
-        lo, hi = self._sampling_bounds()
+        lo, hi = self.sampling_bounds()
         u = torch.rand(*sizes, self.n_dof, generator=generator, dtype=torch.float64)
         return _uniform_within(lo, hi, u).to(dtype=self.dtype, device=self.device)
 
@@ -578,10 +617,61 @@ class Chain:
         # Each column into its DoF's column (summed where mimic joints share one).
         return C.new_zeros(n_out, 6, B).index_add(0, index, C)
 
-    def _moving_dofs(self, targets: tuple[int, ...]) -> tuple[int, ...]:
-        """The DoFs that move at least one of the links ``targets`` (sorted): the others have
-        zero Jacobian columns."""
+    def moving_dofs(self, links: str | Sequence[str]) -> tuple[int, ...]:
+        """The DoFs (indices into :attr:`joint_names`, sorted) that move at least one of
+        ``links``: the others have zero Jacobian columns for them.
+
+        Example:
+            >>> from torchlie.kinematics import sample_robot
+            >>> arm = Chain.from_urdf(sample_robot("arm7"))
+            >>> arm.moving_dofs("link3")
+            (0, 1, 2)
+        """
+        targets = self._targets(links, "moving_dofs")
         return tuple(sorted({d for t in targets for d in self._jac_plan(t).dofs}))
+
+    def poses_and_jacobians(
+        self,
+        q_t: Float[Tensor, "n_dof B"],
+        links: str | Sequence[str],
+        dofs: Sequence[int] | None = None,
+    ) -> tuple[list[Float[Tensor, "4 4 B"]], list[Float[Tensor, "k 6 B"]]]:
+        """Poses and world Jacobians of ``links`` from one forward-kinematics pass, batch last:
+        the form an iterative solver works in (:mod:`torchlie.kinematics.ik`).
+
+        Args:
+            q_t: ``(n_dof, B)`` joint values, the batch last (``q.mT`` for ``q (B, n_dof)``),
+                in the chain's dtype and on its device.
+            links: a link name or a sequence of names.
+            dofs: sorted DoF indices (see :meth:`moving_dofs`): only their Jacobian columns
+                are returned; ``None`` for all ``n_v`` columns.
+
+        Returns:
+            Per link, its pose transposed, ``(4, 4, B)`` with entry ``[c, r, b]`` the pose
+            ``T[b][r, c]``, and its Jacobian (as :meth:`jacobian` with ``frame="world"``)
+            ``(k, 6, B)``: column, row, batch.
+
+        Example:
+            >>> from torchlie.kinematics import sample_robot
+            >>> arm = Chain.from_urdf(sample_robot("arm7"))
+            >>> q = torch.zeros(4, 7)
+            >>> (P,), (J,) = arm.poses_and_jacobians(q.mT, ["tool_tcp"])
+            >>> torch.equal(P.permute(2, 1, 0), arm.forward_kinematics(q, "tool_tcp")["tool_tcp"])
+            True
+            >>> torch.equal(J.permute(2, 1, 0), arm.jacobian(q, "tool_tcp"))
+            True
+        """
+        fn = "poses_and_jacobians"
+        if not isinstance(q_t, Tensor):
+            raise TypeError(f"{_NAME}{fn}: expected q_t to be a torch.Tensor, got {type(q_t)}")
+        if q_t.dim() != 2 or q_t.shape[0] != self.n_dof:
+            raise ValueError(
+                f"{_NAME}{fn}: expected q_t of shape ({self.n_dof}, B) (batch last), got shape "
+                f"{tuple(q_t.shape)}"
+            )
+        self._check_like(q_t, _NAME + fn, "q_t", q_t.dtype)
+        targets = self._targets(links, fn)
+        return self._poses_and_jacobians(q_t.mT, targets, None if dofs is None else tuple(dofs))
 
     def _poses_and_jacobians(
         self, q2: Tensor, targets: tuple[int, ...], dofs: tuple[int, ...] | None = None
@@ -764,7 +854,9 @@ class Chain:
             >>> res.q.shape, res.converged.tolist()
             (torch.Size([3, 7]), [True, True, True])
         """
-        return _inverse_kinematics(self, targets, link, **options)
+        from .ik import inverse_kinematics
+
+        return inverse_kinematics(self, targets, link, **options)
 
     # ------------------------------------------------------------------------------------------
     # Dynamics (conventions and method in torchlie.kinematics.dynamics)

@@ -23,12 +23,14 @@ Levenberg-Marquardt: the step solves ``(A^T A + mu I) dq = -A^T b`` (``A = W^1/2
 ``b = W^1/2 r``; in the dual form ``dq = -A^T (A A^T + mu I)^-1 b`` when there are fewer
 residual rows than joints), ``mu = lambda * mean(diag)``; a step that lowers the cost is taken
 and ``lambda`` shrinks, otherwise it is refused and ``lambda`` grows.  Each step is one batched
-forward-kinematics-and-Jacobian pass for every link at once (:meth:`Chain.jacobian`'s closed
-form); the small linear systems are solved by a Cholesky factorisation vectorised over the
-batch.  The steps take ``Jr(r)^-1`` as the identity (exact at a solution, where ``r = 0``):
-with both the residual and the Jacobian rotated into the world frame (``diag(R, R)``, which
-leaves the step unchanged), ``A`` is then the chain's world Jacobian as it comes, which saves
-most of the work per step besides forward kinematics; on the bundled robots the starts
+forward-kinematics-and-Jacobian pass for every link at once
+(:meth:`Chain.poses_and_jacobians`, :meth:`Chain.jacobian`'s closed form); the residual is
+:func:`torchlie.se3.log` and the small linear systems are solved by one batched
+:func:`torch.linalg.solve_ex`.  The steps take ``Jr(r)^-1`` as the identity (exact at a
+solution, where ``r = 0``): with both the residual and the Jacobian rotated into the world
+frame (``diag(R, R)``, which leaves the step unchanged), ``A`` is then the chain's world
+Jacobian as it comes, which saves most of the work per step besides forward kinematics; on
+the bundled robots the starts
 converge as often and as fast as with the exact derivative.  Whether a step is taken is decided
 by the exact cost.
 
@@ -90,21 +92,18 @@ from __future__ import annotations
 
 import math
 import reprlib
-from collections.abc import Mapping
-from typing import TYPE_CHECKING, NamedTuple
+from collections.abc import Mapping, Sequence
+from typing import NamedTuple, Protocol
 
 import torch
 from torch import Tensor
 
-from .. import _checks, _coeffs, _rodrigues, _se3_jacobian
+from .. import _checks
 from .. import se3 as _se3
 from .. import so3 as _so3
 from ._joints import _uniform_within
 
-if TYPE_CHECKING:
-    from .chain import Chain
-
-__all__ = ["IKResult", "inverse_kinematics"]
+__all__ = ["IKResult", "SolverChain", "inverse_kinematics"]
 
 _FN = "torchlie.kinematics.Chain.inverse_kinematics"
 
@@ -147,6 +146,48 @@ class IKResult(NamedTuple):
     iterations: Tensor
 
 
+class SolverChain(Protocol):
+    """What the solver uses of a robot: :class:`~torchlie.kinematics.Chain` provides it, and
+    the solver touches nothing else of it.
+
+    Attributes:
+        dtype, device: of the chain's constants (the targets, ``q0`` and bounds must match).
+        n_dof, n_v: joint values and velocity coordinates (the solver steps the values, so it
+            needs ``n_v == n_dof``: no quaternion joints).
+        joint_names: the DoFs; a floating joint's rotation vector is named ``J:rx, J:ry, J:rz``.
+        link_names: the links targets may name.
+        lower, upper: ``(n_dof,)`` limits (``-inf``/``inf`` where there are none).
+    """
+
+    dtype: torch.dtype
+    device: torch.device
+    n_dof: int
+    n_v: int
+    joint_names: tuple[str, ...]
+    link_names: tuple[str, ...]
+    lower: Tensor
+    upper: Tensor
+
+    def poses_and_jacobians(
+        self, q_t: Tensor, links: Sequence[str], dofs: Sequence[int] | None = None
+    ) -> tuple[list[Tensor], list[Tensor]]:
+        """Per link, the transposed pose ``(4, 4, B)`` and the world Jacobian ``(k, 6, B)``
+        (only the columns of ``dofs``) at ``q_t (n_dof, B)``, from one pass
+        (:meth:`Chain.poses_and_jacobians <torchlie.kinematics.Chain.poses_and_jacobians>`)."""
+        ...
+
+    def moving_dofs(self, links: Sequence[str]) -> tuple[int, ...]:
+        """The sorted DoFs that move at least one of ``links``."""
+        ...
+
+    def sampling_bounds(
+        self, lower: Tensor | None = None, upper: Tensor | None = None
+    ) -> tuple[Tensor, Tensor]:
+        """float64 CPU ``(lo, hi)`` of uniform starts, within the limits or the given bounds
+        (:meth:`Chain.sampling_bounds <torchlie.kinematics.Chain.sampling_bounds>`)."""
+        ...
+
+
 class _Dofs(NamedTuple):
     """The DoFs solved for (those that move a target link), when not all of them."""
 
@@ -155,8 +196,7 @@ class _Dofs(NamedTuple):
 
 
 class _Task(NamedTuple):
-    name: str
-    link: int  # internal index of the link
+    link: str
     pose: bool  # pose target (else a position)
     target: Tensor  # batch innermost: (4, 4, N) T*^-1, or (3, N) p*
 
@@ -166,15 +206,25 @@ class _Task(NamedTuple):
 # ----------------------------------------------------------------------------------------------
 
 
-def _tensor(chain: Chain, x: object, name: str) -> Tensor:
+def _tensor(chain: SolverChain, x: object, name: str) -> Tensor:
+    """``x``, checked to be a tensor of the chain's dtype on its device."""
     if not isinstance(x, Tensor):
         raise TypeError(f"{_FN}: expected {name} to be a torch.Tensor, got {type(x).__name__}")
-    chain._check_like(x, _FN, name, x.dtype)
+    if x.dtype != chain.dtype:
+        raise TypeError(
+            f"{_FN}: {name} has dtype {x.dtype} but the chain's constants are {chain.dtype}; "
+            "convert one of them (chain.to(dtype=...))"
+        )
+    if x.device != chain.device:
+        raise ValueError(
+            f"{_FN}: {name} is on {x.device} but the chain is on {chain.device}; use "
+            "chain.to(device=...)"
+        )
     return x
 
 
-def _targets(chain: Chain, targets: object, link: object) -> list[tuple[str, int, bool, Tensor]]:
-    """``[(link name, link index, is pose, tensor)]`` from ``targets`` and ``link``."""
+def _targets(chain: SolverChain, targets: object, link: object) -> list[tuple[str, bool, Tensor]]:
+    """``[(link name, is pose, tensor)]`` from ``targets`` and ``link``."""
     if isinstance(targets, Mapping):
         if link is not None:
             raise TypeError(
@@ -199,14 +249,17 @@ def _targets(chain: Chain, targets: object, link: object) -> list[tuple[str, int
                 f"{_FN}: expected the keys of targets to be link names (str), got "
                 f"{type(name).__name__} {reprlib.repr(name)}"
             )
-        (index,) = chain._targets(name, "inverse_kinematics")
+        if name not in chain.link_names:
+            raise ValueError(
+                f"{_FN}: unknown link {name!r} (the links are {reprlib.repr(chain.link_names)})"
+            )
         what = f"targets[{name!r}]" if isinstance(targets, Mapping) else "targets"
         t = _tensor(chain, t, what)
         shape = tuple(t.shape)
         if shape[-2:] == (4, 4):
-            out.append((name, index, True, t))
+            out.append((name, True, t))
         elif shape[-1:] == (3,):
-            out.append((name, index, False, t))
+            out.append((name, False, t))
         else:
             raise ValueError(
                 f"{_FN}: expected {what} to be poses of shape (..., 4, 4) or positions of "
@@ -215,7 +268,7 @@ def _targets(chain: Chain, targets: object, link: object) -> list[tuple[str, int
     return out
 
 
-def _limits(chain: Chain, lower: object, upper: object) -> tuple[Tensor, Tensor]:
+def _limits(chain: SolverChain, lower: object, upper: object) -> tuple[Tensor, Tensor]:
     """The bounds ``(n_dof,)``: the chain's, or the ones given (broadcast to ``(n_dof,)``).
 
     Bounds given explicitly are checked for ``lower <= upper`` (one synchronisation, skipped
@@ -254,80 +307,11 @@ def _limits(chain: Chain, lower: object, upper: object) -> tuple[Tensor, Tensor]
 # ----------------------------------------------------------------------------------------------
 
 
-def _hat_entries(w: tuple[Tensor, ...]) -> list[list[Tensor | None]]:
-    x, y, z = w
-    return [[None, -z, y], [z, None, -x], [-y, x, None]]
-
-
-def _matmul3(X: Tensor, Y: Tensor) -> Tensor:
-    """``X @ Y`` for ``(3, 3, N)`` stacks of matrices."""
-    return (X.unsqueeze(2) * Y.unsqueeze(0)).sum(1)
-
-
-def _jr_inv_rt(r: Tensor, Rt: Tensor) -> tuple[Tensor, Tensor]:
-    """``(B R^T, C R^T)``, ``(3, 3, N)`` each, with ``Jr(r)^-1 = [[B, C], [0, B]]`` for the
-    twists ``r (6, N)`` and the rotations ``R^T (3, 3, N)``.
-
-    ``Jr(r)^-1 = Jl(-r)^-1`` (:mod:`torchlie.se3`): ``B = I + phi^/2 + d phi^ phi^`` (so3's
-    ``Jl(-phi)^-1``, ``d = (1 - (t/2) cot(t/2)) / t^2``) and ``C = -B Q(-rho, -phi) B``.
-    """
-    rho = tuple(-x for x in r[:3].unbind(0))
-    phi = r[3:].unbind(0)
-    t2 = _coeffs.theta2(phi)
-    d = _coeffs.jinv(t2).to(r.dtype)
-    ks = (c.to(r.dtype) for c in _coeffs.q_series(t2))
-    H = _hat_entries(phi)
-    one = torch.ones_like(phi[0])
-    # phi^ phi^ = phi phi^T - |phi|^2 I
-    B = torch.stack(
-        [
-            torch.stack(
-                [
-                    d * (phi[i] * phi[j] - (t2.to(r.dtype) if i == j else 0.0))
-                    + (one if i == j else 0.5 * H[i][j])  # type: ignore[operator]
-                    for j in range(3)
-                ]
-            )
-            for i in range(3)
-        ]
-    )
-    neg_phi = tuple(-x for x in phi)
-    eye = torch.eye(3, dtype=r.dtype, device=r.device).unsqueeze(-1)  # e_j along dim 0
-    Qcols = _se3_jacobian.q_components(rho, neg_phi, eye.unbind(1), *ks)  # Q e_j: (3, N) each
-    Q = torch.stack(Qcols)  # (row i, column j, N)
-    C = -_matmul3(_matmul3(B, Q), B)
-    return _matmul3(B, Rt), _matmul3(C, Rt)
-
-
 def _norm3(v: Tensor) -> Tensor:
     """Norm of ``(3, N)`` columns (three fused products: a reduction over a leading dimension
     of 3 costs more)."""
     x, y, z = v.unbind(0)
     return torch.addcmul(torch.addcmul(x * x, y, y), z, z).sqrt()
-
-
-def _combine(G: Tensor, rows: tuple[Tensor, ...], G2: Tensor | None = None,
-             rows2: tuple[Tensor, ...] = ()) -> Tensor:  # fmt: skip
-    """``sum_j G[j] rows[j] (+ sum_j G2[j] rows2[j])``: a row of a ``(3, 3, N)`` matrix times
-    the rows ``(n, N)`` of a Jacobian, per problem."""
-    out = G[0] * rows[0]
-    for j in (1, 2):
-        out = torch.addcmul(out, G[j], rows[j])
-    if G2 is not None:
-        for j in range(3):
-            out = torch.addcmul(out, G2[j], rows2[j])
-    return out
-
-
-def _pose_error(P: Tensor, Ti: Tensor) -> tuple[Tensor, Tensor]:
-    """Rotation ``(3, 3, N)`` (``[r, c]``) and translation ``(3, N)`` of ``T*^-1 T`` from the
-    transposed pose ``P (4, 4, N)`` of ``T`` and ``Ti (4, 4, N)`` = ``T*^-1``."""
-    ER = Ti[:3, None, 0] * P[None, :3, 0]
-    Et = torch.addcmul(Ti[:3, 3], Ti[:3, 0], P[3, 0])
-    for k in (1, 2):
-        ER = torch.addcmul(ER, Ti[:3, None, k], P[None, :3, k])
-        Et = torch.addcmul(Et, Ti[:3, k], P[3, k])
-    return ER, Et
 
 
 def _errors(perr: list[Tensor], rerr: list[Tensor]) -> tuple[Tensor, Tensor]:
@@ -338,31 +322,41 @@ def _errors(perr: list[Tensor], rerr: list[Tensor]) -> tuple[Tensor, Tensor]:
     return p, torch.stack(rerr).amax(0) if len(rerr) > 1 else rerr[0]
 
 
+def _log_error(P: Tensor, Ti: Tensor) -> tuple[Tensor, Tensor]:
+    """``r = Log(T*^-1 T)`` ``(6, N)`` (:func:`torchlie.se3.log`) and the norm of the
+    translation of ``T*^-1 T`` ``(N,)`` (the position error), from the transposed pose
+    ``P (4, 4, N)`` of ``T`` and ``Ti (4, 4, N)`` = ``T*^-1``.
+
+    ``T*^-1 T`` is formed batch last, four fused multiply-adds over the batch (faster than a
+    batched product of 4x4 matrices).
+    """
+    E = Ti[:, None, 0] * P[None, :, 0]  # [r, c, N]
+    for k in (1, 2, 3):
+        E = torch.addcmul(E, Ti[:, None, k], P[None, :, k])
+    return _se3.log(E.permute(2, 0, 1)).mT, _norm3(E[:3, 3])
+
+
 def _residuals(
-    chain: Chain, q: Tensor, tasks: list[_Task], weights: Tensor, dofs: _Dofs | None
+    chain: SolverChain, q: Tensor, tasks: list[_Task], weights: Tensor, dofs: _Dofs | None
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Weighted residuals ``b (m, N)``, their exact Jacobian ``A (m, k, N)`` with respect to the
     DoFs ``dofs`` (``k`` of them; all if None) and the position and rotation errors ``(N,)``
     (worst over the tasks) at ``q (n_dof, N)``: the link-frame residuals of the module
     docstring (used for the implicit gradients)."""
     links = tuple(t.link for t in tasks)
-    poses, jacs = chain._poses_and_jacobians(q.mT, links, None if dofs is None else dofs.ids)
+    poses, jacs = chain.poses_and_jacobians(q, links, None if dofs is None else dofs.ids)
     rs, As, perr, rerr = [], [], [], []
     for task, P, J in zip(tasks, poses, jacs, strict=True):
-        # P (4, 4, N) with P[c, r] = T[r, c]; J (n, 6, N) in world coordinates.
+        # P (4, 4, N) with P[c, r] = T[r, c]; J (k, 6, N) in world coordinates.
         if task.pose:
-            Ti = task.target  # (4, 4, N): T*^-1
-            ER, Et = _pose_error(P, Ti)
-            E = torch.cat((torch.cat((ER, Et.unsqueeze(1)), 1), Ti[3:]), 0)  # (4, 4, N)
-            r = _se3.log(E.permute(2, 0, 1)).mT  # (6, N)
-            # The derivative of the log: Jr(r)^-1 times the link-frame Jacobian R^T J.
-            G1, G2 = _jr_inv_rt(r, P[:3, :3])
-            Jc = J.unbind(1)  # six (n, N): linear then angular rows
-            top = [_combine(G1[i], Jc[:3], G2[i], Jc[3:]) for i in range(3)]
-            bottom = [_combine(G1[i], Jc[3:]) for i in range(3)]
-            As.append(torch.stack(top + bottom))
+            r, err = _log_error(P, task.target)
+            # The derivative of the log: Jr(r)^-1 times the link-frame Jacobian diag(R, R)^T J.
+            Rt = P[:3, :3].permute(2, 0, 1)  # R^T
+            Jw = J.permute(2, 1, 0)  # (N, 6, k)
+            J_link = torch.cat((Rt @ Jw[:, :3], Rt @ Jw[:, 3:]), 1)
+            As.append((_se3.jac_right_inv(r.mT) @ J_link).permute(1, 2, 0))
             rs.append(r)
-            perr.append(_norm3(Et))
+            perr.append(err)
             rerr.append(_norm3(r[3:]))
         else:
             r = P[3, :3] - task.target
@@ -374,22 +368,12 @@ def _residuals(
     return b, A, *_errors(perr, rerr)
 
 
-def _rotation_log(R: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """``phi = log(R)`` ``(3, N)``, its angle ``theta`` and ``(theta/2) cot(theta/2)`` ``(N,)``
-    for rotations ``R (3, 3, N)`` (``[r, c]``), from the skew part and the trace: a few vector
-    operations (the solver's residual; :func:`torchlie.so3.log` is the accurate one).  The angle
-    is accurate at every angle; the axis loses precision near ``pi`` (where ``sin`` vanishes),
-    which only perturbs steps taken far from a solution."""
-    v = torch.stack((R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]))
-    s = _norm3(v).clamp_min_(_coeffs.H_MIN[v.dtype])  # 2 sin(theta): v = 2 sin(theta) axis
-    c = R[0, 0] + R[1, 1] + R[2, 2] - 1.0  # 2 cos(theta)
-    theta = torch.atan2(s, c)
-    f = theta / s
-    return v * f, theta, f * (c + 2.0) * 0.5  # cot(theta/2) = (2 + c) / s
-
-
 def _linearise(
-    chain: Chain, q: Tensor, tasks: list[_Task], weights: Tensor | None, dofs: _Dofs | None
+    chain: SolverChain,
+    q: Tensor,
+    tasks: list[_Task],
+    weights: Tensor | None,
+    dofs: _Dofs | None,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """What one solver iteration needs at ``q (n_dof, N)``: the residuals rotated into the world
     frame ``b (m, N)`` (weighted; the same norm as :func:`_residuals`'), their Jacobian
@@ -402,18 +386,14 @@ def _linearise(
     decides whether a step is taken is still the exact one.
     """
     links = tuple(t.link for t in tasks)
-    poses, jacs = chain._poses_and_jacobians(q.mT, links, None if dofs is None else dofs.ids)
+    poses, jacs = chain.poses_and_jacobians(q, links, None if dofs is None else dofs.ids)
     rs, As, perr, rerr = [], [], [], []
     for task, P, J in zip(tasks, poses, jacs, strict=True):
         if task.pose:
-            ER, Et = _pose_error(P, task.target)
-            phi, theta, e = _rotation_log(ER)
-            d = torch.rsub(e, 1.0).div_((theta * theta).clamp_min_(_coeffs.H_MIN[theta.dtype]))
-            rho = _rodrigues.jl_components(phi.unbind(0), Et.unbind(0), e, e.new_full((), -0.5), d)
-            r = torch.cat((torch.stack(rho), phi)).view(2, 3, 1, -1)  # (rho, phi), link frame
-            r = (P[:3, :3] * r).sum(1).view(6, -1)  # R rho, R phi
-            perr.append(_norm3(Et))
-            rerr.append(theta)
+            r, err = _log_error(P, task.target)  # (rho, phi) in the link frame
+            perr.append(err)
+            rerr.append(_norm3(r[3:]))
+            r = (P[:3, :3] * r.view(2, 3, 1, -1)).sum(1).view(6, -1)  # R rho, R phi
         else:
             r = P[3, :3] - task.target
             J = J[:, :3]
@@ -428,32 +408,12 @@ def _linearise(
 
 
 def _spd_solve(S: Tensor, y: Tensor) -> Tensor:
-    """``S^-1 y`` for symmetric positive definite ``S (k, k, N)`` and ``y (k, N)``.
-
-    A right-looking Cholesky factorisation, a few vector operations over the batch per column
-    (``k`` is small: a few rows per link): for thousands of tiny systems this is several times
-    faster on a CPU than a LAPACK call per matrix, and it has no error check that would read a
-    device value.  A pivot that rounding makes non-positive is clamped to the smallest normal
-    number, so the result stays finite.
-    """
-    k = S.shape[0]
-    tiny = torch.finfo(S.dtype).tiny
-    cols, invs, zs = [], [], []  # column j of L below the diagonal, 1 / L[j, j], L^-1 y
-    for j in range(k):
-        inv = S[0, 0].clamp_min(tiny).rsqrt()
-        col = S[1:, 0] * inv
-        z = y[0] * inv
-        if j + 1 < k:  # the Schur complement, and y with column j eliminated
-            S = torch.addcmul(S[1:, 1:], col.unsqueeze(1), col.unsqueeze(0), value=-1.0)
-            y = torch.addcmul(y[1:], col, z, value=-1.0)
-        cols.append(col)
-        invs.append(inv)
-        zs.append(z)
-    x = (zs[-1] * invs[-1]).unsqueeze(0)  # L^T x = z, from the last row up
-    for j in reversed(range(k - 1)):
-        xj = (zs[j] - (cols[j] * x).sum(0)) * invs[j]
-        x = torch.cat((xj.unsqueeze(0), x))
-    return x
+    """``S^-1 y`` ``(k, N)`` for symmetric positive definite ``S (k, k, N)`` and ``y (k, N)``,
+    batch last, by :func:`torch.linalg.solve_ex` (no error check, which would read a device
+    value: a system that rounding makes singular gives non-finite values, and the step that
+    uses them is refused by the cost test)."""
+    x, _ = torch.linalg.solve_ex(S.permute(2, 0, 1), y.mT)
+    return x.mT
 
 
 def _gram(X: Tensor) -> Tensor:
@@ -501,24 +461,22 @@ def _clamp(q: Tensor, lo: Tensor, hi: Tensor) -> Tensor:
 
 
 def _starts(
-    chain: Chain,
+    chain: SolverChain,
     bounds: tuple[Tensor, Tensor] | None,
     shape: tuple[int, ...],
     generator: torch.Generator | None,
 ) -> Tensor:
     """Uniform draws ``(*shape, n_dof)`` within the chain's limits, or within ``bounds`` (given
     bounds, already on the host), with the free ranges of :meth:`Chain.random_configuration`
-    where a bound is infinite; drawn on the CPU in float64 (no device value is read)."""
-    slo, shi = chain._sampling_bounds()
-    lo64, hi64 = chain._limits64 if bounds is None else bounds
-    slo = torch.where(torch.isfinite(lo64), lo64, torch.minimum(slo, hi64))
-    shi = torch.where(torch.isfinite(hi64), hi64, torch.maximum(shi, lo64))
+    where a bound is infinite (:meth:`SolverChain.sampling_bounds`); drawn on the CPU in
+    float64 (no device value is read)."""
+    slo, shi = chain.sampling_bounds() if bounds is None else chain.sampling_bounds(*bounds)
     u = torch.rand(*shape, chain.n_dof, generator=generator, dtype=torch.float64)
     return _uniform_within(slo, shi, u).to(dtype=chain.dtype, device=chain.device)
 
 
 def inverse_kinematics(
-    chain: Chain,
+    chain: SolverChain,
     targets: Tensor | Mapping[str, Tensor],
     link: str | None = None,
     *,
@@ -538,7 +496,8 @@ def inverse_kinematics(
     """Joint values that put ``link`` at ``targets`` (see the module docstring for the method).
 
     Args:
-        chain: the robot.
+        chain: the robot: a :class:`~torchlie.kinematics.Chain`, or anything with the
+            :class:`SolverChain` interface.
         targets: poses ``(..., 4, 4)`` or positions ``(..., 3)`` of ``link`` in the world (root)
             frame; or a dict link name -> such targets for several links at once (a tree's
             end links), their batch shapes broadcast together.  In the chain's dtype and on its
@@ -598,14 +557,14 @@ def inverse_kinematics(
     wp = _checks.nonnegative(position_weight, _FN, "position_weight", positive=True)
     wr = _checks.nonnegative(rotation_weight, _FN, "rotation_weight")
     if wr == 0:  # orientations ignored: pose targets are position targets
-        items = [(nm, i, False, t[..., :3, 3]) if pose else (nm, i, pose, t)
-                 for nm, i, pose, t in items]  # fmt: skip
+        items = [(nm, False, t[..., :3, 3]) if pose else (nm, pose, t)
+                 for nm, pose, t in items]  # fmt: skip
     tol_p = _checks.nonnegative(position_tolerance, _FN, "position_tolerance")
     tol_r = _checks.nonnegative(rotation_tolerance, _FN, "rotation_tolerance")
     lo, hi = _limits(chain, lower, upper)
     dtype, device, n = chain.dtype, chain.device, chain.n_dof
     shapes = [(t.shape[:-2] if pose else t.shape[:-1], f"targets[{name!r}]")
-              for name, _, pose, t in items]  # fmt: skip
+              for name, pose, t in items]  # fmt: skip
     if q0 is not None:
         q0 = _tensor(chain, q0, "q0")
         _checks.tensor(q0, _FN, "q0", (n,))
@@ -631,19 +590,19 @@ def inverse_kinematics(
 
     # Tasks: targets broadcast to (P,), batch innermost.
     tasks, grad_tasks, weights = [], [], []
-    for name, index, pose, t in items:
+    for name, pose, t in items:
         tail = (4, 4) if pose else (3,)
         size = math.prod(tail)
         tb = t.expand(*batch, *tail).reshape(P, *tail)
         ref = _se3.inverse(tb) if pose else tb
         ref = ref.reshape(P, size).mT
-        grad_tasks.append(_Task(name, index, pose, ref.reshape(*tail, P)))
-        tasks.append(_Task(name, index, pose, ref.detach().contiguous().view(*tail, P)))
+        grad_tasks.append(_Task(name, pose, ref.reshape(*tail, P)))
+        tasks.append(_Task(name, pose, ref.detach().contiguous().view(*tail, P)))
         weights += [wp] * 3 + ([wr] * 3 if pose else [])
     w_sqrt = torch.tensor(weights, dtype=dtype, device=device).sqrt()
     w_loop = None if all(w == 1.0 for w in weights) else w_sqrt
     # Only the DoFs that move a target link are solved for (the others keep their start).
-    moving = chain._moving_dofs(tuple(index for _, index, _, _ in items))
+    moving = chain.moving_dofs([name for name, _, _ in items])
     dofs = None if moving == tuple(range(n)) else _Dofs(moving, torch.tensor(moving, device=device))
 
     with torch.no_grad():
@@ -659,7 +618,7 @@ def inverse_kinematics(
 
 
 def _solve(
-    chain: Chain,
+    chain: SolverChain,
     seeds: Tensor,
     tasks: list[_Task],
     weights: Tensor | None,
@@ -826,7 +785,7 @@ def _key(conv: Tensor, cost: Tensor) -> Tensor:
 
 
 def _implicit_step(
-    chain: Chain,
+    chain: SolverChain,
     q: Tensor,
     tasks: list[_Task],
     w_sqrt: Tensor,
@@ -848,10 +807,10 @@ def _implicit_step(
     return s - s.detach()
 
 
-def _residual_values(chain: Chain, q: Tensor, tasks: list[_Task], w_sqrt: Tensor) -> Tensor:
+def _residual_values(chain: SolverChain, q: Tensor, tasks: list[_Task], w_sqrt: Tensor) -> Tensor:
     """Weighted residuals ``(m, N)`` with the graph of the targets (``q`` held fixed)."""
     with torch.no_grad():
-        poses, _ = chain._poses_and_jacobians(q.mT, tuple(t.link for t in tasks))
+        poses, _ = chain.poses_and_jacobians(q, [t.link for t in tasks])
     rs = []
     for task, Pt in zip(tasks, poses, strict=True):
         T = Pt.permute(2, 1, 0)  # (N, 4, 4)
