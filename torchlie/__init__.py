@@ -33,7 +33,7 @@ Python on tensor values, so every op works under ``torch.compile(fullgraph=True)
 ``torch.func.vmap`` / ``jacrev`` / ``jacfwd`` and on CUDA.
 """
 
-from . import conversions, kinematics, nn, quaternion, se3, so3, statistics
+from . import conversions, kinematics, nn, quaternion, se2, se3, so2, so3, statistics
 from .groups import SE3, SO3
 
 __all__ = [
@@ -43,7 +43,9 @@ __all__ = [
     "kinematics",
     "nn",
     "quaternion",
+    "se2",
     "se3",
+    "so2",
     "so3",
     "statistics",
 ]
