@@ -77,11 +77,12 @@ def matrix(c: Tensor, s: Tensor) -> Tensor:
 
 
 def angle(x: Tensor, y: Tensor) -> Tensor:
-    """``atan2(y, x)`` in ``(-pi, pi]``: ``-pi`` (a zero ``y`` of negative sign) becomes ``pi``;
-    the derivative is ``atan2``'s (that of the branch that holds ``pi``), 0 at ``x = y = 0``."""
+    """``atan2(y, x)`` in ``(-pi, pi]``: at an exact half turn given with a negative zero ``y``
+    (``atan2`` returns ``-pi`` there) the result is ``pi``.  The derivative is ``atan2``'s
+    everywhere (at the half turn that of the branch that holds ``pi``), 0 at ``x = y = 0``."""
     a = _coeffs.atan2(y, x)
-    pi = _PI[a.dtype]
-    return torch.where(a == -pi, a + 2.0 * pi, a)
+    flip = (y == 0) & (x < 0)  # atan2 gives +-pi: the rounded pi, with the sign of the zero
+    return torch.where(flip & (a < 0), a + 2.0 * _PI[a.dtype], a)
 
 
 def conformal(R: Tensor) -> tuple[Tensor, Tensor]:
