@@ -2,10 +2,10 @@
 
 Every reference comes from the matrix exponential of ``hat(xi)`` (``mp.expm``) and its Frechet
 derivative (the top-right block of ``expm([[A, E], [0, A]])``), never from the closed forms
-under test.  The log references are the logarithm of the polar-projected input (the meaning of the
-log maps off the manifold), the tangent whose ``expm`` it is, and the reference gradient of a log is the one matrix ``G`` with
-``<G, dT/dxi_k> = g_k`` along the tangent directions, 0 along the normal directions ``R S``
-(``S`` symmetric) and 0 on the bottom row (DESIGN.md section 5).
+under test.  The log reference is the tangent whose ``expm`` is the polar-projected input (the
+meaning of the log maps off the manifold); the reference gradient of a log is the one matrix
+``G`` with ``<G, dT/dxi_k> = g_k`` along the tangent directions, 0 along the normal directions
+``R S`` (``S`` symmetric) and 0 on the bottom row (DESIGN.md section 5).
 """
 
 from __future__ import annotations
