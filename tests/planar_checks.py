@@ -423,3 +423,72 @@ def test_bad_input(mod):
         mod.random(2, dtype=torch.int32)
     with pytest.raises(ValueError, match=prefix + "is_valid"):
         mod.is_valid(torch.eye(d), atol=-1.0)
+
+
+# ----------------------------------------------------------------------------------------------
+# The classes SO2 / SE2: every method is the functional core's value, exactly
+# ----------------------------------------------------------------------------------------------
+
+
+def test_class_methods_equal_core(mod, batch):
+    from torchlie import SE2, SO2
+
+    cls = SO2 if mod is so2 else SE2
+    n, d = dims(mod)
+    gen = torch.Generator().manual_seed(0)
+    X = cls.random(*batch, generator=gen, dtype=torch.float64)
+    Y = cls.random(*batch, generator=gen, dtype=torch.float64)
+    a, b = X.tensor, Y.tensor
+    tau = torch.randn(*batch, n, generator=gen, dtype=torch.float64)
+    p = torch.randn(*batch, 2, generator=gen, dtype=torch.float64)
+    pairs = [
+        ((X @ Y).tensor, mod.compose(a, b)),
+        (X.compose(Y).tensor, mod.compose(a, b)),
+        (X @ p, mod.act(a, p)),
+        (X.apply(p), mod.act(a, p)),
+        (X.inverse().tensor, mod.inverse(a)),
+        (X.log(), mod.log(a)),
+        (cls.exp(tau).tensor, mod.exp(tau)),
+        (X.adjoint(), mod.adjoint(a)),
+        (X.rplus(tau).tensor, mod.rplus(a, tau)),
+        (X.lplus(tau).tensor, mod.lplus(a, tau)),
+        (X.rminus(Y), mod.rminus(a, b)),
+        (X.lminus(Y), mod.lminus(a, b)),
+        (X.between(Y).tensor, mod.between(a, b)),
+        (X.interpolate(Y, 0.3).tensor, mod.interpolate(a, b, 0.3)),
+        (X.is_valid(), mod.is_valid(a)),
+        (cls.identity(*batch).tensor, mod.identity(*batch)),
+    ]
+    for got, want in pairs:
+        assert torch.equal(got, want)
+    assert X.matrix is a and X.shape == batch and X.rotation.shape == batch
+    dist, want = X.distance(Y), mod.distance(a, b)
+    for u, v in zip(
+        dist if isinstance(dist, tuple) else (dist,),
+        want if isinstance(want, tuple) else (want,),
+        strict=True,
+    ):
+        assert torch.equal(u, v)
+    if mod is se2:
+        assert torch.equal(X.translation, a[..., :2, 2]) and torch.equal(
+            X.rotation.tensor, a[..., :2, :2]
+        )
+        assert torch.equal(SE2.from_rt(X.rotation, X.translation).tensor, a)
+        assert torch.equal(
+            SE2.from_xytheta(X.xytheta()).tensor, se2.from_xytheta(se2.to_xytheta(a))
+        )
+    else:
+        assert torch.equal(
+            SO2.from_complex(X.complex()).tensor, so2.from_complex(so2.to_complex(a))
+        )
+    if batch:
+        assert torch.equal(X[0].tensor, a[0]) and len(X) == batch[0]
+    # pytree: through torch.func
+    leaves, spec = torch.utils._pytree.tree_flatten(X)
+    assert leaves[0] is a and type(torch.utils._pytree.tree_unflatten(leaves, spec)) is cls
+    with pytest.raises(TypeError, match=f"torchlie.{cls.__name__}.compose"):
+        X.compose(a)
+    with pytest.raises(
+        ValueError, match=rf"torchlie.{cls.__name__}.apply \(through torchlie.{name(mod)}.act\)"
+    ):
+        X.apply(torch.zeros(3))

@@ -34,10 +34,12 @@ Python on tensor values, so every op works under ``torch.compile(fullgraph=True)
 """
 
 from . import conversions, kinematics, nn, quaternion, se2, se3, so2, so3, statistics
-from .groups import SE3, SO3
+from .groups import SE2, SE3, SO2, SO3
 
 __all__ = [
+    "SE2",
     "SE3",
+    "SO2",
     "SO3",
     "conversions",
     "kinematics",
