@@ -540,6 +540,42 @@ for _cls, _reps in _PARAMS.items():
             R_ if _cls.startswith("SO3") else P_,
         )
 
+for _kind in ("angle", "chordal"):
+    case(
+        f"nn.so2_geodesic_loss[{_kind}]",
+        partial(tnn.so2_geodesic_loss, kind=_kind, reduction="none"),
+        (ROT2, ROTS2),
+        (ROT2, ROTS2),
+    )
+    case(
+        f"nn.se2_geodesic_loss[{_kind}]",
+        partial(tnn.se2_geodesic_loss, rotation_weight=2.0, kind=_kind, reduction="none"),
+        (POSE2, POSES2),
+        (POSE2, POSES2),
+    )
+_COMPLEX = _t([[1.0, 0.0], [0.0, 2.0], [1.0, 1.0], [-3.0, 0.0], [0.0, 0.0]])
+_PARAMS2 = {
+    "SO2Parametrization": {
+        "complex": (ambient(2), _COMPLEX),
+        "matrix": (ambient(2, 2), torch.cat((ROTS2, 2 * ROTS2 + _t([[0.0, 1.0], [0.0, 0.0]])))),
+        "angle": (ambient(1), ANGLES2),
+    },
+    "SE2Parametrization": {
+        "pos_complex": (ambient(4), torch.cat((POINTS2[[0, 1, 2, 3, 3]], _COMPLEX), -1)),
+        "matrix": (ambient(3, 3), POSES2),
+        "twist": (ambient(3), TWISTS2),
+    },
+}
+for _cls, _reps in _PARAMS2.items():
+    for _rep, _arg in _reps.items():
+        _module = getattr(tnn, _cls)(_rep)
+        case(f"nn.{_cls}[{_rep}]", _module, _arg)
+        case(
+            f"nn.{_cls}[{_rep}].right_inverse",
+            _module.right_inverse,
+            (ROT2, ROTS2) if _cls.startswith("SO2") else (POSE2, POSES2),
+        )
+
 # The classes: every public method and property that computes from tensors.
 
 
@@ -596,6 +632,7 @@ EXCLUDED = {
     "nn.REPRESENTATIONS": "a table of sizes",
     "nn.RotationHead": "nn.Linear then nn.representation_to_matrix (checked)",
     "nn.PoseHead": "nn.Linear then nn.representation_to_matrix and se3.from_rt (checked)",
+    "nn.PlanarPoseHead": "nn.Linear then so2.from_complex and se2.from_rt (checked)",
     # class plumbing: factories, predicates, metadata, copies
     **{
         f"{g}.{m}": "class plumbing"

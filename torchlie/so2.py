@@ -410,7 +410,8 @@ def from_complex(z: Float[Tensor, "*b 2"]) -> Float[Tensor, "*b 2 2"]:
                 [ 1.,  0.]])
     """
     x, dtype = _checks.tensor(z, _NAME + "from_complex", "z", (2,))
-    u = x / torch.linalg.vector_norm(x, dim=-1, keepdim=True)
+    x = _coeffs.rescaled(x)[0]  # no overflow or underflow of the squares
+    u = x / _coeffs.norm(x, keepdim=True)
     return _checks.out(matrix(u[..., 0], u[..., 1]), dtype)
 
 
