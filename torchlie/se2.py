@@ -25,7 +25,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, so2
+from . import _checks, _coeffs, _layout, so2
 from ._autograd import CustomFunction
 from ._typing import Bool, Float
 
@@ -108,14 +108,21 @@ def _jl(x: Tensor, y: Tensor, t: Tensor) -> tuple[Tensor, ...]:
 
 
 def _exp(xi: Tensor) -> Tensor:
-    x, y, t = xi.unbind(-1)
-    c, s = torch.cos(t), torch.sin(t)
+    # half-angle forms (as so3.exp): h = t/2, r = sin(h)/h, R = [[c, -s], [s, c]] with
+    # c = (cos h - sin h)(cos h + sin h), s = 2 sin h cos h; a = r cos h, b = r sin h
+    x, y, t = _layout.planes(xi, 3)
+    o = so2.columns(t, 9)
     h = 0.5 * t
-    sh = torch.sin(h)
-    zero = t == 0
-    a = torch.where(zero, 1.0, s / torch.where(zero, 1.0, t))
-    b = sh * torch.where(zero, 0.0, sh / torch.where(zero, 1.0, h))
-    return _pose(c, s, a * x - b * y, b * x + a * y)
+    sh, ch = torch.sin(h), torch.cos(h)
+    zero = h == 0
+    r = torch.where(zero, 1.0, sh / torch.where(zero, 1.0, h))
+    a, b = r * ch, r * sh
+    c = torch.mul(ch - sh, ch + sh, out=o[0])
+    s = torch.mul(2.0 * sh, ch, out=o[3])
+    tx = torch.sub(a * x, b * y, out=o[2])
+    ty = torch.add(b * x, a * y, out=o[5])
+    parts = (c, torch.neg(s, out=o[1]), tx, s, c, ty, 0.0, 0.0, 1.0)
+    return so2.assemble(parts, o).unflatten(-1, (3, 3))
 
 
 def _exp_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:
@@ -152,13 +159,16 @@ _ExpFn = CustomFunction(
 
 
 def _log(T: Tensor) -> Tensor:
-    t = so2.angle(*so2.conformal(T[..., :2, :2]))
+    x, y = so2.conformal(T[..., :2, :2])
     tx, ty = T[..., 0, 2], T[..., 1, 2]
+    o = so2.columns(x, 3)
+    t = so2.angle(x, y)
     h = 0.5 * t
-    sh = torch.sin(h)
-    zero = t == 0
-    e = torch.cos(h) * torch.where(zero, 1.0, h / torch.where(zero, 1.0, sh))
-    return torch.stack((e * tx + h * ty, e * ty - h * tx, t), dim=-1)
+    zero = h == 0
+    e = torch.cos(h) * torch.where(zero, 1.0, h / torch.where(zero, 1.0, torch.sin(h)))
+    rx = torch.add(e * tx, h * ty, out=o[0])
+    ry = torch.sub(e * ty, h * tx, out=o[1])
+    return so2.assemble((rx, ry, t), o)
 
 
 def _log_parts(T: Tensor, xi: Tensor):

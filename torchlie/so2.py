@@ -19,11 +19,12 @@ gradient are those of ``log o polar`` for every matrix whose conformal part is n
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs
+from . import _checks, _coeffs, _layout
 from ._autograd import CustomFunction
 from ._typing import Bool, Float
 
@@ -62,8 +63,6 @@ __all__ = [
 ]
 
 _NAME = "torchlie.so2."
-#: pi rounded to each dtype (what ``atan2`` returns at a half turn)
-_PI = {dt: float(torch.tensor(math.pi, dtype=dt)) for dt in (torch.float32, torch.float64)}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -76,13 +75,32 @@ def matrix(c: Tensor, s: Tensor) -> Tensor:
     return torch.stack((c, -s, s, c), dim=-1).unflatten(-1, (2, 2))
 
 
+def columns(like: Tensor, n: int) -> tuple[Tensor | None, ...]:
+    """Where a forward writes the ``n`` entries of its result (:func:`torchlie._layout.outputs`)."""
+    return _layout.outputs(like, n)
+
+
+def assemble(parts: Sequence[Tensor | float], out: Sequence[Tensor | None]) -> Tensor:
+    """The ``(..., len(parts))`` result of planes and constants, written into ``out`` (from
+    :func:`columns`) where those are columns: constants filled in place, planes copied unless
+    they were written there."""
+    if isinstance(out, _layout.Columns):
+        for part, column in zip(parts, out, strict=True):
+            if isinstance(part, float):
+                column.fill_(part)
+            elif part is not column:
+                column.copy_(part)
+        return out.result
+    like = next(p for p in parts if isinstance(p, Tensor))
+    return torch.stack(
+        [p if isinstance(p, Tensor) else torch.full_like(like, p) for p in parts], -1
+    )
+
+
 def angle(x: Tensor, y: Tensor) -> Tensor:
-    """``atan2(y, x)`` in ``(-pi, pi]``: at an exact half turn given with a negative zero ``y``
-    (``atan2`` returns ``-pi`` there) the result is ``pi``.  The derivative is ``atan2``'s
-    everywhere (at the half turn that of the branch that holds ``pi``), 0 at ``x = y = 0``."""
-    a = _coeffs.atan2(y, x)
-    flip = (y == 0) & (x < 0)  # atan2 gives +-pi: the rounded pi, with the sign of the zero
-    return torch.where(flip & (a < 0), a + 2.0 * _PI[a.dtype], a)
+    """``atan2(y, x)`` in ``(-pi, pi]`` (forward only): a zero ``y`` is read as ``+0``, so an
+    exact half turn given with a negative zero gives ``pi``, not ``-pi``."""
+    return torch.atan2(torch.where(y == 0, 0.0, y), x)
 
 
 def conformal(R: Tensor) -> tuple[Tensor, Tensor]:
@@ -92,7 +110,9 @@ def conformal(R: Tensor) -> tuple[Tensor, Tensor]:
 
 def _exp(theta: Tensor) -> Tensor:
     t = theta[..., 0]
-    return matrix(torch.cos(t), torch.sin(t))
+    o = columns(t, 4)
+    c, s = torch.cos(t), torch.sin(t)  # contiguous: strided stores take a slower loop here
+    return assemble((c, torch.neg(s, out=o[1]), s, c), o).unflatten(-1, (2, 2))
 
 
 def _exp_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:
