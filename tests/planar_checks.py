@@ -72,7 +72,7 @@ def _worst(errs):
     return max(errs, key=lambda e: e[0])
 
 
-def test_precision(mod, dtype):
+def test_ulp_error_of_values_and_gradients(mod, dtype):
     eps = torch.finfo(dtype).eps
     rows = references(mod, dtype)
     xs = torch.tensor(np.stack([r[1] for r in rows]), dtype=dtype).requires_grad_(True)
@@ -94,7 +94,7 @@ def test_precision(mod, dtype):
     assert bool(torch.isfinite(xs.grad).all()) and bool(torch.isfinite(Xs.grad).all())
 
 
-def test_precision_in_blocks(mod):
+def test_blocked_evaluation_agrees(mod):
     """A batch large enough for the blocked evaluation gives the same values and gradients."""
     rows = references(mod, torch.float64)
     xs = torch.tensor(np.stack([r[1] for r in rows]))
@@ -486,12 +486,6 @@ def test_class_methods_equal_core(mod, batch):
     # pytree: through torch.func
     leaves, spec = torch.utils._pytree.tree_flatten(X)
     assert leaves[0] is a and type(torch.utils._pytree.tree_unflatten(leaves, spec)) is cls
-    with pytest.raises(TypeError, match=f"torchlie.{cls.__name__}.compose"):
-        X.compose(a)
-    with pytest.raises(
-        ValueError, match=rf"torchlie.{cls.__name__}.apply \(through torchlie.{name(mod)}.act\)"
-    ):
-        X.apply(torch.zeros(3))
 
 
 @pytest.mark.compile
@@ -509,3 +503,17 @@ def test_compiled_namespace(mod):
     )
     torch.testing.assert_close(g, ge, rtol=0, atol=1e-12)
     assert set(dir(cmod)) == set(mod.__all__)
+
+
+def test_class_bad_input_raises(mod):
+    from torchlie import SE2, SO2
+
+    cls = SO2 if mod is so2 else SE2
+    X = cls.identity(dtype=torch.float64)
+    a = X.tensor
+    with pytest.raises(TypeError, match=f"torchlie.{cls.__name__}.compose"):
+        X.compose(a)
+    with pytest.raises(
+        ValueError, match=rf"torchlie.{cls.__name__}.apply \(through torchlie.{name(mod)}.act\)"
+    ):
+        X.apply(torch.zeros(3))

@@ -666,7 +666,24 @@ del _cls
 # -- the planar groups -------------------------------------------------------------------------
 
 
-class SO2(_Group):
+class _Planar(_Group):
+    """Behaviour shared by :class:`SO2` and :class:`SE2` (not public): points are ``(..., 2)``."""
+
+    __slots__ = ()
+
+    @_as_method("apply")
+    def apply(self, points: Float[Tensor, "*b1 2"]) -> Float[Tensor, "*b 2"]:
+        """Act on points ``(..., 2)`` (``self @ points``; batch shapes broadcast).
+
+        Example:
+            >>> SE2.from_xytheta(torch.tensor([1.0, 1.0, 0.0])).apply(torch.zeros(2, 2))
+            tensor([[1., 1.],
+                    [1., 1.]])
+        """
+        return self._core.act(self.tensor, points)
+
+
+class SO2(_Planar):
     """Planar rotations, wrapping rotation matrices ``(..., 2, 2)``; tangents are angles
     ``(..., 1)``.  The accessors and methods of :class:`SO3`; ``.apply`` takes points
     ``(..., 2)``.  Conversions: ``.complex()`` and :meth:`from_complex`.
@@ -712,7 +729,7 @@ class SO2(_Group):
         return self
 
 
-class SE2(_Group):
+class SE2(_Planar):
     """Planar rigid motions, wrapping poses ``(..., 3, 3)`` ``[[R, t], [0, 1]]``; tangents are
     twists ``(rho_x, rho_y, theta)``.  The accessors and methods of :class:`SE3`: ``.rotation``
     (an :class:`SO2`), ``.translation`` ``(..., 2)``, ``.to_rt()``, and ``.xytheta()``.
