@@ -517,3 +517,16 @@ def test_class_bad_input_raises(mod):
         ValueError, match=rf"torchlie.{cls.__name__}.apply \(through torchlie.{name(mod)}.act\)"
     ):
         X.apply(torch.zeros(3))
+
+
+def test_huge_angles_finite(mod, dtype):
+    """Values, gradients and Jacobians stay finite at angles whose square overflows."""
+    n, _ = dims(mod)
+    huge = 3e38 if dtype == torch.float32 else 1e300
+    for theta in (1e6, 1e20, huge):
+        xi = torch.tensor([1.0, -2.0, theta][-n:], dtype=dtype, requires_grad=True)
+        X = mod.exp(xi)
+        X.sum().backward()
+        assert bool(torch.isfinite(X).all()) and bool(torch.isfinite(xi.grad).all())
+        assert bool(torch.isfinite(mod.jac_left(xi.detach())).all())
+        assert bool(mod.is_valid(X.detach(), atol=1e-3).all())

@@ -623,3 +623,29 @@ def theta2(w: Tensor | Sequence[Tensor], keepdim: bool = False) -> Tensor:
         x, y, z = x.double(), y.double(), z.double()
     t2 = fma(fma(x * x, y, y), z, z)
     return t2.unsqueeze(-1) if keepdim else t2
+
+
+def planar(t: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """``(a, b, c1, c2) = (sin t / t, (1 - cos t)/t, (t - sin t)/t^2, (1 - cos t)/t^2)`` of the
+    SE(2) angle ``t`` (signed), the entries of the SE(2) Jacobians; differentiable to every
+    order (double where).
+
+    Below ``|t| = 1`` from the series of :func:`sinc`, :func:`cosc` and :func:`sinc3` (functions
+    of ``t^2``); above, from ``sin`` and ``cos`` of ``t`` and powers of ``1 / t`` only
+    (``a = sin t / t``, ``b = 2 sin^2(t/2) / t``, ``c1 = (1 - a)/t``, ``c2 = b / t``), free of
+    cancellation there and of ``t^2``, which overflows at large angles.
+    """
+    small = t.abs() < 1.0
+    tn = torch.where(small, t, torch.zeros_like(t))
+    t2 = tn * tn
+    cn = cosc(t2)
+    tf = torch.where(small, torch.ones_like(t), t)
+    a = torch.sin(tf) / tf
+    sh = torch.sin(0.5 * tf)
+    b = 2.0 * sh * sh / tf
+    return (
+        torch.where(small, sinc(t2), a),
+        torch.where(small, tn * cn, b),
+        torch.where(small, tn * sinc3(t2), (1.0 - a) / tf),
+        torch.where(small, cn, b / tf),
+    )

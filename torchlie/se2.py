@@ -87,10 +87,8 @@ def _assemble(R: Tensor, t: Tensor) -> Tensor:
 
 
 def _coefficients(t: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """``(a, b, c1, c2)`` of the module docstring, differentiable to every order (series)."""
-    t2 = t * t
-    c2 = _coeffs.cosc(t2)
-    return _coeffs.sinc(t2), t * c2, t * _coeffs.sinc3(t2), c2
+    """``(a, b, c1, c2)`` of the module docstring, differentiable to every order."""
+    return _coeffs.planar(t)
 
 
 def _vinv(t: Tensor) -> tuple[Tensor, Tensor]:
