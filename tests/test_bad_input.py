@@ -724,6 +724,8 @@ for _m, _E, _tan in (("so2", "R2", "v1"), ("se2", "T2", "v3")):
 BATCHED += [
     _on("so2.to_complex", "R2"),
     _on("so2.from_complex", "v2"),
+    _on("so2.angle_to_complex", "v1"),
+    _on("so2.complex_to_angle", "v2"),
     _on("se2.from_rt", "R2", "v2"),
     _on("se2.to_rt", "T2"),
     _on("se2.from_xytheta", "v3"),

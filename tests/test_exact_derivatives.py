@@ -366,6 +366,12 @@ PT2_ = (ambient(2), POINTS2)
 _group_cases(so2, (ROT2, ROTS2), (ambient(1), ANGLES2), PT2_)
 case("so2.vee", so2.vee, (ambient(2, 2), torch.cat((_hat2(ANGLES2), ROTS2))))
 case("so2.to_complex", so2.to_complex, (ROT2, ROTS2))
+case("so2.angle_to_complex", so2.angle_to_complex, (ambient(1), ANGLES2))
+case(
+    "so2.complex_to_angle",
+    so2.complex_to_angle,
+    (ambient(2), _t([[1.0, 0.0], [0.0, 2.0], [1.0, 1.0], [-3.0, 0.0], [0.0, -1.0]])),
+)
 case(
     "so2.from_complex",
     so2.from_complex,

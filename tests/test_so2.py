@@ -23,6 +23,9 @@ def test_complex_conversions():
     torch.testing.assert_close(z, torch.cat((theta.cos(), theta.sin()), dim=-1))
     torch.testing.assert_close(so2.from_complex(3.0 * z), R)
     assert bool(torch.isnan(so2.from_complex(torch.zeros(2))).all())
+    torch.testing.assert_close(so2.angle_to_complex(theta), z)
+    torch.testing.assert_close(so2.complex_to_angle(2.0 * z), so2.log(R))
+    assert float(so2.complex_to_angle(torch.tensor([-1.0, -0.0], dtype=torch.float64))) == math.pi
 
 
 def test_log_range():

@@ -47,6 +47,8 @@ __all__ = [
     "is_valid",
     "to_complex",
     "from_complex",
+    "angle_to_complex",
+    "complex_to_angle",
     "distance",
     "interpolate",
     "rplus",
@@ -433,6 +435,29 @@ def from_complex(z: Float[Tensor, "*b 2"]) -> Float[Tensor, "*b 2 2"]:
     x = _coeffs.rescaled(x)[0]  # no overflow or underflow of the squares
     u = x / _coeffs.norm(x, keepdim=True)
     return _checks.out(matrix(u[..., 0], u[..., 1]), dtype)
+
+
+def angle_to_complex(theta: Float[Tensor, "*b 1"]) -> Float[Tensor, "*b 2"]:
+    """Unit complex number ``(cos theta, sin theta)`` of the angle ``theta``.
+
+    Example:
+        >>> angle_to_complex(torch.tensor([torch.pi / 2])).round(decimals=6) + 0.0
+        tensor([0., 1.])
+    """
+    x, dtype = _checks.tensor(theta, _NAME + "angle_to_complex", "theta", (1,))
+    return _checks.out(torch.cat((torch.cos(x), torch.sin(x)), dim=-1), dtype)
+
+
+def complex_to_angle(z: Float[Tensor, "*b 2"]) -> Float[Tensor, "*b 1"]:
+    """Angle ``atan2(im, re)`` of the complex number ``z = (re, im)`` in ``(-pi, pi]`` (any
+    non-zero scale; the same value and gradient as :func:`log` of its rotation).
+
+    Example:
+        >>> complex_to_angle(torch.tensor([-2.0, 0.0]))
+        tensor([3.1416])
+    """
+    x, dtype = _checks.tensor(z, _NAME + "complex_to_angle", "z", (2,))
+    return _checks.out(_LogFn(matrix(x[..., 0], x[..., 1])), dtype)
 
 
 # ----------------------------------------------------------------------------------------------
