@@ -26,7 +26,7 @@ import torch
 from torch import Tensor
 
 from . import _checks, _coeffs, _layout, so2
-from ._autograd import CustomFunction
+from ._autograd import CustomFunction, blocked
 from ._typing import Bool, Float
 
 __all__ = [
@@ -87,16 +87,23 @@ def _assemble(R: Tensor, t: Tensor) -> Tensor:
 
 
 def _coefficients(t: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """``(a, b, c1, c2)`` of the module docstring, differentiable to every order."""
-    return _coeffs.planar(t)
+    """``(a, b, c1, c2)`` of the module docstring: differentiable to every order where autograd
+    records (double backward), forward-only in a plain backward pass (the same values)."""
+    if torch.is_grad_enabled():
+        return _coeffs.planar(t)
+    return _coeffs.planar_values(t)[:4]
 
 
 def _vinv(t: Tensor) -> tuple[Tensor, Tensor]:
     """``(e, de/dt)``: ``e = (t/2) cot(t/2) = cos(t/2) / sinc(t/2)`` and
-    ``e' = -t sinc3(t^2) / sinc(t/2)^2``, differentiable to every order (series)."""
-    h2 = 0.25 * t * t
-    r = _coeffs.sinc(h2)
-    return _coeffs.cos_sqrt(h2) / r, -t * _coeffs.sinc3(t * t) / (r * r)
+    ``e' = -t sinc3(t^2) / sinc(t/2)^2 = -c1 / sinc(t/2)^2``, differentiable to every order
+    where autograd records, forward-only otherwise."""
+    if torch.is_grad_enabled():
+        h2 = 0.25 * t * t
+        r = _coeffs.sinc(h2)
+        return _coeffs.cos_sqrt(h2) / r, -t * _coeffs.sinc3(t * t) / (r * r)
+    _, _, c1, _, r, ch = _coeffs.planar_values(t)
+    return ch / r, -c1 / (r * r)
 
 
 def _jl(x: Tensor, y: Tensor, t: Tensor) -> tuple[Tensor, ...]:
@@ -146,11 +153,14 @@ def _exp_jvp(saved: tuple[Tensor, ...], d: Tensor) -> Tensor:
     return torch.stack(rows, dim=-1).unflatten(-1, (3, 3))
 
 
+# one pass over blocks of the batch (the one driver), the backward's planes kept in cache
+_exp_backward_blocked = blocked(lambda *t: _exp_backward(t[:-1], t[-1]), (1, 2, 2))
+
 _ExpFn = CustomFunction(
     "Se2Exp",
     forward=_exp,
     save=lambda inputs, out: (inputs[0], out),
-    backward=_exp_backward,
+    backward=lambda saved, g: _exp_backward_blocked(*saved, g),
     jvp=_exp_jvp,
     event_dims=(1,),
 )
@@ -182,10 +192,14 @@ def _log_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:
     h = 0.5 * t
     gx, gy, gt = g.unbind(-1)
     gt = gt + gx * (de * tx + 0.5 * ty) + gy * (de * ty - 0.5 * tx)
-    GR = so2._log_backward((T[..., :2, :2],), gt.unsqueeze(-1))[0]
-    gtrans = torch.stack((e * gx - h * gy, h * gx + e * gy), dim=-1)
-    top = torch.cat((GR, gtrans.unsqueeze(-1)), dim=-1)
-    return (torch.cat((top, torch.zeros_like(top[..., :1, :])), dim=-2),)
+    # rotation block: so2.log's backward with the angle's gradient gt; bottom row 0
+    x, y = so2.conformal(T[..., :2, :2])
+    r2 = x * x + y * y
+    k = gt / torch.where(r2 > 0, r2, 1.0)
+    u, v = -y * k, x * k
+    o = so2.columns(u, 9)
+    parts = (u, -v, e * gx - h * gy, v, u, h * gx + e * gy, 0.0, 0.0, 0.0)
+    return (so2.assemble(parts, o).unflatten(-1, (3, 3)),)
 
 
 def _log_jvp(saved: tuple[Tensor, ...], dT: Tensor) -> Tensor:
@@ -199,11 +213,14 @@ def _log_jvp(saved: tuple[Tensor, ...], dT: Tensor) -> Tensor:
     return torch.stack((rx, ry, dt), dim=-1)
 
 
+# one pass over blocks of the batch (the one driver), the backward's planes kept in cache
+_log_backward_blocked = blocked(lambda *t: _log_backward(t[:-1], t[-1]), (2, 1, 1))
+
 _LogFn = CustomFunction(
     "Se2Log",
     forward=_log,
     save=lambda inputs, out: (inputs[0], out),
-    backward=_log_backward,
+    backward=lambda saved, g: _log_backward_blocked(*saved, g),
     jvp=_log_jvp,
     event_dims=(2,),
 )

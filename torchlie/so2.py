@@ -25,7 +25,7 @@ import torch
 from torch import Tensor
 
 from . import _checks, _coeffs, _layout
-from ._autograd import CustomFunction
+from ._autograd import CustomFunction, blocked
 from ._typing import Bool, Float
 
 __all__ = [
@@ -129,11 +129,14 @@ def _exp_jvp(saved: tuple[Tensor, ...], d: Tensor) -> Tensor:
     return matrix(-R[..., 1, 0], R[..., 0, 0]) * d.unsqueeze(-1)
 
 
+# one pass over blocks of the batch (the one driver), the backward's planes kept in cache
+_exp_backward_blocked = blocked(lambda *t: _exp_backward(t[:-1], t[-1]), (2, 2))
+
 _ExpFn = CustomFunction(
     "So2Exp",
     forward=_exp,
     save=lambda inputs, out: (out,),
-    backward=_exp_backward,
+    backward=lambda saved, g: _exp_backward_blocked(*saved, g),
     jvp=_exp_jvp,
     event_dims=(1,),
 )
@@ -147,9 +150,10 @@ def _log_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:
     # d atan2(y, x) = (x dy - y dx) / (x^2 + y^2); 0 where x = y = 0 (no direction)
     x, y = conformal(saved[0])
     r2 = x * x + y * y
-    k = g[..., 0] / torch.where(r2 > 0, r2, torch.ones_like(r2))
+    k = g[..., 0] / torch.where(r2 > 0, r2, 1.0)
     gx, gy = -y * k, x * k
-    return (matrix(gx, gy),)
+    o = columns(gx, 4)
+    return (assemble((gx, torch.neg(gy, out=o[1]), gy, gx), o).unflatten(-1, (2, 2)),)
 
 
 def _log_jvp(saved: tuple[Tensor, ...], dR: Tensor) -> Tensor:
@@ -159,11 +163,14 @@ def _log_jvp(saved: tuple[Tensor, ...], dR: Tensor) -> Tensor:
     return ((x * dy - y * dx) / torch.where(r2 > 0, r2, torch.ones_like(r2))).unsqueeze(-1)
 
 
+# one pass over blocks of the batch (the one driver), the backward's planes kept in cache
+_log_backward_blocked = blocked(lambda *t: _log_backward(t[:-1], t[-1]), (2, 1))
+
 _LogFn = CustomFunction(
     "So2Log",
     forward=_log,
     save=lambda inputs, out: (inputs[0],),
-    backward=_log_backward,
+    backward=lambda saved, g: _log_backward_blocked(*saved, g),
     jvp=_log_jvp,
     event_dims=(2,),
 )
