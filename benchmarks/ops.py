@@ -82,6 +82,31 @@ def poses(n: int, gen: torch.Generator) -> Tensor:
     return torch.cat((top, bottom), dim=-2)
 
 
+def angles(n: int, gen: torch.Generator) -> Tensor:
+    """``(n, 1)`` float64 planar angles, uniform in ``(-pi, pi)``."""
+    return (2.0 * torch.rand(n, 1, generator=gen, dtype=torch.float64) - 1.0) * math.pi
+
+
+def rot2(theta: Tensor) -> Tensor:
+    """``(..., 2, 2)`` rotation matrices of angles ``(..., 1)``."""
+    c, s = theta.cos(), theta.sin()
+    return torch.cat((c, -s, s, c), dim=-1).unflatten(-1, (2, 2))
+
+
+def planar_twists(n: int, gen: torch.Generator) -> Tensor:
+    """``(n, 3)`` float64 twists ``(rho_x, rho_y, theta)``; ``rho`` standard normal."""
+    return torch.cat((torch.randn(n, 2, generator=gen, dtype=torch.float64), angles(n, gen)), -1)
+
+
+def planar_poses(n: int, gen: torch.Generator) -> Tensor:
+    """``(n, 3, 3)`` float64 planar poses ``[[R, t], [0, 1]]``."""
+    top = torch.cat(
+        (rot2(angles(n, gen)), torch.randn(n, 2, 1, generator=gen, dtype=torch.float64)), -1
+    )
+    bottom = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(n, 1, 3)
+    return torch.cat((top, bottom), dim=-2)
+
+
 # ----------------------------------------------------------------------------------------------
 # References (float64, independent of torchlie and of the peers)
 # ----------------------------------------------------------------------------------------------
@@ -145,6 +170,35 @@ def _ref_se3_log(T: Tensor) -> Tensor:
     V = torch.stack(cols, dim=-1)
     rho = torch.linalg.solve(V, T[..., :3, 3:])[..., 0]
     return torch.cat((rho, phi), dim=-1)
+
+
+def so2_hat(t: Tensor) -> Tensor:
+    o = torch.zeros_like(t)
+    return torch.cat((o, -t, t, o), dim=-1).unflatten(-1, (2, 2))
+
+
+def se2_hat(xi: Tensor) -> Tensor:
+    """3x3 Lie-algebra matrix ``[[hat(theta), rho], [0, 0]]`` of a twist ``(rho, theta)``."""
+    top = torch.cat((so2_hat(xi[..., 2:]), xi[..., :2, None]), dim=-1)
+    return torch.cat((top, torch.zeros_like(top[..., :1, :])), dim=-2)
+
+
+def _ref_so2_log(R: Tensor) -> Tensor:
+    return torch.atan2(R[..., 1, 0], R[..., 0, 0])[..., None]
+
+
+def _ref_se2_log(T: Tensor) -> Tensor:
+    # theta from atan2; rho = V(theta)^-1 t, V's columns read off exp of the twists (e_i, theta).
+    theta = _ref_so2_log(T[..., :2, :2])
+    eye = torch.eye(2, dtype=T.dtype)
+    cols = [
+        torch.linalg.matrix_exp(
+            se2_hat(torch.cat((eye[i].expand(*theta.shape[:-1], 2), theta), -1))
+        )[..., :2, 2]
+        for i in range(2)
+    ]
+    rho = torch.linalg.solve(torch.stack(cols, dim=-1), T[..., :2, 2:])[..., 0]
+    return torch.cat((rho, theta), dim=-1)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -282,6 +336,38 @@ OPS: dict[str, Op] = {
             "se3.act",
             lambda n, g: (poses(n, g), points(n, g)),
             lambda T, p: (T[..., :3, :3] @ p.unsqueeze(-1)).squeeze(-1) + T[..., :3, 3],
+            3,
+        ),
+        Op(
+            "so2.exp",
+            "SO(2) exp: angle -> matrix",
+            "so2.exp",
+            lambda n, g: (angles(n, g),),
+            lambda t: torch.linalg.matrix_exp(so2_hat(t)),
+            4,
+        ),
+        Op(
+            "so2.log",
+            "SO(2) log: matrix -> angle",
+            "so2.log",
+            lambda n, g: (rot2(angles(n, g)),),
+            _ref_so2_log,
+            1,
+        ),
+        Op(
+            "se2.exp",
+            "SE(2) exp: twist -> pose",
+            "se2.exp",
+            lambda n, g: (planar_twists(n, g),),
+            lambda xi: torch.linalg.matrix_exp(se2_hat(xi)),
+            9,
+        ),
+        Op(
+            "se2.log",
+            "SE(2) log: pose -> twist",
+            "se2.log",
+            lambda n, g: (planar_poses(n, g),),
+            _ref_se2_log,
             3,
         ),
     )

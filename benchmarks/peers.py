@@ -239,6 +239,46 @@ def _kornia() -> dict[str, Adapter]:
             "kornia", "Se3(Quaternion(q), t) * p", se3_in,
             lambda q, t, p: Se3(Quaternion(q), t) * p, _first,
         ),
+        **_kornia_planar(),
+    }  # fmt: skip
+
+
+def _kornia_planar() -> dict[str, Adapter]:
+    """Kornia's So2 (a unit complex number) and Se2 (an So2 and a translation)."""
+    from kornia.geometry.liegroup import Se2, So2
+
+    # the complex numbers travel as real (..., 2) views (view_as_complex is free), so that
+    # the backward pass reaches a real leaf
+    def so2_in(R, *rest):
+        return (torch.view_as_real(So2.from_matrix(R.detach()).z.detach()).contiguous(), *rest)
+
+    def se2_in(T, *rest):
+        s = Se2.from_matrix(T.detach())
+        z = torch.view_as_real(s.so2.z.detach()).contiguous()
+        return (z, s.t.detach().contiguous(), *rest)
+
+    cplx = torch.view_as_complex
+
+    def se2_out(out):
+        z, t = out
+        return Se2(So2(z.detach()), t.detach()).matrix()
+
+    return {
+        "so2.exp": Adapter(
+            "kornia", "So2.exp(theta).z", lambda t: (t[..., 0],), lambda t: So2.exp(t).z,
+            lambda z: So2(z.detach()).matrix(),
+        ),
+        "so2.log": Adapter(
+            "kornia", "So2(z).log()", so2_in, lambda z: So2(cplx(z)).log(), lambda t: t[..., None],
+        ),
+        "se2.exp": Adapter(
+            "kornia", "Se2.exp(xi)", _ident, lambda xi: (lambda s: (s.so2.z, s.t))(Se2.exp(xi)),
+            se2_out,
+        ),
+        "se2.log": Adapter(
+            "kornia", "Se2(So2(z), t).log()", se2_in, lambda z, t: Se2(So2(cplx(z)), t).log(),
+            _first,
+        ),
     }  # fmt: skip
 
 

@@ -27,6 +27,8 @@ SUITES = [
     "test_groups.py",
     "test_statistics.py",
     "test_lie_ops.py",
+    "test_so2.py",
+    "test_se2.py",
 ]
 EXCLUDE = (
     "not wrong_shape and not bad_ and not error and not raises and not compile and not gradcheck"

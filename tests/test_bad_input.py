@@ -16,7 +16,7 @@ import torch
 from torch.nn.utils import parametrize
 
 import torchlie
-from torchlie import SE3, SO3, _checks, conversions, se3, so3
+from torchlie import SE2, SE3, SO2, SO3, _checks, conversions, se2, se3, so2, so3
 from torchlie import nn as tnn
 from torchlie import quaternion as quat
 from torchlie import statistics as st
@@ -570,6 +570,10 @@ _ELEMENTS = {  # kind -> (an element, its trailing dimensions)
     "v7": (torch.cat((torch.tensor([1.0, 2.0, 3.0], dtype=F64), _Q1)), 1),
     "v9": (_R1.reshape(9), 1),
     "s": (torch.tensor(0.3, dtype=F64), 0),  # a real parameter: t, dt, angle, std, query time
+    "R2": (so2.exp(torch.tensor([0.3], dtype=F64)), 2),
+    "T2": (se2.exp(torch.tensor([0.1, 0.2, 0.3], dtype=F64)), 2),
+    "v1": (torch.tensor([0.3], dtype=F64), 1),
+    "v2": (torch.tensor([0.1, -0.2], dtype=F64), 1),
 }
 # Sets (means, align: the set last) and keyframes (first): that dimension is a batch dimension.
 _SETS = {
@@ -602,7 +606,8 @@ def _arg(kind: object, b: tuple[int, ...]) -> object:
 
 
 _OWNERS = {"so3": so3, "se3": se3, "quaternion": quat, "conversions": conversions,
-           "statistics": st, "nn": tnn, "SO3": SO3, "SE3": SE3, "": torchlie}  # fmt: skip
+           "statistics": st, "nn": tnn, "SO3": SO3, "SE3": SE3, "": torchlie,
+           "so2": so2, "se2": se2, "SO2": SO2, "SE2": SE2}  # fmt: skip
 
 
 def _on(path: str, *args: object, **kwargs: object) -> tuple[str, object]:
@@ -703,11 +708,40 @@ BATCHED += [
     *(_param(tnn.SE3Parametrization, rep, k) for rep, k in (("pos_quat", "v7"), ("matrix", "T"),
                                                             ("twist", "v6"))),
 ]  # fmt: skip
+# The planar groups: the same verbs.
+for _m, _E, _tan in (("so2", "R2", "v1"), ("se2", "T2", "v3")):
+    _G = _m.upper()
+    _jacs = ("jac_left", "jac_right", "jac_left_inv", "jac_right_inv")
+    BATCHED += [_on(f"{_m}.{f}", _tan) for f in ("hat", "exp", "ad", *_jacs)]
+    BATCHED += [_on(f"{_m}.{f}", _E) for f in ("vee", "log", "inverse", "adjoint", "is_valid")]
+    _pairs = ("compose", "distance", "rminus", "lminus", "between")
+    BATCHED += [_on(f"{_m}.{f}", _E, _E) for f in (*_pairs, "jac_compose", "jac_rminus")]
+    BATCHED += [_on(f"{_m}.jac_between", _E, _E), _on(f"{_m}.jac_inverse", _E)]
+    BATCHED += [_on(f"{_m}.{f}", _E, _tan) for f in ("rplus", "lplus", "jac_rplus")]
+    BATCHED += [_on(f"{_m}.{f}", _E, "v2") for f in ("act", "jac_act")]
+    BATCHED += [_on(f"{p}.{f}", "*b", dtype=F64) for p in (_m, _G) for f in ("identity", "random")]
+    BATCHED += [_on(f"{_m}.interpolate", _E, _E, 0.3), _on(f"{_G}.exp", _tan)]
+BATCHED += [
+    _on("so2.to_complex", "R2"),
+    _on("so2.from_complex", "v2"),
+    _on("so2.angle_to_complex", "v1"),
+    _on("so2.complex_to_angle", "v2"),
+    _on("se2.from_rt", "R2", "v2"),
+    _on("se2.to_rt", "T2"),
+    _on("se2.from_xytheta", "v3"),
+    _on("se2.to_xytheta", "T2"),
+    _on("nn.so2_geodesic_loss", "R2", "R2", reduction="none"),
+    _on("nn.se2_geodesic_loss", "T2", "T2"),
+    *(_param(tnn.SO2Parametrization, rep, k) for rep, k in (("complex", "v2"), ("matrix", "R2"),
+                                                            ("angle", "v1"))),
+    *(_param(tnn.SE2Parametrization, rep, k) for rep, k in (("pos_complex", "v4"),
+                                                            ("matrix", "T2"), ("twist", "v3"))),
+]  # fmt: skip
 _BATCHED_IDS = [f"{n}-{i}" for i, (n, _) in enumerate(BATCHED)]
 
 
 def _outputs(out: object) -> list[torch.Tensor]:
-    if isinstance(out, (SO3, SE3)):
+    if isinstance(out, (SO3, SE3, SO2, SE2)):
         return [out.tensor]
     if isinstance(out, torch.Tensor):
         return [out]
@@ -741,10 +775,10 @@ def test_the_batch_limit_covers_every_public_function():
     # tensors through a check of its own and computes elementwise at any batch; the heads are
     # covered through the representation_to_matrix they call.
     exempt = {"nn.REPRESENTATIONS", "statistics.Alignment", "quaternion.from_su2",
-              "nn.RotationHead", "nn.PoseHead"}  # fmt: skip
+              "nn.RotationHead", "nn.PoseHead", "nn.PlanarPoseHead"}  # fmt: skip
     missing = [
         f"{owner}.{f}"
-        for owner in ("so3", "se3", "quaternion", "conversions", "statistics", "nn")
+        for owner in ("so3", "se3", "quaternion", "conversions", "statistics", "nn", "so2", "se2")
         for f in _OWNERS[owner].__all__
         if f"torchlie.{owner}.{f}" not in tested and f"{owner}.{f}" not in exempt
     ]

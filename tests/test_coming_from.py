@@ -34,7 +34,7 @@ import numpy as np
 import pytest
 import torch
 
-from torchlie import conversions, nn, quaternion, se3, so3, statistics
+from torchlie import conversions, nn, quaternion, se2, se3, so2, so3, statistics
 from torchlie.kinematics import Chain, sample_robot
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "coming-from"
@@ -165,6 +165,11 @@ def inputs(page: str) -> tuple[dict[str, object], torch.Tensor]:
     e[0] = 0.0
     e[1, 1] = math.pi / 2  # gimbal lock
     P = torch.randn(n, 8, 3, generator=gen, dtype=torch.float64)
+    # planar: the same angles with alternating signs, and one more set of them
+    signs = torch.tensor([(-1.0) ** i for i in range(n)], dtype=torch.float64)
+    theta = (torch.tensor(angles, dtype=torch.float64) * signs)[:, None]
+    C, D = so2.exp(theta), so2.exp(theta.flip(0))
+    zeta = torch.cat((rand(2), theta), dim=-1)
     Q = (
         so3.act(R[:, None], P)
         + t[:, None]
@@ -192,6 +197,13 @@ def inputs(page: str) -> tuple[dict[str, object], torch.Tensor]:
         "P": P,
         "Q": Q,
         "n": n,
+        "theta": theta,
+        "C": C,
+        "D": D,
+        "zeta": zeta,
+        "F": se2.exp(zeta),
+        "G": se2.from_rt(D, rand(2)),
+        "y": rand(2),
     }
     if page == "pytorch-kinematics":
         chain = Chain.from_urdf(sample_robot("arm7"), dtype=torch.float64)
@@ -213,7 +225,9 @@ TORCHLIE = {
     "conversions": conversions,
     "nn": nn,
     "quaternion": quaternion,
+    "se2": se2,
     "se3": se3,
+    "so2": so2,
     "so3": so3,
     "statistics": statistics,
     "Chain": Chain,

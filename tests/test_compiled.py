@@ -89,7 +89,7 @@ def test_compiled_gradients_and_errors():
 
 def test_inductor_options_errors():
     with pytest.raises(ValueError, match=r"inductor_options: expected module to be one of"):
-        compiled.inductor_options("so2", "exp")
+        compiled.inductor_options("so4", "exp")
     with pytest.raises(ValueError, match=r"torchlie\.so3 has no public function '_exp'"):
         compiled.inductor_options("so3", "_exp")
 

@@ -45,7 +45,7 @@ import torch.autograd.forward_ad as fwAD
 from torch import Tensor
 
 import torchlie
-from torchlie import SE3, SO3, conversions, quaternion, se3, so3, statistics
+from torchlie import SE3, SO3, conversions, quaternion, se2, se3, so2, so3, statistics
 from torchlie import nn as tnn
 
 DT = torch.float64
@@ -339,6 +339,51 @@ case("se3.to_rt", se3.to_rt, P_)
 case("se3.from_pos_quat", se3.from_pos_quat, (ambient(7), POS_QUATS))
 case("se3.to_pos_quat", se3.to_pos_quat, P_)
 
+
+# The planar groups: rotations by multiples of 90 degrees (exact zeros and ties) and a half turn.
+def _hat2(t: Tensor) -> Tensor:
+    o = torch.zeros_like(t[..., 0])
+    return torch.stack((o, -t[..., 0], t[..., 0], o), -1).unflatten(-1, (2, 2))
+
+
+def _hat_se2(xi: Tensor) -> Tensor:
+    top = torch.cat((_hat2(xi[..., 2:]), xi[..., :2, None]), -1)
+    return torch.nn.functional.pad(top, (0, 0, 0, 1))
+
+
+ROT2 = Kind(1, lambda R, d: R @ torch.linalg.matrix_exp(_hat2(d.reshape(*R.shape[:-2], 1))))
+POSE2 = Kind(3, lambda T, d: T @ torch.linalg.matrix_exp(_hat_se2(d.reshape(*T.shape[:-2], 3))))
+ANGLES2 = _t([[0.0], [PI / 2], [PI], [-PI / 2], [3 * PI / 2], [0.5], [-2.0]])
+ROTS2 = so2.exp(ANGLES2[:5]).round()  # exact entries 0 and +-1
+TWISTS2 = torch.stack(
+    [torch.cat((rho, a)) for rho in _t([[0.0, 0.0], [1.0, 0.0], [0.0, -2.0]]) for a in ANGLES2]
+)
+POSES2 = torch.stack(
+    [se2.from_rt(R, t) for t in _t([[0.0, 0.0], [1.0, 0.0], [0.0, -2.0]]) for R in ROTS2]
+)
+POINTS2 = _t([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, -2.0]])
+PT2_ = (ambient(2), POINTS2)
+_group_cases(so2, (ROT2, ROTS2), (ambient(1), ANGLES2), PT2_)
+case("so2.vee", so2.vee, (ambient(2, 2), torch.cat((_hat2(ANGLES2), ROTS2))))
+case("so2.to_complex", so2.to_complex, (ROT2, ROTS2))
+case("so2.angle_to_complex", so2.angle_to_complex, (ambient(1), ANGLES2))
+case(
+    "so2.complex_to_angle",
+    so2.complex_to_angle,
+    (ambient(2), _t([[1.0, 0.0], [0.0, 2.0], [1.0, 1.0], [-3.0, 0.0], [0.0, -1.0]])),
+)
+case(
+    "so2.from_complex",
+    so2.from_complex,
+    (ambient(2), _t([[1.0, 0.0], [0.0, 2.0], [1.0, 1.0], [-3.0, 0.0]])),
+)
+_group_cases(se2, (POSE2, POSES2), (ambient(3), TWISTS2), PT2_)
+case("se2.vee", se2.vee, (ambient(3, 3), torch.cat((_hat_se2(TWISTS2), POSES2))))
+case("se2.from_rt", se2.from_rt, (ROT2, ROTS2), (ambient(2), POINTS2))
+case("se2.to_rt", se2.to_rt, (POSE2, POSES2))
+case("se2.from_xytheta", se2.from_xytheta, (ambient(3), TWISTS2))
+case("se2.to_xytheta", se2.to_xytheta, (POSE2, POSES2))
+
 for _name in (
     *("conjugate", "inverse", "normalize", "canonicalize", "exp", "log", "to_matrix"),
     *("to_rotvec", "to_xyzw", "from_xyzw", "to_jpl", "from_jpl", "to_su2"),
@@ -501,6 +546,42 @@ for _cls, _reps in _PARAMS.items():
             R_ if _cls.startswith("SO3") else P_,
         )
 
+for _kind in ("angle", "chordal"):
+    case(
+        f"nn.so2_geodesic_loss[{_kind}]",
+        partial(tnn.so2_geodesic_loss, kind=_kind, reduction="none"),
+        (ROT2, ROTS2),
+        (ROT2, ROTS2),
+    )
+    case(
+        f"nn.se2_geodesic_loss[{_kind}]",
+        partial(tnn.se2_geodesic_loss, rotation_weight=2.0, kind=_kind, reduction="none"),
+        (POSE2, POSES2),
+        (POSE2, POSES2),
+    )
+_COMPLEX = _t([[1.0, 0.0], [0.0, 2.0], [1.0, 1.0], [-3.0, 0.0], [0.0, 0.0]])
+_PARAMS2 = {
+    "SO2Parametrization": {
+        "complex": (ambient(2), _COMPLEX),
+        "matrix": (ambient(2, 2), torch.cat((ROTS2, 2 * ROTS2 + _t([[0.0, 1.0], [0.0, 0.0]])))),
+        "angle": (ambient(1), ANGLES2),
+    },
+    "SE2Parametrization": {
+        "pos_complex": (ambient(4), torch.cat((POINTS2[[0, 1, 2, 3, 3]], _COMPLEX), -1)),
+        "matrix": (ambient(3, 3), POSES2),
+        "twist": (ambient(3), TWISTS2),
+    },
+}
+for _cls, _reps in _PARAMS2.items():
+    for _rep, _arg in _reps.items():
+        _module = getattr(tnn, _cls)(_rep)
+        case(f"nn.{_cls}[{_rep}]", _module, _arg)
+        case(
+            f"nn.{_cls}[{_rep}].right_inverse",
+            _module.right_inverse,
+            (ROT2, ROTS2) if _cls.startswith("SO2") else (POSE2, POSES2),
+        )
+
 # The classes: every public method and property that computes from tensors.
 
 
@@ -539,6 +620,15 @@ EXCLUDED = {
     "se3.identity": "factory",
     "se3.random": "random draw",
     "se3.is_valid": "boolean result",
+    **{
+        f"{g}.{m}": r
+        for g in ("so2", "se2")
+        for m, r in (
+            ("identity", "factory"),
+            ("random", "random draw"),
+            ("is_valid", "boolean result"),
+        )
+    },
     "quaternion.identity": "factory",
     "quaternion.random": "random draw",
     "quaternion.is_unit": "boolean result",
@@ -548,6 +638,7 @@ EXCLUDED = {
     "nn.REPRESENTATIONS": "a table of sizes",
     "nn.RotationHead": "nn.Linear then nn.representation_to_matrix (checked)",
     "nn.PoseHead": "nn.Linear then nn.representation_to_matrix and se3.from_rt (checked)",
+    "nn.PlanarPoseHead": "nn.Linear then so2.from_complex and se2.from_rt (checked)",
     # class plumbing: factories, predicates, metadata, copies
     **{
         f"{g}.{m}": "class plumbing"
@@ -719,7 +810,7 @@ def test_derivatives_at_exact_points(c: Case):
 
 def _public_names() -> set[str]:
     names = set()
-    for mod in (so3, se3, quaternion, conversions, statistics, tnn):
+    for mod in (so3, se3, so2, se2, quaternion, conversions, statistics, tnn):
         names |= {f"{mod.__name__.split('.')[-1]}.{n}" for n in mod.__all__}
     for G in (SO3, SE3):
         names |= {f"{G.__name__}.{n}" for n in dir(G) if not n.startswith("_")}
@@ -731,6 +822,8 @@ def test_every_public_function_is_checked():
     assert {n for n in torchlie.__all__ if n[0].islower()} <= {
         "so3",
         "se3",
+        "so2",
+        "se2",
         "quaternion",
         "conversions",
         "statistics",

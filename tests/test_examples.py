@@ -32,6 +32,9 @@ OPTIONS = {
         "--quick --poses --laps --optimizer --representation --iterations --seed --out "
         "--no-plot --threads"
     ).split(),
+    "planar_pose_graph": (
+        "--quick --poses --laps --representation --iterations --seed --out --no-plot --threads"
+    ).split(),
 }
 
 
@@ -238,6 +241,26 @@ def test_pose_graph(tmp_path, capsys):
     saved = json.loads((tmp_path / "pose_graph.json").read_text())
     assert saved["cost_after"] == fig["cost_after"] and saved["poses"] == 100
     plot = tmp_path / "pose_graph.png"
+    if has_matplotlib():
+        assert fig["plot"] == plot and plot.stat().st_size > 1000
+    else:
+        assert fig["plot"] is None and not plot.exists()
+
+
+@pytest.mark.slow
+def test_planar_pose_graph(tmp_path, capsys):
+    fig = load("planar_pose_graph").main(["--quick", "--out", str(tmp_path)])
+    assert fig["poses"] == 120 and fig["loop_closures"] > 0
+    # the maximum-likelihood poses fit the noisy measurements better than the ground truth
+    assert fig["cost_before"] / fig["cost_after"] >= 50
+    assert fig["cost_after"] <= fig["cost_ground_truth"]
+    assert fig["position_rmse_after"] <= fig["position_rmse_before"] / 4
+    assert fig["heading_error_deg_after"] <= fig["heading_error_deg_before"]
+    assert fig["valid"]
+    assert "before (odometry)" in capsys.readouterr().out
+    saved = json.loads((tmp_path / "planar_pose_graph.json").read_text())
+    assert saved["cost_after"] == fig["cost_after"]
+    plot = tmp_path / "planar_pose_graph.png"
     if has_matplotlib():
         assert fig["plot"] == plot and plot.stat().st_size > 1000
     else:

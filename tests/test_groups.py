@@ -156,7 +156,7 @@ def test_accessors_are_read_only_properties(batch):
 
 
 def test_dir_lists_only_the_public_names():
-    assert dir(torchlie.groups) == sorted(torchlie.groups.__all__) == ["SE3", "SO3"]
+    assert dir(torchlie.groups) == sorted(torchlie.groups.__all__) == ["SE2", "SE3", "SO2", "SO3"]
 
 
 def test_identity_random(grp, dtype):

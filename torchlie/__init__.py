@@ -1,4 +1,4 @@
-"""torchlie: batched, differentiable SO(3), SE(3) and quaternion math for PyTorch.
+"""torchlie: batched, differentiable SO(3), SE(3), SO(2), SE(2) and quaternion math for PyTorch.
 
 Conventions (one for every function in the package)
 ----------------------------------------------------
@@ -13,12 +13,14 @@ pose               homogeneous ``(..., 4, 4)`` ``[[R, t], [0, 1]]``; also ``(R, 
                    7-vectors ``(t, q)`` (translation, then wxyz quaternion).
 so(3) tangent      rotation vector ``(..., 3)`` = angle * unit axis.
 se(3) tangent      twist ``(..., 6)`` = ``(rho, phi)``: translation part first, rotation last.
+planar groups      SO(2): matrices ``(..., 2, 2)``, tangent the angle ``(..., 1)``; SE(2): poses
+                   ``(..., 3, 3)``, twist ``(..., 3)`` = ``(rho_x, rho_y, theta)``.
 perturbation       right: ``X (+) tau = X Exp(tau)``, ``Y (-) X = Log(X^-1 Y)``; the left
                    versions are named explicitly (``lplus``, ``lminus``).
 Euler angles       scipy's naming: ``"xyz"`` lower case = extrinsic (static axes), ``"XYZ"``
                    upper case = intrinsic; all 24 sequences.
 log range          rotation angle in ``[0, pi]``; at exactly pi the axis sign follows the
-                   canonical quaternion rule above.
+                   canonical quaternion rule above.  Planar angles in ``(-pi, pi]``.
 batch              up to 60 leading dimensions (torch's reductions take at most 64 in all),
                    broadcast like torch; no op flattens or loops in Python.
 dtypes             float32 and float64; float16/bfloat16 are computed in float32 and returned
@@ -33,17 +35,21 @@ Python on tensor values, so every op works under ``torch.compile(fullgraph=True)
 ``torch.func.vmap`` / ``jacrev`` / ``jacfwd`` and on CUDA.
 """
 
-from . import conversions, kinematics, nn, quaternion, se3, so3, statistics
-from .groups import SE3, SO3
+from . import conversions, kinematics, nn, quaternion, se2, se3, so2, so3, statistics
+from .groups import SE2, SE3, SO2, SO3
 
 __all__ = [
+    "SE2",
     "SE3",
+    "SO2",
     "SO3",
     "conversions",
     "kinematics",
     "nn",
     "quaternion",
+    "se2",
     "se3",
+    "so2",
     "so3",
     "statistics",
 ]

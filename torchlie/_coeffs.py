@@ -623,3 +623,60 @@ def theta2(w: Tensor | Sequence[Tensor], keepdim: bool = False) -> Tensor:
         x, y, z = x.double(), y.double(), z.double()
     t2 = fma(fma(x * x, y, y), z, z)
     return t2.unsqueeze(-1) if keepdim else t2
+
+
+def planar(t: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """``(a, b, c1, c2) = (sin t / t, (1 - cos t)/t, (t - sin t)/t^2, (1 - cos t)/t^2)`` of the
+    SE(2) angle ``t`` (signed), the entries of the SE(2) Jacobians; differentiable to every
+    order (double where).
+
+    Below ``|t| = 1`` from the series of :func:`sinc`, :func:`cosc` and :func:`sinc3` (functions
+    of ``t^2``); above, from ``sin`` and ``cos`` of ``t`` and powers of ``1 / t`` only
+    (``a = sin t / t``, ``b = 2 sin^2(t/2) / t``, ``c1 = (1 - a)/t``, ``c2 = b / t``), free of
+    cancellation there and of ``t^2``, which overflows at large angles.
+    """
+    small = t.abs() < 1.0
+    tn = torch.where(small, t, torch.zeros_like(t))
+    t2 = tn * tn
+    cn = cosc(t2)
+    tf = torch.where(small, torch.ones_like(t), t)
+    a = torch.sin(tf) / tf
+    sh = torch.sin(0.5 * tf)
+    b = 2.0 * sh * sh / tf
+    return (
+        torch.where(small, sinc(t2), a),
+        torch.where(small, tn * cn, b),
+        torch.where(small, tn * sinc3(t2), (1.0 - a) / tf),
+        torch.where(small, cn, b / tf),
+    )
+
+
+#: ``|t|`` below which :func:`planar_values` takes ``c1`` from its series.
+PLANAR_SWITCH = 2.0
+#: Terms of that series: the first omitted one is below ``eps`` of ``c1`` for ``|t| < 2``.
+_PLANAR_TERMS = {torch.float32: 7, torch.float64: 12}
+
+
+def planar_values(t: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor]:
+    """Forward-only :func:`planar` for the plain backward passes (see the module docstring),
+    and ``(r, cos(t/2))`` with ``r = sin(t/2) / (t/2)``.
+
+    From the half angle ``h = t/2`` (one ``sin``, one ``cos``, one division): ``a = r cos h``,
+    ``b = r sin h``, ``c2 = r^2 / 2``, free of cancellation; ``c1 = t sinc3(t^2)`` from the
+    series of ``sinc3`` below ``|t| = 2`` and ``(1 - a)/t`` above, selected with :func:`step`
+    (each evaluated on an argument clamped to its side, so the branch not taken is finite).
+    """
+    h = 0.5 * t
+    sh, ch = torch.sin(h), torch.cos(h)
+    zero = h == 0
+    r = torch.where(zero, 1.0, sh / torch.where(zero, 1.0, h))
+    a, b = r * ch, r * sh
+    c2 = 0.5 * r * r
+    ts = t.clamp(-PLANAR_SWITCH, PLANAR_SWITCH)
+    coeffs = tuple(_SINC3[: _PLANAR_TERMS.get(t.dtype, 7)])
+    near = ts * _horner(ts * ts, coeffs)
+    far_t = torch.where(t.abs() < PLANAR_SWITCH, PLANAR_SWITCH, t)
+    far = (1.0 - torch.sin(far_t) / far_t) / far_t
+    small = step(PLANAR_SWITCH - t.abs())
+    c1 = fma(far * (1.0 - small), near, small)
+    return a, b, c1, c2, r, ch

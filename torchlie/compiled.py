@@ -42,7 +42,9 @@ import torch
 
 from . import conversions as _conversions
 from . import quaternion as _quaternion
+from . import se2 as _se2
 from . import se3 as _se3
+from . import so2 as _so2
 from . import so3 as _so3
 
 __all__ = [
@@ -50,6 +52,8 @@ __all__ = [
     "se3",
     "quaternion",
     "conversions",
+    "so2",
+    "se2",
     "inductor_options",
     "FUSION",
 ]
@@ -71,7 +75,14 @@ FUSION: dict[str, bool | int] = {
     "realize_opcount_threshold": 25,
 }
 
-_MODULES = {"so3": _so3, "se3": _se3, "quaternion": _quaternion, "conversions": _conversions}
+_MODULES = {
+    "so3": _so3,
+    "se3": _se3,
+    "quaternion": _quaternion,
+    "conversions": _conversions,
+    "so2": _so2,
+    "se2": _se2,
+}
 
 
 def inductor_options(module: str, name: str) -> dict[str, bool | int]:
@@ -137,3 +148,5 @@ so3 = _CompiledNamespace(_so3)
 se3 = _CompiledNamespace(_se3)
 quaternion = _CompiledNamespace(_quaternion)
 conversions = _CompiledNamespace(_conversions)
+so2 = _CompiledNamespace(_so2)
+se2 = _CompiledNamespace(_se2)

@@ -1,4 +1,4 @@
-"""Thin, immutable group-element classes: :class:`SO3` and :class:`SE3`.
+"""Thin, immutable group-element classes: :class:`SO3`, :class:`SE3`, :class:`SO2`, :class:`SE2`.
 
 Each object wraps exactly one tensor, ``.tensor``: rotation matrices ``(..., 3, 3)`` for
 :class:`SO3`, homogeneous poses ``(..., 4, 4)`` for :class:`SE3`.  Every method is one call into
@@ -45,11 +45,13 @@ from torch import Tensor
 
 from . import _checks
 from . import quaternion as _quat
+from . import se2 as _se2
 from . import se3 as _se3
+from . import so2 as _so2
 from . import so3 as _so3
 from ._typing import Bool, Float
 
-__all__ = ["SO3", "SE3"]
+__all__ = ["SO3", "SE3", "SO2", "SE2"]
 
 
 def __dir__() -> list[str]:
@@ -59,7 +61,13 @@ def __dir__() -> list[str]:
 
 _G = TypeVar("_G", bound="_Group")
 _F = TypeVar("_F", bound=Callable[..., Any])
-_CORES = ("torchlie.so3.", "torchlie.se3.", "torchlie.quaternion.")
+_CORES = (
+    "torchlie.so3.",
+    "torchlie.se3.",
+    "torchlie.quaternion.",
+    "torchlie.so2.",
+    "torchlie.se2.",
+)
 
 
 def _as_method(op: str) -> Callable[[_F], _F]:
@@ -645,6 +653,179 @@ def _flatten_with_keys(x: _Group) -> tuple[list[tuple[Any, Any]], None]:
 
 
 for _cls in (SO3, SE3):
+    _pytree.register_pytree_node(
+        _cls,
+        _flatten,
+        lambda leaves, _ctx, _c=_cls: _c._wrap(next(iter(leaves))),
+        serialized_type_name=f"torchlie.groups.{_cls.__name__}",
+        flatten_with_keys_fn=_flatten_with_keys,
+    )
+del _cls
+
+
+# -- the planar groups -------------------------------------------------------------------------
+
+
+class _Planar(_Group):
+    """Behaviour shared by :class:`SO2` and :class:`SE2` (not public): points are ``(..., 2)``."""
+
+    __slots__ = ()
+
+    @_as_method("apply")
+    def apply(self, points: Float[Tensor, "*b1 2"]) -> Float[Tensor, "*b 2"]:
+        """Act on points ``(..., 2)`` (``self @ points``; batch shapes broadcast).
+
+        Example:
+            >>> SE2.from_xytheta(torch.tensor([1.0, 1.0, 0.0])).apply(torch.zeros(2, 2))
+            tensor([[1., 1.],
+                    [1., 1.]])
+        """
+        return self._core.act(self.tensor, points)
+
+
+class SO2(_Planar):
+    """Planar rotations, wrapping rotation matrices ``(..., 2, 2)``; tangents are angles
+    ``(..., 1)``.  The accessors and methods of :class:`SO3`; ``.apply`` takes points
+    ``(..., 2)``.  Conversions: ``.complex()`` and :meth:`from_complex`.
+
+    Example:
+        >>> R = SO2.exp(torch.tensor([torch.pi / 2]))
+        >>> (R @ torch.tensor([1.0, 0.0])).round(decimals=6) + 0.0
+        tensor([0., 1.])
+        >>> (R @ R @ R).log()
+        tensor([-1.5708])
+    """
+
+    __slots__ = ()
+    _core = _so2
+    _n = 2
+    _dof = 1
+
+    @classmethod
+    @_as_method("from_complex")
+    def from_complex(cls, z: Float[Tensor, "*b 2"]) -> SO2:
+        """From complex numbers ``(re, im)`` ``(..., 2)`` (scale-invariant, as
+        :func:`torchlie.so2.from_complex`).
+
+        Example:
+            >>> SO2.from_complex(torch.tensor([0.0, 2.0])).log()
+            tensor([1.5708])
+        """
+        return cls._wrap(_so2.from_complex(z))
+
+    @_as_method("complex")
+    def complex(self) -> Float[Tensor, "*b 2"]:
+        """Unit complex numbers ``(cos theta, sin theta)`` ``(..., 2)``.
+
+        Example:
+            >>> SO2.identity().complex()
+            tensor([1., 0.])
+        """
+        return _so2.to_complex(self.tensor)
+
+    @property
+    def rotation(self) -> SO2:
+        """``self`` (as :attr:`SO3.rotation`)."""
+        return self
+
+
+class SE2(_Planar):
+    """Planar rigid motions, wrapping poses ``(..., 3, 3)`` ``[[R, t], [0, 1]]``; tangents are
+    twists ``(rho_x, rho_y, theta)``.  The accessors and methods of :class:`SE3`: ``.rotation``
+    (an :class:`SO2`), ``.translation`` ``(..., 2)``, ``.to_rt()``, and ``.xytheta()``.
+
+    Example:
+        >>> T = SE2.from_xytheta(torch.tensor([1.0, 2.0, 0.0]))
+        >>> T @ torch.zeros(2)
+        tensor([1., 2.])
+        >>> (T @ T).translation
+        tensor([2., 4.])
+    """
+
+    __slots__ = ()
+    _core = _se2
+    _n = 3
+    _dof = 3
+
+    @classmethod
+    @_as_method("from_rt")
+    def from_rt(
+        cls,
+        R: Float[Tensor, "*b1 2 2"] | SO2,
+        t: Float[Tensor, "*b2 2"],
+        *,
+        check: bool = False,
+        atol: float | None = None,
+    ) -> SE2:
+        """From rotations (matrices ``(..., 2, 2)`` or an :class:`SO2`) and translations.
+
+        With ``check=True``, raises ``ValueError`` unless every ``R`` is a valid rotation.
+
+        Example:
+            >>> SE2.from_rt(SO2.identity(), torch.tensor([1.0, 2.0])).translation
+            tensor([1., 2.])
+        """
+        if isinstance(R, SO2):
+            R = R.tensor
+        _check_atol("torchlie.SE2.from_rt", atol)
+        if check:
+            _check_valid("torchlie.SE2.from_rt", _so2.is_valid(R, atol=atol), "rotations")
+        return cls._wrap(_se2.from_rt(R, t))
+
+    @classmethod
+    @_as_method("from_xytheta")
+    def from_xytheta(cls, pose: Float[Tensor, "*b 3"]) -> SE2:
+        """From planar coordinates ``(x, y, theta)`` (:func:`torchlie.se2.from_xytheta`).
+
+        Example:
+            >>> SE2.from_xytheta(torch.tensor([1.0, 2.0, 0.5])).xytheta()
+            tensor([1.0000, 2.0000, 0.5000])
+        """
+        return cls._wrap(_se2.from_xytheta(pose))
+
+    @_as_method("to_rt")
+    def to_rt(self) -> tuple[Float[Tensor, "*b 2 2"], Float[Tensor, "*b 2"]]:
+        """``(R, t)``: rotation matrices ``(..., 2, 2)`` and translations ``(..., 2)``.
+
+        Example:
+            >>> SE2.identity().to_rt()[1]
+            tensor([0., 0.])
+        """
+        return _se2.to_rt(self.tensor)
+
+    @_as_method("xytheta")
+    def xytheta(self) -> Float[Tensor, "*b 3"]:
+        """Planar coordinates ``(x, y, theta)`` (:func:`torchlie.se2.to_xytheta`).
+
+        Example:
+            >>> SE2.identity().xytheta()
+            tensor([0., 0., 0.])
+        """
+        return _se2.to_xytheta(self.tensor)
+
+    @property
+    def rotation(self) -> SO2:
+        """The rotation block as an :class:`SO2` (a copy).
+
+        Example:
+            >>> SE2.identity().rotation
+            SO2(tensor([[1., 0.],
+                        [0., 1.]]))
+        """
+        return SO2._wrap(_se2.to_rt(self.tensor)[0])
+
+    @property
+    def translation(self) -> Float[Tensor, "*b 2"]:
+        """The translation column ``(..., 2)`` (a copy).
+
+        Example:
+            >>> SE2.from_xytheta(torch.tensor([1.0, 2.0, 0.0])).translation
+            tensor([1., 2.])
+        """
+        return _se2.to_rt(self.tensor)[1]
+
+
+for _cls in (SO2, SE2):
     _pytree.register_pytree_node(
         _cls,
         _flatten,

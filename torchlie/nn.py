@@ -6,6 +6,8 @@
   (degenerate raw vectors get a documented fixed value).
 * :func:`geodesic_loss` / :func:`se3_geodesic_loss`: rotation angle (or squared chordal) and
   translation losses with torch's ``reduction`` argument.
+* :class:`PlanarPoseHead`, :func:`so2_geodesic_loss`, :func:`se2_geodesic_loss`,
+  :class:`SO2Parametrization`, :class:`SE2Parametrization`: the same for the planar groups.
 * :class:`SO3Parametrization` / :class:`SE3Parametrization`: for
   :func:`torch.nn.utils.parametrize.register_parametrization`, so that a plain parameter
   optimised by any torch optimiser (SGD, Adam, LBFGS, ...) is always read as a rotation / pose.
@@ -32,11 +34,11 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from . import _checks, _coeffs, se3, so3
+from . import _checks, _coeffs, se2, se3, so2, so3
 from . import conversions as _conv
 from . import quaternion as _quat
 from ._typing import Float
-from .groups import SE3, SO3
+from .groups import SE2, SE3, SO3
 
 __all__ = [
     "REPRESENTATIONS",
@@ -47,6 +49,11 @@ __all__ = [
     "se3_geodesic_loss",
     "SO3Parametrization",
     "SE3Parametrization",
+    "PlanarPoseHead",
+    "so2_geodesic_loss",
+    "se2_geodesic_loss",
+    "SO2Parametrization",
+    "SE2Parametrization",
 ]
 
 
@@ -566,3 +573,219 @@ class SE3Parametrization(nn.Module):
         if self.representation == "matrix":
             return T.clone()  # never alias the caller's tensor
         return se3.log(T)
+
+
+# ----------------------------------------------------------------------------------------------
+# The planar groups
+# ----------------------------------------------------------------------------------------------
+
+
+def _unit_complex(x: Tensor) -> Tensor:
+    """The rotation of a raw ``(re, im)`` 2-vector; ``0`` reads as the identity (zero gradient)."""
+    zero = (x == 0).all(dim=-1, keepdim=True)
+    one = torch.tensor([1.0, 0.0], dtype=x.dtype, device=x.device)
+    return so2.from_complex(torch.where(zero, one, x))
+
+
+class PlanarPoseHead(nn.Module):
+    """Features ``(..., in_features)`` -> planar poses ``(..., 3, 3)`` ``[[R, t], [0, 1]]``.
+
+    One ``nn.Linear`` to 4 numbers: a complex number ``(re, im)`` read as the rotation of
+    ``z / |z|`` (continuous; ``z = 0`` reads as the identity, with a zero gradient) and the
+    translation ``t`` as it is.
+
+    Args:
+        in_features: size of the last input dimension.
+        output: ``"matrix"`` (default) or ``"SE2"`` (an :class:`torchlie.SE2`).
+        bias, device, dtype: passed to ``nn.Linear``.
+
+    Example:
+        >>> head = PlanarPoseHead(8)
+        >>> T = head(torch.zeros(2, 8))
+        >>> T.shape, bool(se2.is_valid(T).all())
+        (torch.Size([2, 3, 3]), True)
+    """
+
+    def __init__(
+        self,
+        in_features: int,
+        output: str = "matrix",
+        *,
+        bias: bool = True,
+        device: torch.device | str | None = None,
+        dtype: torch.dtype | None = None,
+    ) -> None:
+        super().__init__()
+        fn = _NAME + "PlanarPoseHead"
+        _checks.factory(fn, (), dtype)
+        _check_choice(fn, "output", output, ("matrix", "SE2"))
+        self.output = output
+        self.linear = nn.Linear(in_features, 4, bias=bias, device=device, dtype=dtype)
+
+    def extra_repr(self) -> str:
+        return f"output={self.output!r}"
+
+    def forward(self, features: Float[Tensor, "*b f"]) -> Float[Tensor, "*b 3 3"] | SE2:
+        """Poses ``(..., 3, 3)`` (or an :class:`torchlie.SE2`)."""
+        y = self.linear(features)
+        T = se2.from_rt(_unit_complex(y[..., :2]), y[..., 2:])
+        return SE2._wrap(T) if self.output == "SE2" else T
+
+
+def so2_geodesic_loss(
+    R_pred: Float[Tensor, "*b1 2 2"],
+    R_target: Float[Tensor, "*b2 2 2"],
+    kind: str = "angle",
+    reduction: str = "mean",
+) -> Float[Tensor, "*b"]:
+    """Planar rotation error (as :func:`geodesic_loss`): the angle of ``R_pred^T R_target`` in
+    ``[0, pi]`` (:func:`torchlie.so2.distance`, zero subgradient at 0 and pi) or the squared
+    chordal distance ``|R_pred - R_target|_F^2 = 8 sin^2(angle / 2)``.
+
+    Example:
+        >>> R = so2.exp(torch.tensor([[0.5], [-1.0]]))
+        >>> so2_geodesic_loss(R, torch.eye(2), reduction="none")
+        tensor([0.5000, 1.0000])
+    """
+    fn = _NAME + "so2_geodesic_loss"
+    _check_choice(fn, "kind", kind, ("angle", "chordal"))
+    _check_choice(fn, "reduction", reduction, _REDUCTIONS)
+    a, b, dtype, _ = _checks.pair(fn, R_pred, R_target, "R_pred", "R_target", (2, 2), (2, 2))
+    loss = so2.distance(a, b) if kind == "angle" else _sum_squares(a - b, 2)
+    return _checks.out(_reduce(loss, reduction), dtype)
+
+
+def se2_geodesic_loss(
+    T_pred: Float[Tensor, "*b1 3 3"],
+    T_target: Float[Tensor, "*b2 3 3"],
+    rotation_weight: float = 1.0,
+    translation_weight: float = 1.0,
+    kind: str = "angle",
+    reduction: str = "mean",
+) -> Float[Tensor, "*b"]:
+    """Weighted planar pose error ``rotation_weight * rot + translation_weight * trans`` (as
+    :func:`se3_geodesic_loss`: angle and distance, or squared chordal and squared distance).
+
+    Example:
+        >>> T = se2.from_xytheta(torch.tensor([3.0, 4.0, 0.3]))
+        >>> se2_geodesic_loss(T, se2.identity(), rotation_weight=10.0)
+        tensor(8.)
+    """
+    fn = _NAME + "se2_geodesic_loss"
+    _check_choice(fn, "kind", kind, ("angle", "chordal"))
+    _check_choice(fn, "reduction", reduction, _REDUCTIONS)
+    rotation_weight = _checks.nonnegative(rotation_weight, fn, "rotation_weight")
+    translation_weight = _checks.nonnegative(translation_weight, fn, "translation_weight")
+    a, b, dtype, _ = _checks.pair(fn, T_pred, T_target, "T_pred", "T_target", (3, 3), (3, 3))
+    if kind == "angle":
+        rot, trans = se2.distance(a, b)
+    else:
+        rot = _sum_squares(a[..., :2, :2] - b[..., :2, :2], 2)
+        trans = _sum_squares(a[..., :2, 2] - b[..., :2, 2], 1)
+    loss = rotation_weight * rot + translation_weight * trans
+    return _checks.out(_reduce(loss, reduction), dtype)
+
+
+_SO2_PARAMS = {"complex": (2,), "matrix": (2, 2), "angle": (1,)}
+_SE2_PARAMS = {"pos_complex": (4,), "matrix": (3, 3), "twist": (3,)}
+
+
+def _polar2(M: Tensor) -> Tensor:
+    """Nearest rotation of 2x2 matrices: the rotation of ``(M00 + M11, M10 - M01)``."""
+    return _unit_complex(torch.stack(so2.conformal(M), dim=-1))
+
+
+class SO2Parametrization(nn.Module):
+    """Keep a parameter on SO(2) (as :class:`SO3Parametrization`).
+
+    * ``"complex"`` (default): ``(..., 2)`` ``(re, im)``, read as the rotation of ``z / |z|``
+      (``z = 0`` reads as the identity); ``right_inverse`` is :func:`torchlie.so2.to_complex`.
+    * ``"matrix"``: an unconstrained ``(..., 2, 2)`` matrix read as its nearest rotation;
+      ``right_inverse`` stores the assigned matrix.
+    * ``"angle"``: the angle ``(..., 1)`` read as :func:`torchlie.so2.exp`; ``right_inverse`` is
+      :func:`torchlie.so2.log`.  A chart without singularity (SO(2) is commutative).
+
+    Example:
+        >>> from torch.nn.utils import parametrize
+        >>> holder = torch.nn.Module()
+        >>> holder.R = torch.nn.Parameter(so2.identity(3))
+        >>> _ = parametrize.register_parametrization(holder, "R", SO2Parametrization())
+        >>> with torch.no_grad():
+        ...     _ = holder.parametrizations.R.original.add_(torch.randn(3, 2))
+        >>> bool(so2.is_valid(holder.R).all())
+        True
+    """
+
+    def __init__(self, representation: str = "complex") -> None:
+        super().__init__()
+        _check_choice(_NAME + "SO2Parametrization", "representation", representation, _SO2_PARAMS)
+        self.representation = representation
+
+    def extra_repr(self) -> str:
+        return f"representation={self.representation!r}"
+
+    def forward(self, X: Tensor) -> Float[Tensor, "*b 2 2"]:
+        """The rotations ``(..., 2, 2)`` of the stored parameter ``X``."""
+        _checks.tensor(X, _NAME + "SO2Parametrization", "X", _SO2_PARAMS[self.representation])
+        if self.representation == "complex":
+            return _unit_complex(X)
+        if self.representation == "matrix":
+            return _polar2(X)
+        return so2.exp(X)
+
+    def right_inverse(self, R: Float[Tensor, "*b 2 2"]) -> Tensor:
+        """The stored parameter that reads as the rotations ``R``."""
+        _checks.tensor(R, _NAME + "SO2Parametrization.right_inverse", "R", (2, 2))
+        if self.representation == "complex":
+            return so2.to_complex(R)
+        if self.representation == "matrix":
+            return R.clone()
+        return so2.log(R)
+
+
+class SE2Parametrization(nn.Module):
+    """Keep a parameter on SE(2) (as :class:`SE3Parametrization`).
+
+    * ``"pos_complex"`` (default): ``(..., 4)`` ``(t_x, t_y, re, im)``: translation as it is,
+      rotation as :class:`SO2Parametrization`'s ``"complex"``.
+    * ``"matrix"``: an unconstrained ``(..., 3, 3)`` matrix: rotation block read as its nearest
+      rotation, translation column as it is, bottom row not read.
+    * ``"twist"``: ``(..., 3)`` read as :func:`torchlie.se2.exp`; ``right_inverse`` is
+      :func:`torchlie.se2.log`.
+
+    Example:
+        >>> from torch.nn.utils import parametrize
+        >>> holder = torch.nn.Module()
+        >>> holder.pose = torch.nn.Parameter(se2.identity(3))
+        >>> _ = parametrize.register_parametrization(holder, "pose", SE2Parametrization())
+        >>> with torch.no_grad():
+        ...     _ = holder.parametrizations.pose.original.add_(torch.randn(3, 4))
+        >>> bool(se2.is_valid(holder.pose).all())
+        True
+    """
+
+    def __init__(self, representation: str = "pos_complex") -> None:
+        super().__init__()
+        _check_choice(_NAME + "SE2Parametrization", "representation", representation, _SE2_PARAMS)
+        self.representation = representation
+
+    def extra_repr(self) -> str:
+        return f"representation={self.representation!r}"
+
+    def forward(self, X: Tensor) -> Float[Tensor, "*b 3 3"]:
+        """The poses ``(..., 3, 3)`` of the stored parameter ``X``."""
+        _checks.tensor(X, _NAME + "SE2Parametrization", "X", _SE2_PARAMS[self.representation])
+        if self.representation == "pos_complex":
+            return se2.from_rt(_unit_complex(X[..., 2:]), X[..., :2])
+        if self.representation == "matrix":
+            return se2.from_rt(_polar2(X[..., :2, :2]), X[..., :2, 2])
+        return se2.exp(X)
+
+    def right_inverse(self, T: Float[Tensor, "*b 3 3"]) -> Tensor:
+        """The stored parameter that reads as the poses ``T``."""
+        _checks.tensor(T, _NAME + "SE2Parametrization.right_inverse", "T", (3, 3))
+        if self.representation == "pos_complex":
+            return torch.cat((T[..., :2, 2], T[..., :2, 0]), dim=-1)
+        if self.representation == "matrix":
+            return T.clone()
+        return se2.log(T)
