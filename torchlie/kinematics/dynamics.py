@@ -84,7 +84,7 @@ def _plan(chain) -> _DynPlan:
     plan = chain.__dict__.get("_dyn_plan")
     if plan is None:
         plan = _convert(
-            _build(chain.spec, chain._links, chain.joint_names), chain.dtype, chain.device
+            _build(chain.spec, chain._links, chain.velocity_names), chain.dtype, chain.device
         )
         if not torch.compiler.is_compiling():
             chain.__dict__["_dyn_plan"] = plan
@@ -171,7 +171,10 @@ def _geometry(chain, plan: _DynPlan, q2: Tensor, extra: tuple[int, ...]) -> _Geo
         Rp = P[:, :3, :3].index_select(0, plan.col_parent)  # (n, c, r, B)
         U = torch.matmul(plan.col_v, Rp.reshape(n_const, 3, 3 * B)).view(n_const, 3, B)
         parts_u.append(U[: plan.n_rot])
-        parts_p.append(p.index_select(0, plan.col_body[: plan.n_rot]))
+        piv = p.index_select(0, plan.col_body[: plan.n_rot])
+        if plan.col_anchor is not None:  # the joint turns about a point of its body
+            piv = piv + _rot(RT.index_select(0, plan.col_body[: plan.n_rot]), plan.col_anchor)
+        parts_p.append(piv)
     floats = []
     for ppos, b, d0, O_R in plan.floats:
         Rp = P[ppos, :3, :3]  # (c, r, B)
@@ -379,16 +382,17 @@ def _check_inertials(
 
 
 def _check_vec(chain, x: Tensor, fn: str, name: str, batch: tuple[int, ...]) -> Tensor:
-    t, _ = _checks.tensor(x, _NAME + fn, name, (chain.n_dof,))
+    """``x (..., n_v)`` (velocities, accelerations, forces) as ``(B, n_v)``."""
+    t, _ = _checks.tensor(x, _NAME + fn, name, (chain.n_v,))
     chain._check_like(t, _NAME + fn, name, x.dtype)
     try:
-        t = t.broadcast_to(batch + (chain.n_dof,))
+        t = t.broadcast_to(batch + (chain.n_v,))
     except RuntimeError:
         raise ValueError(
             f"{_NAME}{fn}: {name} of shape {tuple(x.shape)} does not broadcast to q's batch "
             f"shape {batch}"
         ) from None
-    return t.reshape(math.prod(batch), chain.n_dof)
+    return t.reshape(math.prod(batch), chain.n_v)
 
 
 def _gravity(chain, gravity, fn: str, batch: tuple[int, ...], like: Tensor) -> Tensor:
@@ -495,7 +499,7 @@ def _inverse_dynamics(
     geo = _geometry(chain, plan, q2, extra)
     fx = None if f_ext is None else _fext(chain, plan, geo, f_ext, _fn, batch)
     tau = _rnea(plan, geo, ins, batch, qd2, qdd2, g, fx)
-    return _result(tau, batch, chain.n_dof, out_dtype)
+    return _result(tau, batch, chain.n_v, out_dtype)
 
 
 def _mass_matrix(
@@ -506,10 +510,10 @@ def _mass_matrix(
     q2, out_dtype, batch, plan = _prepare(chain, q, fn)
     ins = _check_inertials(chain, inertials, fn, batch)
     if not plan.bodies:  # no degree of freedom
-        return _checks.out(q2.new_zeros(*batch, 0, 0), out_dtype)
+        return _checks.out(q2.new_zeros(*batch, chain.n_v, chain.n_v), out_dtype)
     geo = _geometry(chain, plan, q2, ())
     M = _crba(plan, geo, ins, batch)
-    return _checks.out(M.reshape(*batch, chain.n_dof, chain.n_dof), out_dtype)
+    return _checks.out(M.reshape(*batch, chain.n_v, chain.n_v), out_dtype)
 
 
 def _forward_dynamics(
@@ -544,4 +548,4 @@ def _forward_dynamics(
     M = _crba(plan, geo, ins, batch)  # (B, n, n)
     L, _ = torch.linalg.cholesky_ex(M)
     qdd = torch.cholesky_solve((tau2 - h.mT).unsqueeze(-1), L).squeeze(-1)  # (B, n)
-    return _checks.out(qdd.reshape(*batch, chain.n_dof), out_dtype)
+    return _checks.out(qdd.reshape(*batch, chain.n_v), out_dtype)
