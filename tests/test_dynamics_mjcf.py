@@ -233,3 +233,56 @@ def test_packaged_sweep(pkg: str, rel: str) -> None:
     if path is None:
         pytest.skip(f"{pkg} is not installed")
     check(rigid_model(path), 200, seed=3)
+
+
+def test_float32() -> None:
+    # The same chain in float32 against MuJoCo's float64 values: within 1e-4 relative to
+    # 1 + |reference| (a few hundred float32 ulp through the free base and the ball joint).
+    m = rigid_model(HAND["free_ball"])
+    chain = Chain.from_mjcf(m, dtype=torch.float32)
+    qpos, qvel, qacc, tau = random_state(m, 50, seed=4)
+    r_tau, r_M, _, _ = reference(m, qpos, qvel, qacc, tau)
+    q, qd, qdd = (torch.as_tensor(x, dtype=torch.float32) for x in (qpos, qvel, qacc))
+    g = torch.as_tensor(np.array(m.opt.gravity), dtype=torch.float32)
+    tau32 = chain.inverse_dynamics(q, qd, qdd, gravity=g)
+    assert tau32.dtype == torch.float32
+    err_tau = relerr(tau32.double(), r_tau)
+    M32 = chain.mass_matrix(q).double()
+    err_M = float((M32 - torch.as_tensor(r_M)).abs().max()) / (1.0 + float(np.abs(r_M).max()))
+    print(f"float32: tau {err_tau:.1e}, M {err_M:.1e}")
+    assert err_tau < 1e-4 and err_M < 1e-5
+
+
+def test_gradcheck_through_ball_and_free() -> None:
+    # Float64 gradcheck of the torques with respect to qpos (quaternions included: the chain
+    # normalises them), qvel and qacc on the free base with an anchored ball joint.
+    chain = Chain.from_mjcf(rigid_model(HAND["free_ball"]), dtype=torch.float64)
+    qpos, qvel, qacc, _ = random_state(rigid_model(HAND["free_ball"]), 2, seed=5)
+    args = tuple(torch.as_tensor(x).requires_grad_() for x in (qpos, qvel, qacc))
+    assert torch.autograd.gradcheck(chain.inverse_dynamics, args)
+    assert torch.autograd.gradcheck(lambda q: chain.mass_matrix(q), args[:1])
+
+
+def test_velocity_shapes() -> None:
+    # q is qpos (nq values), the velocities are nv: a qd of nq values is refused, naming both.
+    chain = Chain.from_mjcf(HAND["free_ball"], dtype=torch.float64)
+    assert (chain.n_dof, chain.n_v) == (12, 10)
+    q = torch.zeros(12, dtype=torch.float64)
+    q[3] = q[7] = 1.0
+    v = torch.zeros(10, dtype=torch.float64)
+    assert chain.inverse_dynamics(q, v, v).shape == (10,)
+    assert chain.mass_matrix(q).shape == (10, 10)
+    with pytest.raises(ValueError, match="inverse_dynamics.*qd"):
+        chain.inverse_dynamics(q, q, v)
+    with pytest.raises(ValueError, match="forward_dynamics.*tau"):
+        chain.forward_dynamics(q, v, q)
+
+
+@pytest.mark.compile
+def test_compile_fullgraph() -> None:
+    chain = Chain.from_mjcf(HAND["free_ball"], dtype=torch.float64)
+    qpos, qvel, qacc, _ = (
+        torch.as_tensor(x) for x in random_state(rigid_model(HAND["free_ball"]), 3, seed=6)
+    )
+    f = torch.compile(chain.inverse_dynamics, fullgraph=True)
+    torch.testing.assert_close(f(qpos, qvel, qacc), chain.inverse_dynamics(qpos, qvel, qacc))

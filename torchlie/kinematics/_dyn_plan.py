@@ -72,6 +72,17 @@ def _rpy3(r: float, p: float, y: float) -> _M3:
     ]
 
 
+def _quat3(q: tuple[float, ...]) -> _M3:
+    """Rotation of the quaternion ``(w, x, y, z)``, normalised (see ``_joints._quat_matrix``)."""
+    n = math.sqrt(sum(x * x for x in q))
+    w, x, y, z = (c / n for c in q)
+    return [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ]
+
+
 def _mul3(A: _M3, B: _M3) -> _M3:
     return [[sum(A[i][k] * B[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
 
@@ -117,11 +128,12 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
             body_of[lk.index] = body_ix[lk.index]
             pose_in_body[lk.index] = (eye3, [0.0] * 3)
         else:
-            # A fixed joint's one constant is its origin as the kinematics use it (rpy or
-            # quaternion, anchors and offsets applied).
+            # A fixed joint's origin as the kinematics read it (``_joints._origin``: a
+            # quaternion where there is one, else rpy; anchors and ref concern moving joints).
+            j = lk.joint
+            assert j is not None
             body_of[lk.index] = body_of[lk.parent]
-            T = lk.consts[0].tolist()
-            origin = ([row[:3] for row in T[:3]], [row[3] for row in T[:3]])
+            origin = (_rpy3(*j.rpy) if j.quat is None else _quat3(j.quat), list(j.xyz))
             pose_in_body[lk.index] = _compose(pose_in_body[lk.parent], origin)
     # Merged inertials in the body frames.
     spec_in = dict(zip(spec.links, spec.inertials, strict=True)) if spec.inertials else {}

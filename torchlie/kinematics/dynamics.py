@@ -12,6 +12,14 @@ Conventions (see also ``docs/dynamics.md``):
   prismatic ones) that do virtual work ``tau . dq``.  A mimic joint has no coordinate: its
   motion is ``m qd[J]`` and its torque is added, times ``m``, to the torque of the joint it
   follows (the reduced equations of the mimic constraint).
+* MJCF chains use MuJoCo's coordinates: ``q`` is ``qpos`` (a unit quaternion per ball joint,
+  position and quaternion per free joint), while ``qd``, ``qdd`` and ``tau`` are over the
+  ``n_v`` velocity coordinates (:attr:`Chain.velocity_names`, MuJoCo's ``nv``: a ball joint's
+  angular velocity in its body's frame, a free joint's linear velocity of the body's origin in
+  the world frame then its angular velocity in the body's frame), as
+  :meth:`Chain.jacobian`'s columns; ``M`` is ``(..., n_v, n_v)``.  The results are MuJoCo's
+  ``qfrc_inverse``, ``mj_fullM`` and ``qacc`` without what MuJoCo adds to the rigid bodies
+  (joint armature, damping, friction loss, springs, contacts, constraints, actuators).
 * Bodies: every link moved by a joint with degrees of freedom (a mimic joint included) is a
   body; links attached through fixed joints merge their inertials into their nearest moving
   ancestor (links fixed to the root do not move and are ignored).  :attr:`Chain.inertials`

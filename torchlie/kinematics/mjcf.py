@@ -25,6 +25,9 @@ The result is the same :class:`~torchlie.kinematics.RobotSpec` the URDF parser m
   joint with ``ref`` is at its origin for ``q = ref``; ``jnt_pos`` is the point a hinge or
   ball turns about.  A free joint sets the body's world pose (it ignores the body's ``pos``
   and ``quat``, which only give its ``qpos0``).
+* Each body's inertial (for the dynamics) is MuJoCo's compiled ``body_mass``, ``body_ipos``
+  and ``body_inertia`` along ``body_iquat``, in the body's frame; the frames between several
+  joints of one body have none.
 * Position limits are the ``range`` of the limited hinge and slide joints (MuJoCo's compiled
   ``jnt_range``, in radians whatever ``<compiler angle>`` says); a ball joint's range (a cone)
   is not kept.
