@@ -286,3 +286,22 @@ def test_compile_fullgraph() -> None:
     )
     f = torch.compile(chain.inverse_dynamics, fullgraph=True)
     torch.testing.assert_close(f(qpos, qvel, qacc), chain.inverse_dynamics(qpos, qvel, qacc))
+
+
+def test_validate_reports_the_dynamics(tmp_path, capsys) -> None:
+    # python -m torchlie.kinematics.validate on an MJCF file compares the dynamics with MuJoCo
+    # (on the model recompiled without armature, damping, ...): four lines, all within
+    # tolerance, in float64 and float32.
+    from torchlie.kinematics.validate import main
+
+    path = tmp_path / "robot.xml"
+    path.write_text(
+        HAND["free_ball"].replace('pos="0 0 0.05"/>', 'pos="0 0 0.05" armature="0.1"/>')
+    )
+    assert main([str(path), "--samples", "20", "--dtype", "float64"]) == 0
+    text = capsys.readouterr().out
+    assert "dynamics against MuJoCo" in text and "PASS" in text
+    for name in ("inverse dynamics", "mass matrix", "bias forces", "forward dynamics"):
+        line = next(ln for ln in text.splitlines() if ln.strip().startswith(name))
+        assert line.endswith("ok")
+    assert main([str(path), "--samples", "10", "--dtype", "float32"]) == 0
