@@ -54,7 +54,7 @@ from torch import Tensor
 
 from .. import _checks, _coeffs
 from .. import so3 as _so3
-from .._autograd import fma
+from .._autograd import fma, needs_graph, transforms_active
 from .._typing import Float
 from ._dyn_plan import DEFAULT_GRAVITY, _build, _convert, _DynPlan
 from .urdf import _some
@@ -338,16 +338,31 @@ def _crba(plan: _DynPlan, geo: _Geometry, ins: Inertials, batch: tuple[int, ...]
     mc, hc, Icb = cb[:, :1], cb[:, 1:4], cb[:, 4:].view(K, 3, 3, B)
     Fl = mc * Sl - _cross(hc, Sa)
     Fa = _mat(Icb, Sa) + _cross(hc, Sl)
-    # Q[k, l] = S_k . Ic_l S_l, summed component by component over (K, K, B).
-    Q = Sl[:, None, 0] * Fl[None, :, 0]
-    for i in (1, 2):
-        Q = fma(Q, Sl[:, None, i], Fl[None, :, i])
-    for i in range(3):
-        Q = fma(Q, Sa[:, None, i], Fa[None, :, i])
+    # Q[k, l] = S_k . Ic_l S_l, summed component by component over (K, K, B), into the rows
+    # of one buffer whose last row is 0.  Where autograd records nothing (eager, no transform),
+    # the sum accumulates in place (out=): fresh (K, K, B) temporaries per term cost a page
+    # fault per 4 KiB on large batches, where the allocator hands their memory back.
+    if torch.compiler.is_compiling() or transforms_active() or needs_graph((Sl, Sa, Fl, Fa)):
+        Q = Sl[:, None, 0] * Fl[None, :, 0]
+        for i in (1, 2):
+            Q = fma(Q, Sl[:, None, i], Fl[None, :, i])
+        for i in range(3):
+            Q = fma(Q, Sa[:, None, i], Fa[None, :, i])
+        Qz = torch.cat((Q.view(K * K, B), Q.new_zeros(1, B)))
+    else:
+        Qz = Sl.new_empty(K * K + 1, B)
+        Qz[K * K].zero_()
+        Q = Qz[: K * K].view(K, K, B)
+        torch.mul(Sl[:, None, 0], Fl[None, :, 0], out=Q)
+        for i in (1, 2):
+            fma(Q, Sl[:, None, i], Fl[None, :, i], out=Q)
+        for i in range(3):
+            fma(Q, Sa[:, None, i], Fa[None, :, i], out=Q)
     # M[k, l] = Q[k, l] where column k's body is an ancestor of column l's, Q[l, k] where it is
-    # the other way round, 0 between branches: one gather into the (B, K, K) layout.
-    Qz = torch.cat((Q.view(K * K, B), Q.new_zeros(1, B)))
-    Mc = Qz.mT.index_select(1, plan.m_gather).view(B, K, K)
+    # the other way round, 0 between branches: one gather of whole rows (batch last), then one
+    # transposing copy into the (B, K, K) layout (a gather reading B apart is several times
+    # slower on large batches).
+    Mc = Qz.index_select(0, plan.m_gather).mT.contiguous().view(B, K, K)
     if plan.W_is_identity:
         return Mc
     return plan.W @ Mc @ plan.W.T
