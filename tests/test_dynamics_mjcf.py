@@ -305,3 +305,19 @@ def test_validate_reports_the_dynamics(tmp_path, capsys) -> None:
         line = next(ln for ln in text.splitlines() if ln.strip().startswith(name))
         assert line.endswith("ok")
     assert main([str(path), "--samples", "10", "--dtype", "float32"]) == 0
+
+
+def test_sites_change_nothing() -> None:
+    # Sites are links fixed to their bodies without inertials: the same bodies, inertials and
+    # torques with or without them (fixed origins given by quaternions).
+    site = '<site name="s" pos="0.1 0 0" quat="0.6 0.8 0 0"/>'
+    m = rigid_model(
+        HAND["hinge_slide"].replace("</body>\n</worldbody>", site + "</body></worldbody>")
+    )
+    a = Chain.from_mjcf(m, dtype=torch.float64)
+    b = Chain.from_mjcf(m, sites=True, dtype=torch.float64)
+    assert "s" in b.link_names and a.body_names == b.body_names
+    qpos, qvel, qacc, _ = (torch.as_tensor(x) for x in random_state(m, 5, seed=7))
+    torch.testing.assert_close(
+        b.inverse_dynamics(qpos, qvel, qacc), a.inverse_dynamics(qpos, qvel, qacc)
+    )
