@@ -38,6 +38,9 @@ from torchlie.kinematics import Chain
 
 mujoco = pytest.importorskip("mujoco")
 
+# The model compiled from its MjSpec with armature, damping, ... zeroed (see the docstring).
+from torchlie.kinematics._mjcf_validate import rigid_model  # noqa: E402
+
 TOL_TAU, TOL_M, TOL_QDD = 1e-9, 1e-10, 1e-8
 
 HAND = {
@@ -116,41 +119,6 @@ def _package_file(pkg: str, rel: str) -> Path | None:
         return None
     p = Path(next(iter(spec.submodule_search_locations))) / rel
     return p if p.exists() else None
-
-
-def rigid_model(source: str | Path):
-    """The compiled model with everything beyond rigid-body dynamics zeroed or disabled, set
-    in the model's spec before compiling (MuJoCo folds the armature into compiled arrays:
-    zeroing ``MjModel.dof_armature`` afterwards does not reach the mass matrix)."""
-    if isinstance(source, Path):
-        spec = mujoco.MjSpec.from_file(str(source))
-    else:
-        spec = mujoco.MjSpec.from_string(source)
-    for j in spec.joints:
-        j.armature = 0.0
-        j.damping = np.zeros_like(np.asarray(j.damping))
-        j.frictionloss = 0.0
-        j.stiffness = np.zeros_like(np.asarray(j.stiffness))
-    for a in spec.actuators:
-        a.armature = 0.0
-    for t in spec.tendons:
-        t.armature = 0.0
-    for b in spec.bodies:
-        b.gravcomp = 0.0
-    d = mujoco.mjtDisableBit
-    spec.option.disableflags |= int(
-        d.mjDSBL_CONTACT
-        | d.mjDSBL_CONSTRAINT
-        | d.mjDSBL_EQUALITY
-        | d.mjDSBL_LIMIT
-        | d.mjDSBL_FRICTIONLOSS
-        | d.mjDSBL_ACTUATION
-        | d.mjDSBL_SPRING
-        | d.mjDSBL_DAMPER
-    )
-    m = spec.compile()
-    assert not m.dof_armature.any() and not m.dof_damping.any()
-    return m
 
 
 def random_state(m, n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
