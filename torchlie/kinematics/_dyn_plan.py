@@ -34,6 +34,7 @@ class _DynPlan:
     body_of: dict[int, int]  # link -> its body (-1: fixed to the root)
     targets: tuple[int, ...]  # links whose poses a pass needs: bodies, then column parents
     n_rot: int  # columns: n_rot constant rotations, then 3 per floating joint, then translations
+    col_anchor: Tensor | None  # (n_rot, 3, 1) rotation columns' pivots in their bodies' frames
     col_v: Tensor  # (n_const, 1, 3) directions of the constant columns in their parent frames
     col_parent: Tensor  # (n_const,) position in targets of each constant column's parent link
     col_body: Tensor  # (K,) body moved by each column
@@ -71,6 +72,17 @@ def _rpy3(r: float, p: float, y: float) -> _M3:
     ]
 
 
+def _quat3(q: tuple[float, ...]) -> _M3:
+    """Rotation of the quaternion ``(w, x, y, z)``, normalised (see ``_joints._quat_matrix``)."""
+    n = math.sqrt(sum(x * x for x in q))
+    w, x, y, z = (c / n for c in q)
+    return [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ]
+
+
 def _mul3(A: _M3, B: _M3) -> _M3:
     return [[sum(A[i][k] * B[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
 
@@ -102,6 +114,7 @@ def _merge(parts: list[tuple[float, list[float], _M3]]) -> tuple[float, list[flo
 
 
 def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) -> _DynPlan:
+    """The plan; ``joint_names`` names the velocity coordinates (the columns' DoFs)."""
     n_dof = len(joint_names)
     moving = [lk.index for lk in links[1:] if lk.cols or lk.float_rot is not None]
     body_ix = {i: b for b, i in enumerate(moving)}
@@ -115,9 +128,12 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
             body_of[lk.index] = body_ix[lk.index]
             pose_in_body[lk.index] = (eye3, [0.0] * 3)
         else:
-            assert lk.joint is not None
+            # A fixed joint's origin as the kinematics read it (``_joints._origin``: a
+            # quaternion where there is one, else rpy; anchors and ref concern moving joints).
+            j = lk.joint
+            assert j is not None
             body_of[lk.index] = body_of[lk.parent]
-            origin = (_rpy3(*lk.joint.rpy), list(lk.joint.xyz))
+            origin = (_rpy3(*j.rpy) if j.quat is None else _quat3(j.quat), list(j.xyz))
             pose_in_body[lk.index] = _compose(pose_in_body[lk.parent], origin)
     # Merged inertials in the body frames.
     spec_in = dict(zip(spec.links, spec.inertials, strict=True)) if spec.inertials else {}
@@ -147,15 +163,22 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
             p = parent_body[p]
         anc_sets.append(s)
 
-    # Columns: constant rotations, floating rotations, translations.
+    # Columns: constant rotations, floating rotations, translations.  A rotation column's
+    # direction is fixed in its parent's frame ("rot") or in its own link's ("crot": the
+    # angular velocities of ball and free joints); it turns about the link's anchor.
     rot: list[tuple[int, tuple[float, ...], int, int, float]] = []  # parent, v, body, d, w
     tr: list[tuple[int, tuple[float, ...], int, int, float]] = []
+    anchors: list[tuple[float, float, float]] = []  # per rotation column, in its body's frame
     floats_raw: list[tuple[int, int, int, Tensor]] = []
     for i in moving:
         lk = links[i]
         b = body_ix[i]
         for kind, v, d, w in lk.cols:
-            (rot if kind == "rot" else tr).append((lk.parent, v, b, d, w))
+            if kind == "tr":
+                tr.append((lk.parent, v, b, d, w))
+                continue
+            rot.append((lk.index if kind == "crot" else lk.parent, v, b, d, w))
+            anchors.append(lk.anchor or (0.0, 0.0, 0.0))
         if lk.float_rot is not None:
             d0, O_R = lk.float_rot
             floats_raw.append((lk.parent, b, d0, torch.tensor(O_R, dtype=torch.float64)))
@@ -210,6 +233,11 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
         body_of=body_of,
         targets=targets,
         n_rot=len(rot),
+        col_anchor=(
+            torch.tensor(anchors, dtype=torch.float64).reshape(-1, 3, 1)
+            if any(any(a) for a in anchors)
+            else None
+        ),
         col_v=torch.tensor([list(v) for _, v, *_ in const], dtype=torch.float64).reshape(-1, 1, 3),
         col_parent=torch.tensor([pos[p] for p, *_ in const], dtype=torch.long),
         col_body=torch.tensor(col_body, dtype=torch.long),
@@ -255,6 +283,7 @@ def _convert(plan: _DynPlan, dtype: torch.dtype, device: torch.device) -> _DynPl
         body_of=plan.body_of,
         targets=plan.targets,
         n_rot=plan.n_rot,
+        col_anchor=None if plan.col_anchor is None else f(plan.col_anchor),
         col_v=f(plan.col_v),
         col_parent=i(plan.col_parent),
         col_body=i(plan.col_body),

@@ -876,7 +876,8 @@ class Chain:
 
     @property
     def inertials(self) -> Inertials:
-        """The bodies' inertial parameters from the URDF's ``<inertial>`` elements, merged
+        """The bodies' inertial parameters from the URDF's ``<inertial>`` elements (MJCF:
+        MuJoCo's compiled ``body_mass``, ``body_ipos``, ``body_iquat``, ``body_inertia``), merged
         through fixed joints, as fresh tensors in the chain's dtype and device:
         :class:`~torchlie.kinematics.dynamics.Inertials` ``(mass, com, inertia)``.  Change
         them, or make them require gradients, and pass them back as ``inertials=`` to the
@@ -893,19 +894,20 @@ class Chain:
     def inverse_dynamics(
         self,
         q: Float[Tensor, "*b n_dof"],
-        qd: Float[Tensor, "*b n_dof"],
-        qdd: Float[Tensor, "*b n_dof"],
+        qd: Float[Tensor, "*b n_v"],
+        qdd: Float[Tensor, "*b n_v"],
         *,
         gravity: Tensor | None = None,
         f_ext: Mapping[str, Tensor] | None = None,
         inertials: Inertials | None = None,
-    ) -> Float[Tensor, "*b n_dof"]:
+    ) -> Float[Tensor, "*b n_v"]:
         """Joint torques (forces for prismatic joints) producing the motion ``(q, qd, qdd)``:
         recursive Newton-Euler, ``tau = M(q) qdd + h(q, qd) - sum J^T f_ext``.
 
         Args:
-            q, qd, qdd: ``(..., n_dof)`` positions, velocities, accelerations (``qd``, ``qdd``
-                broadcast to ``q``'s batch shape).
+            q, qd, qdd: ``(..., n_dof)`` positions, ``(..., n_v)`` velocities and
+                accelerations (:attr:`velocity_names`: ``n_v = n_dof`` but for the quaternion
+                joints of MJCF chains; ``qd``, ``qdd`` broadcast to ``q``'s batch shape).
             gravity: ``(3,)`` or ``(..., 3)`` acceleration of free fall in the root frame
                 (default ``(0, 0, -9.81)``).
             f_ext: dict link name -> ``(..., 6)`` wrench (force; torque) on the link, world
@@ -925,8 +927,8 @@ class Chain:
 
     def mass_matrix(
         self, q: Float[Tensor, "*b n_dof"], *, inertials: Inertials | None = None
-    ) -> Float[Tensor, "*b n_dof n_dof"]:
-        """Joint-space mass matrix ``M(q)`` ``(..., n_dof, n_dof)`` (composite rigid bodies).
+    ) -> Float[Tensor, "*b n_v n_v"]:
+        """Joint-space mass matrix ``M(q)`` ``(..., n_v, n_v)`` (composite rigid bodies).
 
         Example:
             >>> from torchlie.kinematics import sample_robot
@@ -940,13 +942,13 @@ class Chain:
     def forward_dynamics(
         self,
         q: Float[Tensor, "*b n_dof"],
-        qd: Float[Tensor, "*b n_dof"],
-        tau: Float[Tensor, "*b n_dof"],
+        qd: Float[Tensor, "*b n_v"],
+        tau: Float[Tensor, "*b n_v"],
         *,
         gravity: Tensor | None = None,
         f_ext: Mapping[str, Tensor] | None = None,
         inertials: Inertials | None = None,
-    ) -> Float[Tensor, "*b n_dof"]:
+    ) -> Float[Tensor, "*b n_v"]:
         """Joint accelerations under the joint forces ``tau``: ``M(q)^-1 (tau - h(q, qd) +
         sum J^T f_ext)`` by a batched Cholesky solve.  Arguments as for
         :meth:`inverse_dynamics`.
@@ -970,11 +972,11 @@ class Chain:
     def bias_forces(
         self,
         q: Float[Tensor, "*b n_dof"],
-        qd: Float[Tensor, "*b n_dof"],
+        qd: Float[Tensor, "*b n_v"],
         *,
         gravity: Tensor | None = None,
         inertials: Inertials | None = None,
-    ) -> Float[Tensor, "*b n_dof"]:
+    ) -> Float[Tensor, "*b n_v"]:
         """Coriolis, centrifugal and gravity forces ``h(q, qd)`` (inverse dynamics at
         ``qdd = 0``; Pinocchio's ``nonLinearEffects``).
 
@@ -994,7 +996,7 @@ class Chain:
         *,
         gravity: Tensor | None = None,
         inertials: Inertials | None = None,
-    ) -> Float[Tensor, "*b n_dof"]:
+    ) -> Float[Tensor, "*b n_v"]:
         """Joint forces holding the robot still against gravity, ``g(q)`` (Pinocchio's
         ``computeGeneralizedGravity``).
 

@@ -12,6 +12,14 @@ Conventions (see also ``docs/dynamics.md``):
   prismatic ones) that do virtual work ``tau . dq``.  A mimic joint has no coordinate: its
   motion is ``m qd[J]`` and its torque is added, times ``m``, to the torque of the joint it
   follows (the reduced equations of the mimic constraint).
+* MJCF chains use MuJoCo's coordinates: ``q`` is ``qpos`` (a unit quaternion per ball joint,
+  position and quaternion per free joint), while ``qd``, ``qdd`` and ``tau`` are over the
+  ``n_v`` velocity coordinates (:attr:`Chain.velocity_names`, MuJoCo's ``nv``: a ball joint's
+  angular velocity in its body's frame, a free joint's linear velocity of the body's origin in
+  the world frame then its angular velocity in the body's frame), as
+  :meth:`Chain.jacobian`'s columns; ``M`` is ``(..., n_v, n_v)``.  The results are MuJoCo's
+  ``qfrc_inverse``, ``mj_fullM`` and ``qacc`` without what MuJoCo adds to the rigid bodies
+  (joint armature, damping, friction loss, springs, contacts, constraints, actuators).
 * Bodies: every link moved by a joint with degrees of freedom (a mimic joint included) is a
   body; links attached through fixed joints merge their inertials into their nearest moving
   ancestor (links fixed to the root do not move and are ignored).  :attr:`Chain.inertials`
@@ -46,7 +54,7 @@ from torch import Tensor
 
 from .. import _checks, _coeffs
 from .. import so3 as _so3
-from .._autograd import fma
+from .._autograd import fma, needs_graph, transforms_active
 from .._typing import Float
 from ._dyn_plan import DEFAULT_GRAVITY, _build, _convert, _DynPlan
 from .urdf import _some
@@ -84,7 +92,7 @@ def _plan(chain) -> _DynPlan:
     plan = chain.__dict__.get("_dyn_plan")
     if plan is None:
         plan = _convert(
-            _build(chain.spec, chain._links, chain.joint_names), chain.dtype, chain.device
+            _build(chain.spec, chain._links, chain.velocity_names), chain.dtype, chain.device
         )
         if not torch.compiler.is_compiling():
             chain.__dict__["_dyn_plan"] = plan
@@ -171,7 +179,10 @@ def _geometry(chain, plan: _DynPlan, q2: Tensor, extra: tuple[int, ...]) -> _Geo
         Rp = P[:, :3, :3].index_select(0, plan.col_parent)  # (n, c, r, B)
         U = torch.matmul(plan.col_v, Rp.reshape(n_const, 3, 3 * B)).view(n_const, 3, B)
         parts_u.append(U[: plan.n_rot])
-        parts_p.append(p.index_select(0, plan.col_body[: plan.n_rot]))
+        piv = p.index_select(0, plan.col_body[: plan.n_rot])
+        if plan.col_anchor is not None:  # the joint turns about a point of its body
+            piv = piv + _rot(RT.index_select(0, plan.col_body[: plan.n_rot]), plan.col_anchor)
+        parts_p.append(piv)
     floats = []
     for ppos, b, d0, O_R in plan.floats:
         Rp = P[ppos, :3, :3]  # (c, r, B)
@@ -327,16 +338,31 @@ def _crba(plan: _DynPlan, geo: _Geometry, ins: Inertials, batch: tuple[int, ...]
     mc, hc, Icb = cb[:, :1], cb[:, 1:4], cb[:, 4:].view(K, 3, 3, B)
     Fl = mc * Sl - _cross(hc, Sa)
     Fa = _mat(Icb, Sa) + _cross(hc, Sl)
-    # Q[k, l] = S_k . Ic_l S_l, summed component by component over (K, K, B).
-    Q = Sl[:, None, 0] * Fl[None, :, 0]
-    for i in (1, 2):
-        Q = fma(Q, Sl[:, None, i], Fl[None, :, i])
-    for i in range(3):
-        Q = fma(Q, Sa[:, None, i], Fa[None, :, i])
+    # Q[k, l] = S_k . Ic_l S_l, summed component by component over (K, K, B), into the rows
+    # of one buffer whose last row is 0.  Where autograd records nothing (eager, no transform),
+    # the sum accumulates in place (out=): fresh (K, K, B) temporaries per term cost a page
+    # fault per 4 KiB on large batches, where the allocator hands their memory back.
+    if torch.compiler.is_compiling() or transforms_active() or needs_graph((Sl, Sa, Fl, Fa)):
+        Q = Sl[:, None, 0] * Fl[None, :, 0]
+        for i in (1, 2):
+            Q = fma(Q, Sl[:, None, i], Fl[None, :, i])
+        for i in range(3):
+            Q = fma(Q, Sa[:, None, i], Fa[None, :, i])
+        Qz = torch.cat((Q.view(K * K, B), Q.new_zeros(1, B)))
+    else:
+        Qz = Sl.new_empty(K * K + 1, B)
+        Qz[K * K].zero_()
+        Q = Qz[: K * K].view(K, K, B)
+        torch.mul(Sl[:, None, 0], Fl[None, :, 0], out=Q)
+        for i in (1, 2):
+            fma(Q, Sl[:, None, i], Fl[None, :, i], out=Q)
+        for i in range(3):
+            fma(Q, Sa[:, None, i], Fa[None, :, i], out=Q)
     # M[k, l] = Q[k, l] where column k's body is an ancestor of column l's, Q[l, k] where it is
-    # the other way round, 0 between branches: one gather into the (B, K, K) layout.
-    Qz = torch.cat((Q.view(K * K, B), Q.new_zeros(1, B)))
-    Mc = Qz.mT.index_select(1, plan.m_gather).view(B, K, K)
+    # the other way round, 0 between branches: one gather of whole rows (batch last), then one
+    # transposing copy into the (B, K, K) layout (a gather reading B apart is several times
+    # slower on large batches).
+    Mc = Qz.index_select(0, plan.m_gather).mT.contiguous().view(B, K, K)
     if plan.W_is_identity:
         return Mc
     return plan.W @ Mc @ plan.W.T
@@ -379,16 +405,17 @@ def _check_inertials(
 
 
 def _check_vec(chain, x: Tensor, fn: str, name: str, batch: tuple[int, ...]) -> Tensor:
-    t, _ = _checks.tensor(x, _NAME + fn, name, (chain.n_dof,))
+    """``x (..., n_v)`` (velocities, accelerations, forces) as ``(B, n_v)``."""
+    t, _ = _checks.tensor(x, _NAME + fn, name, (chain.n_v,))
     chain._check_like(t, _NAME + fn, name, x.dtype)
     try:
-        t = t.broadcast_to(batch + (chain.n_dof,))
+        t = t.broadcast_to(batch + (chain.n_v,))
     except RuntimeError:
         raise ValueError(
             f"{_NAME}{fn}: {name} of shape {tuple(x.shape)} does not broadcast to q's batch "
             f"shape {batch}"
         ) from None
-    return t.reshape(math.prod(batch), chain.n_dof)
+    return t.reshape(math.prod(batch), chain.n_v)
 
 
 def _gravity(chain, gravity, fn: str, batch: tuple[int, ...], like: Tensor) -> Tensor:
@@ -495,7 +522,7 @@ def _inverse_dynamics(
     geo = _geometry(chain, plan, q2, extra)
     fx = None if f_ext is None else _fext(chain, plan, geo, f_ext, _fn, batch)
     tau = _rnea(plan, geo, ins, batch, qd2, qdd2, g, fx)
-    return _result(tau, batch, chain.n_dof, out_dtype)
+    return _result(tau, batch, chain.n_v, out_dtype)
 
 
 def _mass_matrix(
@@ -506,10 +533,10 @@ def _mass_matrix(
     q2, out_dtype, batch, plan = _prepare(chain, q, fn)
     ins = _check_inertials(chain, inertials, fn, batch)
     if not plan.bodies:  # no degree of freedom
-        return _checks.out(q2.new_zeros(*batch, 0, 0), out_dtype)
+        return _checks.out(q2.new_zeros(*batch, chain.n_v, chain.n_v), out_dtype)
     geo = _geometry(chain, plan, q2, ())
     M = _crba(plan, geo, ins, batch)
-    return _checks.out(M.reshape(*batch, chain.n_dof, chain.n_dof), out_dtype)
+    return _checks.out(M.reshape(*batch, chain.n_v, chain.n_v), out_dtype)
 
 
 def _forward_dynamics(
@@ -544,4 +571,4 @@ def _forward_dynamics(
     M = _crba(plan, geo, ins, batch)  # (B, n, n)
     L, _ = torch.linalg.cholesky_ex(M)
     qdd = torch.cholesky_solve((tau2 - h.mT).unsqueeze(-1), L).squeeze(-1)  # (B, n)
-    return _checks.out(qdd.reshape(*batch, chain.n_dof), out_dtype)
+    return _checks.out(qdd.reshape(*batch, chain.n_v), out_dtype)

@@ -25,6 +25,9 @@ The result is the same :class:`~torchlie.kinematics.RobotSpec` the URDF parser m
   joint with ``ref`` is at its origin for ``q = ref``; ``jnt_pos`` is the point a hinge or
   ball turns about.  A free joint sets the body's world pose (it ignores the body's ``pos``
   and ``quat``, which only give its ``qpos0``).
+* Each body's inertial (for the dynamics) is MuJoCo's compiled ``body_mass``, ``body_ipos``
+  and ``body_inertia`` along ``body_iquat``, in the body's frame; the frames between several
+  joints of one body have none.
 * Position limits are the ``range`` of the limited hinge and slide joints (MuJoCo's compiled
   ``jnt_range``, in radians whatever ``<compiler angle>`` says); a ball joint's range (a cone)
   is not kept.
@@ -38,7 +41,7 @@ from __future__ import annotations
 import os
 from typing import Any
 
-from .urdf import JointSpec, RobotSpec
+from .urdf import InertialSpec, JointSpec, RobotSpec
 
 __all__ = ["MJCFError", "parse_mjcf"]
 
@@ -193,6 +196,7 @@ def parse_mjcf(source: str | os.PathLike[str] | bytes | Any, *, sites: bool = Fa
                 )
             parent = child
     links = list(bodies)
+    inertials: list[InertialSpec | None] = [None] + [_inertial(m, i) for i in range(1, m.nbody)]
     if sites:
         staken = {name(mujoco.mjtObj.mjOBJ_SITE, s) for s in range(m.nsite)} - {""}
         for s in range(m.nsite):
@@ -203,9 +207,34 @@ def parse_mjcf(source: str | os.PathLike[str] | bytes | Any, *, sites: bool = Fa
                 )
             taken.add(site)
             links.append(site)
+            inertials.append(None)
             body = bodies[int(m.site_bodyid[s])]
             xyz, quat = vec(m.site_pos[s]), vec(m.site_quat[s])
             joints.append(JointSpec(f"{site}:fixed", "fixed", body, site, xyz=xyz, quat=quat))
     # The model's name: the first entry of MuJoCo's name buffer.
     model_name = bytes(m.names).split(b"\0", 1)[0].decode("utf-8", "replace")
-    return RobotSpec(model_name or "mjcf", tuple(links), tuple(joints), bodies[0], label)
+    return RobotSpec(
+        model_name or "mjcf", tuple(links), tuple(joints), bodies[0], label, tuple(inertials)
+    )
+
+
+def _inertial(m: Any, i: int) -> InertialSpec:
+    """Body ``i``'s compiled inertial (``body_mass``, ``body_ipos``, and the principal moments
+    ``body_inertia`` along the axes of ``body_iquat``) as an :class:`InertialSpec` in the body's
+    frame: the inertia tensor ``R diag(I) R^T`` about the centre of mass, ``rpy`` zero."""
+    w, x, y, z = (float(c) for c in m.body_iquat[i])
+    n = w * w + x * x + y * y + z * z
+    s = 2.0 / n if n > 0 else 0.0
+    R = [
+        [1 - s * (y * y + z * z), s * (x * y - w * z), s * (x * z + w * y)],
+        [s * (x * y + w * z), 1 - s * (x * x + z * z), s * (y * z - w * x)],
+        [s * (x * z - w * y), s * (y * z + w * x), 1 - s * (x * x + y * y)],
+    ]
+    d = [float(v) for v in m.body_inertia[i]]
+    I = [[sum(R[r][k] * d[k] * R[c][k] for k in range(3)) for c in range(3)] for r in range(3)]
+    return InertialSpec(
+        float(m.body_mass[i]),
+        (float(m.body_ipos[i][0]), float(m.body_ipos[i][1]), float(m.body_ipos[i][2])),
+        (0.0, 0.0, 0.0),
+        (I[0][0], I[0][1], I[0][2], I[1][1], I[1][2], I[2][2]),
+    )

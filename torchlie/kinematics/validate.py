@@ -11,7 +11,8 @@ Usage::
 
 An MJCF file (root element ``<mujoco>``) is compiled by MuJoCo and every body's pose and every
 end body's Jacobian are compared with MuJoCo's ``mj_kinematics`` and ``mj_jacBody`` at the same
-tolerances (see :mod:`torchlie.kinematics._mjcf_validate`).  An SDF file (root element
+tolerances, and the dynamics with MuJoCo's when the model has mass (see
+:mod:`torchlie.kinematics._mjcf_validate`).  An SDF file (root element
 ``<sdf>``) is compared link by link with an independent float64 evaluation of the SDFormat
 frame rules (:mod:`torchlie.kinematics._sdf_validate`); ``--loops skip`` leaves out the joints
 closing kinematic loops.  The rest of this page is about URDF.
