@@ -76,7 +76,7 @@ def _device_type(args: tuple, kwargs: dict) -> str:
     tuples, as IK targets); else of a ``device=`` argument; else ``"cpu"``."""
     for a in args:
         if isinstance(a, Tensor):
-            return a.device.type
+            return "cpu" if a.is_cpu else a.device.type  # is_cpu: a fifth of .device's cost
     for a in (*args, *kwargs.values()):
         for v in (
             a.values() if isinstance(a, Mapping) else a if isinstance(a, (list, tuple)) else (a,)
