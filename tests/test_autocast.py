@@ -12,7 +12,8 @@ import pytest
 import test_bad_input as tb
 import torch
 
-from torchlie import SE3, SO3, se3, so3
+import torchlie
+from torchlie import SE3, SO3, _checks, se3, so3
 from torchlie import nn as tnn
 
 F32 = torch.float32
@@ -91,6 +92,32 @@ def test_every_op_is_float32_exact_under_autocast(name, call, amp_dtype, monkeyp
     want = _run(call)
     got = _run(call, amp_dtype)
     _assert_same(got, want, name)
+
+
+_GUARD = _checks.float32_exact(lambda: None).__code__
+#: The modules of functions on tensors (the planar and similarity groups join when they exist).
+_MODULES = ("so3", "se3", "quaternion", "conversions", "statistics", "nn", "so2", "se2", "sim3")
+
+
+def test_every_public_function_is_guarded():
+    """Each public function (and Chain's computing methods) goes through ``float32_exact``."""
+    from torchlie.kinematics import Chain, ik
+
+    funcs = {
+        f"{m}.{n}": getattr(getattr(torchlie, m), n)
+        for m in _MODULES
+        if hasattr(torchlie, m)
+        for n in getattr(torchlie, m).__all__
+    }
+    funcs = {k: f for k, f in funcs.items() if callable(f) and not isinstance(f, type)}
+    computing = ("forward_kinematics", "jacobian", "poses_and_jacobians", "inverse_kinematics",
+                 "inverse_dynamics", "mass_matrix", "forward_dynamics", "bias_forces",
+                 "gravity_torques")  # fmt: skip
+    funcs |= {f"Chain.{n}": getattr(Chain, n) for n in computing}
+    funcs["ik.inverse_kinematics"] = ik.inverse_kinematics
+    assert len(funcs) > 100
+    bare = sorted(k for k, f in funcs.items() if getattr(f, "__code__", None) is not _GUARD)
+    assert bare == []
 
 
 # ----------------------------------------------------------------------------------------------
