@@ -1,9 +1,12 @@
 """torchlie's ops are float32-exact inside ``torch.autocast``.
 
 Autocast lowers matrix products to float16/bfloat16; every public op runs with autocast
-disabled (``_checks.float32_exact``), so inside an autocast region float32 inputs give the
-float32 results of outside it and float64 stays float64.  The sweep reuses the registry of
-every public op of :mod:`test_bad_input` (``BATCHED``), its operands cast to float32.
+disabled (``_checks.float32_exact``), so inside a CPU autocast region (bfloat16 and float16)
+float32 inputs give the float32 results of outside it, within 4 float32 ulp relative to
+``1 + |value|`` (the same kernels run, so in practice they agree exactly), and float64 stays
+float64.  The sweep reuses the registry of every public op of :mod:`test_bad_input`
+(``BATCHED``), its operands cast to float32; then the group classes, a chain's kinematics and
+dynamics, gradients, one compiled graph, and a check that every public function is guarded.
 """
 
 from __future__ import annotations
@@ -149,6 +152,27 @@ def test_group_class_methods_are_float32_exact_under_autocast(G, amp_dtype):
         with torch.autocast("cpu", dtype=amp_dtype):
             got = f()
         _assert_same([got], [want], f"{G.__name__} {name}")
+
+
+def test_ops_on_each_device_are_float32_exact_under_its_autocast(device):
+    # The guard disables autocast for the device type of the op's tensors (CUDA where present).
+    torch.manual_seed(5)
+    R, T = so3.random(8).to(device), se3.random(8).to(device)
+    w, xi = torch.randn(8, 3, device=device), torch.randn(8, 6, device=device)
+    calls = {
+        "so3.compose": lambda: so3.compose(R, R.flip(0)),
+        "so3.rminus": lambda: so3.rminus(R, R.flip(0)),
+        "so3.rplus": lambda: so3.rplus(R, w),
+        "se3.between": lambda: se3.between(T, T.flip(0)),
+        "se3.adjoint": lambda: se3.adjoint(T),
+        "se3.jac_left_inv": lambda: se3.jac_left_inv(xi),
+    }
+    amp_dtype = torch.bfloat16 if device == "cpu" else torch.float16
+    for name, f in calls.items():
+        want = f()
+        with torch.autocast(device, dtype=amp_dtype):
+            got = f()
+        _assert_same([got], [want], f"{name} on {device}")
 
 
 def _arm():
