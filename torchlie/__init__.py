@@ -24,8 +24,10 @@ log range          rotation angle in ``[0, pi]``; at exactly pi the axis sign fo
 batch              up to 60 leading dimensions (torch's reductions take at most 64 in all),
                    broadcast like torch; no op flattens or loops in Python.
 dtypes             float32 and float64; float16/bfloat16 are computed in float32 and returned
-                   in the input dtype.  Integer tensors raise ``TypeError``; a wrong trailing
-                   shape raises ``ValueError`` naming the function and both shapes.
+                   in the input dtype.  ``torch.autocast`` does not reach inside an op: there
+                   too float32 is computed and returned in float32, float64 in float64.
+                   Integer tensors raise ``TypeError``; a wrong trailing shape raises
+                   ``ValueError`` naming the function and both shapes.
 gradients          finite at every angle, 0 and pi included.  The log maps' backward is the
                    gradient of ``log o polar`` (see :func:`torchlie.so3.log`).
 =================  ===========================================================================

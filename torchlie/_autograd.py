@@ -45,6 +45,8 @@ from torch import Tensor
 from torch.autograd import Function
 from torch.autograd import forward_ad as _forward_ad
 
+from . import _checks
+
 _Out = TypeVar("_Out", Tensor, tuple[Tensor, ...])
 _is_compiling = torch.compiler.is_compiling
 _addcmul = torch.addcmul
@@ -252,9 +254,12 @@ class CustomFunction:
             ctx.save_for_backward(*saved)
             ctx.save_for_forward(*saved)
 
+        # A backward called inside an autocast region runs as the forward did (without autocast).
+        @_checks.float32_exact
         def _backward(ctx, grad: Tensor):
             return backward(ctx.saved_tensors, grad)
 
+        @_checks.float32_exact
         def _jvp(ctx, *tangents: Tensor) -> Tensor:
             return jvp(ctx.saved_tensors, *tangents)
 

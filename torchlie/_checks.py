@@ -19,14 +19,20 @@ One rule for every entry point:
   dimension;
 * tolerances and loss weights: a non-negative finite real number (``TypeError`` for another
   type, ``ValueError`` for a negative, infinite or NaN value).
+
+Every public op is also decorated with :func:`float32_exact`, the one guard against
+``torch.autocast``: an autocast region would otherwise run the matrix products inside the
+formulas in float16/bfloat16 and lose float32 accuracy.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import numbers
 import operator
 import reprlib
+from collections.abc import Mapping
 
 import numpy as np
 import torch
@@ -41,6 +47,44 @@ _FLOAT_NAMES = "float16, bfloat16, float32 or float64"
 #: the ops build intermediates of up to three dimensions after the batch (``so3.project``'s
 #: product of two 3x3 factors written as an outer product and a sum); 60 keeps one in hand.
 MAX_BATCH_DIMS = 60
+
+
+def float32_exact(fn):
+    """Decorator of every public op: run it with ``torch.autocast`` disabled.
+
+    Autocast lowers matrix products (``@``, ``bmm``, ``einsum``, ...) to float16/bfloat16, which
+    the formulas are not written for; inside an autocast region the op runs as outside it, so
+    float32 inputs give float32 results of float32 accuracy (half inputs are computed in float32
+    by :func:`tensor` as always).  The device type is that of the first tensor argument
+    (:func:`_device_type`); outside autocast the guard costs that lookup and one call, and
+    ``torch.compile`` traces the autocast state and the context manager into the graph.
+    """
+
+    @functools.wraps(fn)
+    def guarded(*args, **kwargs):
+        device = _device_type(args, kwargs)
+        if torch.is_autocast_enabled(device):
+            with torch.autocast(device, enabled=False):
+                return fn(*args, **kwargs)
+        return fn(*args, **kwargs)
+
+    return guarded
+
+
+def _device_type(args: tuple, kwargs: dict) -> str:
+    """The device type of the first tensor among the arguments (one level into dicts, lists and
+    tuples, as IK targets); else of a ``device=`` argument; else ``"cpu"``."""
+    for a in args:
+        if isinstance(a, Tensor):
+            return "cpu" if a.is_cpu else a.device.type  # is_cpu: a fifth of .device's cost
+    for a in (*args, *kwargs.values()):
+        for v in (
+            a.values() if isinstance(a, Mapping) else a if isinstance(a, (list, tuple)) else (a,)
+        ):
+            if isinstance(v, Tensor):
+                return v.device.type
+    device = kwargs.get("device")
+    return "cpu" if device is None else torch.device(device).type
 
 
 def batch_dims(fn: str, k: int, what: str) -> None:

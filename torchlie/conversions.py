@@ -186,6 +186,7 @@ def _quaternion_to_euler(q: Tensor, plan: tuple[int, int, int, bool]) -> Tensor:
     return _layout.interleave((first, middle, third))
 
 
+@_checks.float32_exact
 def euler_to_quaternion(angles: Float[Tensor, "*b 3"], seq: str) -> Float[Tensor, "*b 4"]:
     """Quaternion ``(w, x, y, z)`` of Euler angles (conventions: module docstring).
 
@@ -207,6 +208,7 @@ def euler_to_quaternion(angles: Float[Tensor, "*b 3"], seq: str) -> Float[Tensor
     return _checks.out(_euler_to_quaternion(x, plan), dtype)
 
 
+@_checks.float32_exact
 def quaternion_to_euler(q: Float[Tensor, "*b 4"], seq: str) -> Float[Tensor, "*b 3"]:
     """Euler angles of the rotation of ``q / |q|`` (conventions and gimbal lock: module docstring).
 
@@ -231,6 +233,7 @@ def quaternion_to_euler(q: Float[Tensor, "*b 4"], seq: str) -> Float[Tensor, "*b
     return _checks.out(_quaternion_to_euler(x, plan), dtype)
 
 
+@_checks.float32_exact
 def euler_to_matrix(angles: Float[Tensor, "*b 3"], seq: str) -> Float[Tensor, "*b 3 3"]:
     """Rotation matrix of Euler angles (conventions: module docstring).
 
@@ -252,6 +255,7 @@ def euler_to_matrix(angles: Float[Tensor, "*b 3"], seq: str) -> Float[Tensor, "*
     return _checks.out(_rotation_matrix.from_quaternion(_euler_to_quaternion(x, plan)), dtype)
 
 
+@_checks.float32_exact
 def matrix_to_euler(R: Float[Tensor, "*b 3 3"], seq: str) -> Float[Tensor, "*b 3"]:
     """Euler angles of a rotation matrix (conventions and gimbal lock: module docstring).
 
@@ -281,6 +285,7 @@ def matrix_to_euler(R: Float[Tensor, "*b 3 3"], seq: str) -> Float[Tensor, "*b 3
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def axis_angle_to_matrix(
     axis: Float[Tensor, "*b1 3"], angle: Float[Tensor, "*b2"] | float
 ) -> Float[Tensor, "*b 3 3"]:
@@ -305,6 +310,7 @@ def axis_angle_to_matrix(
     return _checks.out(_so3._ExpMapFn(t.unsqueeze(-1) * unit), dtype)
 
 
+@_checks.float32_exact
 def matrix_to_axis_angle(
     R: Float[Tensor, "*b 3 3"],
 ) -> tuple[Float[Tensor, "*b 3"], Float[Tensor, "*b"]]:
@@ -348,6 +354,7 @@ def _unit(v: Tensor) -> Tensor:
     return u * torch.rsqrt((u * u).sum(-1, keepdim=True))
 
 
+@_checks.float32_exact
 def rot6d_to_matrix(x: Float[Tensor, "*b 6"]) -> Float[Tensor, "*b 3 3"]:
     """Rotation matrix from the continuous 6-D representation (Gram-Schmidt).
 
@@ -388,6 +395,7 @@ def _rot6d_to_matrix(x: Tensor) -> Tensor:
     return _layout.interleave((b1, b2, b3))
 
 
+@_checks.float32_exact
 def matrix_to_rot6d(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 6"]:
     """The 6-D representation of ``R``: its first two columns, ``(R[:, 0], R[:, 1])``.
 
@@ -401,6 +409,7 @@ def matrix_to_rot6d(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 6"]:
     return _checks.out(torch.cat((x[..., :, 0], x[..., :, 1]), dim=-1), dtype)
 
 
+@_checks.float32_exact
 def rot9d_to_matrix(x: Float[Tensor, "*b 9"]) -> Float[Tensor, "*b 3 3"]:
     """Rotation matrix from the 9-D representation: SVD special orthogonalisation.
 

@@ -138,6 +138,7 @@ def _to_matrix(x: Tensor, representation: str) -> Tensor:
     return so3.exp(x)
 
 
+@_checks.float32_exact
 def representation_to_matrix(
     x: Float[Tensor, "*b k"], representation: str
 ) -> Float[Tensor, "*b 3 3"]:
@@ -342,6 +343,7 @@ def _reduce(loss: Tensor, reduction: str) -> Tensor:
     return loss
 
 
+@_checks.float32_exact
 def geodesic_loss(
     R_pred: Float[Tensor, "*b1 3 3"],
     R_target: Float[Tensor, "*b2 3 3"],
@@ -384,6 +386,7 @@ def geodesic_loss(
     return _checks.out(_reduce(loss, reduction), dtype)
 
 
+@_checks.float32_exact
 def se3_geodesic_loss(
     T_pred: Float[Tensor, "*b1 4 4"],
     T_target: Float[Tensor, "*b2 4 4"],

@@ -61,6 +61,7 @@ __all__ = [
 ]
 
 
+@_checks.float32_exact
 def multiply(q1: Float[Tensor, "*b1 4"], q2: Float[Tensor, "*b2 4"]) -> Float[Tensor, "*b 4"]:
     """Hamilton product ``q1 * q2`` (batch shapes broadcast).
 
@@ -73,6 +74,7 @@ def multiply(q1: Float[Tensor, "*b1 4"], q2: Float[Tensor, "*b2 4"]) -> Float[Te
     return _checks.out(_hamilton.multiply(a, b), dtype)
 
 
+@_checks.float32_exact
 def conjugate(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
     """``(w, -x, -y, -z)``; the inverse rotation of a unit quaternion.
 
@@ -88,6 +90,7 @@ def _conjugate(q: Tensor) -> Tensor:
     return q * q.new_tensor([1.0, -1.0, -1.0, -1.0])
 
 
+@_checks.float32_exact
 def normalize(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
     """``q / |q|``.  A zero quaternion gives NaN for that element.
 
@@ -105,6 +108,7 @@ def _normalize(q: Tensor) -> Tensor:
     return q * torch.rsqrt(_components.norm2(*q.unbind(-1)).unsqueeze(-1))
 
 
+@_checks.float32_exact
 def canonicalize(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
     """The representative of ``{q, -q}`` with ``w > 0`` (rule at ``w == 0``: module docstring).
 
@@ -138,6 +142,7 @@ def _canonicalize(q: Tensor) -> Tensor:
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def to_matrix(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 3 3"]:
     """Rotation matrix of ``q / |q|`` (invariant to the scale of ``q``).
 
@@ -153,6 +158,7 @@ def to_matrix(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 3 3"]:
     return _checks.out(_rotation_matrix.from_quaternion(x), dtype)
 
 
+@_checks.float32_exact
 def from_matrix(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 4"]:
     """Canonical unit quaternion of a rotation matrix (robust at every angle, pi included).
 
@@ -180,6 +186,7 @@ def from_matrix(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 4"]:
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def from_rotvec(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 4"]:
     """Unit quaternion ``(cos(t/2), sin(t/2) n)`` of the rotation vector ``omega = t n``.
 
@@ -208,6 +215,7 @@ def _exp_pure(a: Tensor) -> Tensor:
     return torch.stack((_coeffs.cos_sqrt(t2), s * x, s * y, s * z), dim=-1)
 
 
+@_checks.float32_exact
 def to_rotvec(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 3"]:
     """Rotation vector (angle in ``[0, pi]``) of ``q / |q|``; ``q`` and ``-q`` give the same.
 
@@ -263,6 +271,7 @@ def _check_frame(fn: str, frame: str) -> None:
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def inverse(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
     """Multiplicative inverse ``conj(q) / |q|^2`` (equal to :func:`conjugate` for unit ``q``).
 
@@ -282,6 +291,7 @@ def _inverse(q: Tensor) -> Tensor:
     return _conjugate(u) / _components.norm2(*u.unbind(-1)).unsqueeze(-1) / k
 
 
+@_checks.float32_exact
 def apply(q: Float[Tensor, "*b1 4"], points: Float[Tensor, "*b2 3"]) -> Float[Tensor, "*b 3"]:
     """Rotate points by ``q``: ``to_matrix(q) @ p`` without forming the matrix (batches broadcast).
 
@@ -371,6 +381,7 @@ _ApplyFn = CustomFunction(
 )
 
 
+@_checks.float32_exact
 def exp(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
     """Exponential of a general quaternion: ``exp([s, v]) = e^s [cos|v|, sin|v| v/|v|]``.
 
@@ -391,6 +402,7 @@ def _exp(q: Tensor) -> Tensor:
     return torch.exp(q[..., :1]) * _exp_pure(q[..., 1:])
 
 
+@_checks.float32_exact
 def log(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
     """Principal logarithm of a general quaternion: ``[ln|q|, atan2(|v|, w) v/|v|]``.
 
@@ -435,6 +447,7 @@ def _log(q: Tensor) -> Tensor:
     return torch.where(zero, torch.full_like(out, float("nan")), out)
 
 
+@_checks.float32_exact
 def slerp(
     q0: Float[Tensor, "*b1 4"], q1: Float[Tensor, "*b2 4"], t: Float[Tensor, "*b3"] | float
 ) -> Float[Tensor, "*b 4"]:
@@ -482,6 +495,7 @@ def _slerp(q0: Tensor, q1: Tensor, t: Tensor) -> Tensor:
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def identity(
     *batch: int, dtype: torch.dtype | None = None, device: torch.device | str | None = None
 ) -> Float[Tensor, "*batch 4"]:
@@ -497,6 +511,7 @@ def identity(
     return e.expand(*batch, 4).clone()
 
 
+@_checks.float32_exact
 def random(
     *batch: int,
     generator: torch.Generator | None = None,
@@ -520,6 +535,7 @@ def random(
     return _checks.out(_normalize(x), dtype)
 
 
+@_checks.float32_exact
 def is_unit(q: Float[Tensor, "*b 4"], atol: float | None = None) -> Bool[Tensor, "*b"]:
     """Per element: finite and ``| |q| - 1 | <= atol``.
 
@@ -543,6 +559,7 @@ def is_unit(q: Float[Tensor, "*b 4"], atol: float | None = None) -> Bool[Tensor,
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def to_xyzw(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
     """Reorder to scalar last, ``(x, y, z, w)`` (scipy's default, ROS, Eigen's storage).
 
@@ -556,6 +573,7 @@ def to_xyzw(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
     return _checks.out(torch.cat((x[..., 1:], x[..., :1]), dim=-1), dtype)
 
 
+@_checks.float32_exact
 def from_xyzw(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
     """Reorder a scalar-last ``(x, y, z, w)`` Hamilton quaternion to ``(w, x, y, z)``.
 
@@ -567,6 +585,7 @@ def from_xyzw(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
     return _checks.out(torch.cat((x[..., 3:], x[..., :3]), dim=-1), dtype)
 
 
+@_checks.float32_exact
 def to_jpl(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
     """The JPL quaternion with the same rotation matrix: ``(-x, -y, -z, w)``.
 
@@ -589,6 +608,7 @@ def to_jpl(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
     return _checks.out(torch.cat((-x[..., 1:], x[..., :1]), dim=-1), dtype)
 
 
+@_checks.float32_exact
 def from_jpl(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
     """Inverse of :func:`to_jpl`: the Hamilton ``(w, x, y, z)`` with ``to_matrix == C(q_jpl)``.
 
@@ -602,6 +622,7 @@ def from_jpl(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
     return _checks.out(torch.cat((x[..., 3:], -x[..., :3]), dim=-1), dtype)
 
 
+@_checks.float32_exact
 def left_matrix(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4 4"]:
     """``[q]_L``, the 4x4 matrix with ``multiply(q, p) == left_matrix(q) @ p``.
 
@@ -625,6 +646,7 @@ def left_matrix(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4 4"]:
     return _checks.out(m, dtype)
 
 
+@_checks.float32_exact
 def right_matrix(p: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4 4"]:
     """``[p]_R``, the 4x4 matrix with ``multiply(q, p) == right_matrix(p) @ q``.
 
@@ -651,6 +673,7 @@ def right_matrix(p: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4 4"]:
 _REAL = {torch.complex64: torch.float32, torch.complex128: torch.float64}
 
 
+@_checks.float32_exact
 def to_su2(q: Float[Tensor, "*b 4"]) -> Shaped[Tensor, "*b 2 2"]:
     """The SU(2) matrix ``U = w I - i (x sx + y sy + z sz)`` (``s*`` the Pauli matrices).
 
@@ -674,6 +697,7 @@ def to_su2(q: Float[Tensor, "*b 4"]) -> Shaped[Tensor, "*b 2 2"]:
     return torch.complex(re, im).unflatten(-1, (2, 2))
 
 
+@_checks.float32_exact
 def from_su2(U: Shaped[Tensor, "*b 2 2"]) -> Float[Tensor, "*b 4"]:
     """Inverse of :func:`to_su2`: ``(w, x, y, z)`` of a 2x2 complex matrix.
 
@@ -715,6 +739,7 @@ def from_su2(U: Shaped[Tensor, "*b 2 2"]) -> Float[Tensor, "*b 4"]:
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def derivative(
     q: Float[Tensor, "*b1 4"], omega: Float[Tensor, "*b2 3"], frame: str = "body"
 ) -> Float[Tensor, "*b 4"]:
@@ -743,6 +768,7 @@ def derivative(
     return _checks.out(out, dtype)
 
 
+@_checks.float32_exact
 def integrate(
     q: Float[Tensor, "*b1 4"],
     omega: Float[Tensor, "*b2 3"],

@@ -135,6 +135,7 @@ def _between(A: Tensor, B: Tensor) -> Tensor:
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def hat(xi: Float[Tensor, "*b 6"]) -> Float[Tensor, "*b 4 4"]:
     """The 4x4 matrix ``[[phi^, rho], [0, 0]]`` of the twist ``xi = (rho, phi)``.
 
@@ -149,6 +150,7 @@ def hat(xi: Float[Tensor, "*b 6"]) -> Float[Tensor, "*b 4 4"]:
     return _checks.out(_hat(x), dtype)
 
 
+@_checks.float32_exact
 def vee(Xi: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 6"]:
     """Inverse of :func:`hat`: ``(Xi[:3, 3], so3.vee(Xi[:3, :3]))`` (skew part of the block).
 
@@ -162,6 +164,7 @@ def vee(Xi: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 6"]:
     return _checks.out(torch.cat((_trans(x), _components.vee(_rot(x))), dim=-1), dtype)
 
 
+@_checks.float32_exact
 def exp(xi: Float[Tensor, "*b 6"]) -> Float[Tensor, "*b 4 4"]:
     """Pose of the twist ``xi = (rho, phi)``: ``[[so3.exp(phi), so3.jac_left(phi) rho], [0, 1]]``.
 
@@ -180,6 +183,7 @@ def exp(xi: Float[Tensor, "*b 6"]) -> Float[Tensor, "*b 4 4"]:
     return _checks.out(_se3_kernels.exp(x), dtype)
 
 
+@_checks.float32_exact
 def log(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 6"]:
     """Twist ``(rho, phi)`` of ``T``: ``phi = so3.log(R)``, ``rho = so3.jac_left(phi)^-1 t``.
 
@@ -213,6 +217,7 @@ def log(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 6"]:
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def compose(T1: Float[Tensor, "*b1 4 4"], T2: Float[Tensor, "*b2 4 4"]) -> Float[Tensor, "*b 4 4"]:
     """``T1 @ T2`` from blocks (``R1 R2``, ``R1 t2 + t1``); batch shapes broadcast.
 
@@ -227,6 +232,7 @@ def compose(T1: Float[Tensor, "*b1 4 4"], T2: Float[Tensor, "*b2 4 4"]) -> Float
     return _checks.out(_se3_kernels.compose(a, b), dtype)
 
 
+@_checks.float32_exact
 def inverse(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 4 4"]:
     """``T^-1 = [[R^T, -R^T t], [0, 1]]``.
 
@@ -239,6 +245,7 @@ def inverse(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 4 4"]:
     return _checks.out(_se3_kernels.inverse(x), dtype)
 
 
+@_checks.float32_exact
 def act(T: Float[Tensor, "*b1 4 4"], points: Float[Tensor, "*b2 3"]) -> Float[Tensor, "*b 3"]:
     """Transform points: ``R p + t`` (batch shapes broadcast).
 
@@ -251,6 +258,7 @@ def act(T: Float[Tensor, "*b1 4 4"], points: Float[Tensor, "*b2 3"]) -> Float[Te
     return _checks.out(_se3_kernels.act(x, p), dtype)
 
 
+@_checks.float32_exact
 def adjoint(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 6 6"]:
     """Adjoint matrix ``Ad_T = [[R, t^ R], [0, R]]`` on twists ``(rho, phi)``.
 
@@ -266,6 +274,7 @@ def adjoint(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 6 6"]:
     return _checks.out(_adjoint(x), dtype)
 
 
+@_checks.float32_exact
 def ad(xi: Float[Tensor, "*b 6"]) -> Float[Tensor, "*b 6 6"]:
     """Small adjoint ``ad(rho, phi) = [[phi^, rho^], [0, phi^]]``.
 
@@ -291,6 +300,7 @@ def _jac(fn: str, xi: Tensor, inv: bool, sign: float) -> Tensor:
     return _checks.out(_se3_jacobian.jac_left_inv(x) if inv else _se3_jacobian.jac_left(x), dtype)
 
 
+@_checks.float32_exact
 def jac_left(xi: Float[Tensor, "*b 6"]) -> Float[Tensor, "*b 6 6"]:
     """Left Jacobian ``Jl(xi) = [[A, Q], [0, A]]`` (``A = so3.jac_left(phi)``, ``Q`` Barfoot's).
 
@@ -303,6 +313,7 @@ def jac_left(xi: Float[Tensor, "*b 6"]) -> Float[Tensor, "*b 6 6"]:
     return _jac("jac_left", xi, False, 1.0)
 
 
+@_checks.float32_exact
 def jac_right(xi: Float[Tensor, "*b 6"]) -> Float[Tensor, "*b 6 6"]:
     """Right Jacobian ``Jr(xi) = Jl(-xi)``; ``Exp(xi + d) ~= Exp(xi) Exp(Jr(xi) d)``.
 
@@ -316,6 +327,7 @@ def jac_right(xi: Float[Tensor, "*b 6"]) -> Float[Tensor, "*b 6 6"]:
     return _jac("jac_right", xi, False, -1.0)
 
 
+@_checks.float32_exact
 def jac_left_inv(xi: Float[Tensor, "*b 6"]) -> Float[Tensor, "*b 6 6"]:
     """``Jl(xi)^-1 = [[A^-1, -A^-1 Q A^-1], [0, A^-1]]``, closed form, finite for ``|phi| < 2 pi``.
 
@@ -327,6 +339,7 @@ def jac_left_inv(xi: Float[Tensor, "*b 6"]) -> Float[Tensor, "*b 6 6"]:
     return _jac("jac_left_inv", xi, True, 1.0)
 
 
+@_checks.float32_exact
 def jac_right_inv(xi: Float[Tensor, "*b 6"]) -> Float[Tensor, "*b 6 6"]:
     """``Jr(xi)^-1 = Jl(-xi)^-1``; ``jac_right_inv(log(T))`` is the Jacobian ``J_Log(T)_T``.
 
@@ -343,6 +356,7 @@ def jac_right_inv(xi: Float[Tensor, "*b 6"]) -> Float[Tensor, "*b 6 6"]:
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def identity(
     *batch: int, dtype: torch.dtype | None = None, device: torch.device | str | None = None
 ) -> Float[Tensor, "*batch 4 4"]:
@@ -356,6 +370,7 @@ def identity(
     return torch.eye(4, dtype=dtype, device=device).expand(*batch, 4, 4).clone()
 
 
+@_checks.float32_exact
 def random(
     *batch: int,
     generator: torch.Generator | None = None,
@@ -377,6 +392,7 @@ def random(
     return _checks.out(_assemble(R, t), dtype)
 
 
+@_checks.float32_exact
 def is_valid(T: Float[Tensor, "*b 4 4"], atol: float | None = None) -> Bool[Tensor, "*b"]:
     """Per element: finite, rotation block valid (:func:`torchlie.so3.is_valid`) and bottom row
     ``(0, 0, 0, 1)``, each within ``atol`` (a non-negative finite real number; default
@@ -395,6 +411,7 @@ def is_valid(T: Float[Tensor, "*b 4 4"], atol: float | None = None) -> Bool[Tens
     return so3.is_valid(_rot(x), atol=tol) & bottom & torch.isfinite(_trans(x)).all(dim=-1)
 
 
+@_checks.float32_exact
 def from_rt(R: Float[Tensor, "*b1 3 3"], t: Float[Tensor, "*b2 3"]) -> Float[Tensor, "*b 4 4"]:
     """Pose ``[[R, t], [0, 1]]`` from a rotation matrix and a translation (batches broadcast).
 
@@ -409,6 +426,7 @@ def from_rt(R: Float[Tensor, "*b1 3 3"], t: Float[Tensor, "*b2 3"]) -> Float[Ten
     return _checks.out(_assemble(*_broadcast_rt(r, v)), dtype)
 
 
+@_checks.float32_exact
 def to_rt(T: Float[Tensor, "*b 4 4"]) -> tuple[Float[Tensor, "*b 3 3"], Float[Tensor, "*b 3"]]:
     """Rotation block and translation ``(R, t)`` of ``T`` (copies, not views).
 
@@ -421,6 +439,7 @@ def to_rt(T: Float[Tensor, "*b 4 4"]) -> tuple[Float[Tensor, "*b 3 3"], Float[Te
     return T[..., :3, :3].clone(), T[..., :3, 3].clone()
 
 
+@_checks.float32_exact
 def from_pos_quat(x: Float[Tensor, "*b 7"]) -> Float[Tensor, "*b 4 4"]:
     """Pose from a 7-vector ``(tx, ty, tz, qw, qx, qy, qz)``: translation, then a wxyz quaternion.
 
@@ -442,6 +461,7 @@ def from_pos_quat(x: Float[Tensor, "*b 7"]) -> Float[Tensor, "*b 4 4"]:
     return _checks.out(_assemble(_rotation_matrix.from_quaternion(v[..., 3:]), v[..., :3]), dtype)
 
 
+@_checks.float32_exact
 def to_pos_quat(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 7"]:
     """7-vector ``(t, q)`` of a pose: translation, then the canonical wxyz unit quaternion.
 
@@ -461,6 +481,7 @@ def to_pos_quat(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 7"]:
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def interpolate(
     T0: Float[Tensor, "*b1 4 4"], T1: Float[Tensor, "*b2 4 4"], t: Float[Tensor, "*b3"] | float
 ) -> Float[Tensor, "*b 4 4"]:
@@ -485,6 +506,7 @@ def interpolate(
     return _checks.out(_se3_kernels.compose(a, _se3_kernels.exp(t.unsqueeze(-1) * xi)), dtype)
 
 
+@_checks.float32_exact
 def distance(
     T1: Float[Tensor, "*b1 4 4"], T2: Float[Tensor, "*b2 4 4"]
 ) -> tuple[Float[Tensor, "*b"], Float[Tensor, "*b"]]:
@@ -512,6 +534,7 @@ def distance(
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def rplus(T: Float[Tensor, "*b1 4 4"], xi: Float[Tensor, "*b2 6"]) -> Float[Tensor, "*b 4 4"]:
     """Right plus ``T (+) xi = T Exp(xi)`` (batch shapes broadcast).
 
@@ -524,6 +547,7 @@ def rplus(T: Float[Tensor, "*b1 4 4"], xi: Float[Tensor, "*b2 6"]) -> Float[Tens
     return _checks.out(_se3_kernels.compose(x, _se3_kernels.exp(v)), dtype)
 
 
+@_checks.float32_exact
 def rminus(T1: Float[Tensor, "*b1 4 4"], T0: Float[Tensor, "*b2 4 4"]) -> Float[Tensor, "*b 6"]:
     """Right minus ``T1 (-) T0 = Log(T0^-1 T1)``, so that ``rplus(T0, rminus(T1, T0)) == T1``.
 
@@ -537,6 +561,7 @@ def rminus(T1: Float[Tensor, "*b1 4 4"], T0: Float[Tensor, "*b2 4 4"]) -> Float[
     return _checks.out(_se3_kernels.log(_between(b, a)), dtype)
 
 
+@_checks.float32_exact
 def lplus(T: Float[Tensor, "*b1 4 4"], xi: Float[Tensor, "*b2 6"]) -> Float[Tensor, "*b 4 4"]:
     """Left plus ``Exp(xi) T`` (the perturbation is expressed in the world frame).
 
@@ -550,6 +575,7 @@ def lplus(T: Float[Tensor, "*b1 4 4"], xi: Float[Tensor, "*b2 6"]) -> Float[Tens
     return _checks.out(_se3_kernels.compose(_se3_kernels.exp(v), x), dtype)
 
 
+@_checks.float32_exact
 def lminus(T1: Float[Tensor, "*b1 4 4"], T0: Float[Tensor, "*b2 4 4"]) -> Float[Tensor, "*b 6"]:
     """Left minus ``Log(T1 T0^-1)``, so that ``lplus(T0, lminus(T1, T0)) == T1``.
 
@@ -563,6 +589,7 @@ def lminus(T1: Float[Tensor, "*b1 4 4"], T0: Float[Tensor, "*b2 4 4"]) -> Float[
     return _checks.out(_se3_kernels.log(_se3_kernels.compose(a, _se3_kernels.inverse(b))), dtype)
 
 
+@_checks.float32_exact
 def between(T0: Float[Tensor, "*b1 4 4"], T1: Float[Tensor, "*b2 4 4"]) -> Float[Tensor, "*b 4 4"]:
     """Relative pose ``T0^-1 T1`` (``T1`` expressed in the frame of ``T0``).
 
@@ -580,6 +607,7 @@ def _eye6(batch: torch.Size, like: Tensor) -> Tensor:
     return torch.eye(6, dtype=like.dtype, device=like.device).expand(*batch, 6, 6).clone()
 
 
+@_checks.float32_exact
 def jac_compose(
     T1: Float[Tensor, "*b1 4 4"], T2: Float[Tensor, "*b2 4 4"]
 ) -> tuple[Float[Tensor, "*b 6 6"], Float[Tensor, "*b 6 6"]]:
@@ -598,6 +626,7 @@ def jac_compose(
     return _checks.out(J1, dtype), _checks.out(_eye6(batch, a), dtype)
 
 
+@_checks.float32_exact
 def jac_inverse(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 6 6"]:
     """Jacobian ``J_Tinv_T = -Ad(T)``: ``(T Exp(d))^-1 = T^-1 Exp(-Ad(T) d)``.
 
@@ -609,6 +638,7 @@ def jac_inverse(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 6 6"]:
     return _checks.out(-_adjoint(x), dtype)
 
 
+@_checks.float32_exact
 def jac_act(
     T: Float[Tensor, "*b1 4 4"], points: Float[Tensor, "*b2 3"]
 ) -> tuple[Float[Tensor, "*b 3 6"], Float[Tensor, "*b 3 3"]]:
@@ -628,6 +658,7 @@ def jac_act(
     return _checks.out(JT, dtype), _checks.out(R.clone(), dtype)
 
 
+@_checks.float32_exact
 def jac_rplus(
     T: Float[Tensor, "*b1 4 4"], xi: Float[Tensor, "*b2 6"]
 ) -> tuple[Float[Tensor, "*b 6 6"], Float[Tensor, "*b 6 6"]]:
@@ -644,6 +675,7 @@ def jac_rplus(
     return _checks.out(JT, dtype), _checks.out(_se3_jacobian.jac_left(-v), dtype)
 
 
+@_checks.float32_exact
 def jac_rminus(
     T1: Float[Tensor, "*b1 4 4"], T0: Float[Tensor, "*b2 4 4"]
 ) -> tuple[Float[Tensor, "*b 6 6"], Float[Tensor, "*b 6 6"]]:
@@ -660,6 +692,7 @@ def jac_rminus(
     return _checks.out(J1, dtype), _checks.out(J0, dtype)
 
 
+@_checks.float32_exact
 def jac_between(
     T0: Float[Tensor, "*b1 4 4"], T1: Float[Tensor, "*b2 4 4"]
 ) -> tuple[Float[Tensor, "*b 6 6"], Float[Tensor, "*b 6 6"]]:

@@ -140,6 +140,7 @@ _LogFn = CustomFunction(
 )
 
 
+@_checks.float32_exact
 def hat(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     """Skew-symmetric matrix with ``hat(w) @ v == cross(w, v)``.
 
@@ -153,6 +154,7 @@ def hat(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     return _checks.out(_components.hat(x), dtype)
 
 
+@_checks.float32_exact
 def vee(Omega: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3"]:
     """Inverse of :func:`hat`, applied to the skew-symmetric part ``(M - M^T)/2``.
 
@@ -164,6 +166,7 @@ def vee(Omega: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3"]:
     return _checks.out(_components.vee(x), dtype)
 
 
+@_checks.float32_exact
 def exp(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     """Rotation matrix of the rotation vector ``omega`` (Rodrigues' formula).
 
@@ -182,6 +185,7 @@ def exp(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     return _checks.out(_ExpMapFn(x), dtype)
 
 
+@_checks.float32_exact
 def log(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3"]:
     """Rotation vector of ``R``: angle in ``[0, pi]`` times the unit axis.
 
@@ -215,6 +219,7 @@ def log(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3"]:
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def compose(R1: Float[Tensor, "*b1 3 3"], R2: Float[Tensor, "*b2 3 3"]) -> Float[Tensor, "*b 3 3"]:
     """``R1 @ R2`` (batch shapes broadcast).
 
@@ -227,6 +232,7 @@ def compose(R1: Float[Tensor, "*b1 3 3"], R2: Float[Tensor, "*b2 3 3"]) -> Float
     return _checks.out(a @ b, dtype)
 
 
+@_checks.float32_exact
 def inverse(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3 3"]:
     """``R^T`` (the inverse of a rotation).
 
@@ -239,6 +245,7 @@ def inverse(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3 3"]:
     return _checks.out(x.transpose(-1, -2), dtype)
 
 
+@_checks.float32_exact
 def act(R: Float[Tensor, "*b1 3 3"], points: Float[Tensor, "*b2 3"]) -> Float[Tensor, "*b 3"]:
     """Rotate points: ``R @ p`` (batch shapes broadcast).
 
@@ -274,6 +281,7 @@ _ActFn = CustomFunction(
 )
 
 
+@_checks.float32_exact
 def adjoint(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3 3"]:
     """Adjoint matrix of SO(3), ``Ad_R = R`` (so ``R Exp(w) R^T = Exp(R w)``).
 
@@ -290,6 +298,7 @@ def _jac(fn: str, omega: Tensor, kind: str) -> Tensor:
     return _checks.out(_rodrigues.jac_matrix(w, kind), dtype)
 
 
+@_checks.float32_exact
 def jac_left(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     """Left Jacobian ``Jl(w) = I + (1-cos t)/t^2 hat(w) + (t - sin t)/t^3 hat(w)^2``.
 
@@ -302,6 +311,7 @@ def jac_left(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     return _jac("jac_left", omega, "left")
 
 
+@_checks.float32_exact
 def jac_right(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     """Right Jacobian ``Jr(w) = Jl(-w) = Jl(w)^T``; ``Exp(w + d) ~= Exp(w) Exp(Jr(w) d)``.
 
@@ -313,6 +323,7 @@ def jac_right(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     return _jac("jac_right", omega, "right")
 
 
+@_checks.float32_exact
 def jac_left_inv(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     """``Jl(w)^-1 = I - hat(w)/2 + (1 - (t/2)cot(t/2))/t^2 hat(w)^2``, finite for ``t < 2 pi``.
 
@@ -324,6 +335,7 @@ def jac_left_inv(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     return _jac("jac_left_inv", omega, "left_inv")
 
 
+@_checks.float32_exact
 def jac_right_inv(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     """``Jr(w)^-1 = Jl(-w)^-1``: the derivative of :func:`log` in right-perturbation coordinates.
 
@@ -340,6 +352,7 @@ def jac_right_inv(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def identity(
     *batch: int, dtype: torch.dtype | None = None, device: torch.device | str | None = None
 ) -> Float[Tensor, "*batch 3 3"]:
@@ -353,6 +366,7 @@ def identity(
     return torch.eye(3, dtype=dtype, device=device).expand(*batch, 3, 3).clone()
 
 
+@_checks.float32_exact
 def random(
     *batch: int,
     generator: torch.Generator | None = None,
@@ -374,6 +388,7 @@ def random(
     return _checks.out(_rotation_matrix.from_quaternion(q), dtype)
 
 
+@_checks.float32_exact
 def is_valid(R: Float[Tensor, "*b 3 3"], atol: float | None = None) -> Bool[Tensor, "*b"]:
     """Per element: finite, ``R^T R = I`` and ``det R = 1`` within ``atol``.
 
@@ -460,6 +475,7 @@ _ProjectFn = CustomFunction(
 )
 
 
+@_checks.float32_exact
 def project(M: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3 3"]:
     """Nearest rotation to ``M`` in the Frobenius norm (SVD with the determinant fixed).
 
@@ -482,6 +498,7 @@ def project(M: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3 3"]:
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def distance(R1: Float[Tensor, "*b1 3 3"], R2: Float[Tensor, "*b2 3 3"]) -> Float[Tensor, "*b"]:
     """Geodesic distance: the angle of ``R1^T R2`` in ``[0, pi]``.
 
@@ -498,6 +515,7 @@ def distance(R1: Float[Tensor, "*b1 3 3"], R2: Float[Tensor, "*b2 3 3"]) -> Floa
     return _checks.out(_rotation_matrix.angle(a.transpose(-1, -2) @ b), dtype)
 
 
+@_checks.float32_exact
 def interpolate(
     R0: Float[Tensor, "*b1 3 3"], R1: Float[Tensor, "*b2 3 3"], t: Float[Tensor, "*b3"] | float
 ) -> Float[Tensor, "*b 3 3"]:
@@ -539,6 +557,7 @@ def _eye3(batch: torch.Size, like: Tensor) -> Tensor:
     return torch.eye(3, dtype=like.dtype, device=like.device).expand(*batch, 3, 3).clone()
 
 
+@_checks.float32_exact
 def ad(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     """Small adjoint of so(3): ``ad(w) = hat(w)``, so ``ad(x) y = x cross y`` (the Lie bracket).
 
@@ -552,6 +571,7 @@ def ad(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     return _checks.out(_components.hat(x), dtype)
 
 
+@_checks.float32_exact
 def rplus(R: Float[Tensor, "*b1 3 3"], tau: Float[Tensor, "*b2 3"]) -> Float[Tensor, "*b 3 3"]:
     """Right plus ``R (+) tau = R Exp(tau)`` (``tau`` in the body frame; batches broadcast).
 
@@ -564,6 +584,7 @@ def rplus(R: Float[Tensor, "*b1 3 3"], tau: Float[Tensor, "*b2 3"]) -> Float[Ten
     return _checks.out(x @ _ExpMapFn(v), dtype)
 
 
+@_checks.float32_exact
 def rminus(R1: Float[Tensor, "*b1 3 3"], R0: Float[Tensor, "*b2 3 3"]) -> Float[Tensor, "*b 3"]:
     """Right minus ``R1 (-) R0 = Log(R0^T R1)``, so that ``rplus(R0, rminus(R1, R0)) == R1``.
 
@@ -579,6 +600,7 @@ def rminus(R1: Float[Tensor, "*b1 3 3"], R0: Float[Tensor, "*b2 3 3"]) -> Float[
     return _checks.out(_LogFn(b.transpose(-1, -2) @ a), dtype)
 
 
+@_checks.float32_exact
 def lplus(R: Float[Tensor, "*b1 3 3"], tau: Float[Tensor, "*b2 3"]) -> Float[Tensor, "*b 3 3"]:
     """Left plus ``Exp(tau) R`` (``tau`` in the world frame; batches broadcast).
 
@@ -591,6 +613,7 @@ def lplus(R: Float[Tensor, "*b1 3 3"], tau: Float[Tensor, "*b2 3"]) -> Float[Ten
     return _checks.out(_ExpMapFn(v) @ x, dtype)
 
 
+@_checks.float32_exact
 def lminus(R1: Float[Tensor, "*b1 3 3"], R0: Float[Tensor, "*b2 3 3"]) -> Float[Tensor, "*b 3"]:
     """Left minus ``Log(R1 R0^T)``, so that ``lplus(R0, lminus(R1, R0)) == R1``.
 
@@ -604,6 +627,7 @@ def lminus(R1: Float[Tensor, "*b1 3 3"], R0: Float[Tensor, "*b2 3 3"]) -> Float[
     return _checks.out(_LogFn(a @ b.transpose(-1, -2)), dtype)
 
 
+@_checks.float32_exact
 def between(R0: Float[Tensor, "*b1 3 3"], R1: Float[Tensor, "*b2 3 3"]) -> Float[Tensor, "*b 3 3"]:
     """Relative rotation ``R0^T R1`` (``R1`` expressed in the frame of ``R0``).
 
@@ -617,6 +641,7 @@ def between(R0: Float[Tensor, "*b1 3 3"], R1: Float[Tensor, "*b2 3 3"]) -> Float
     return _checks.out(a.transpose(-1, -2) @ b, dtype)
 
 
+@_checks.float32_exact
 def jac_compose(
     R1: Float[Tensor, "*b1 3 3"], R2: Float[Tensor, "*b2 3 3"]
 ) -> tuple[Float[Tensor, "*b 3 3"], Float[Tensor, "*b 3 3"]]:
@@ -635,6 +660,7 @@ def jac_compose(
     return _checks.out(J1, dtype), _checks.out(_eye3(batch, a), dtype)
 
 
+@_checks.float32_exact
 def jac_inverse(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3 3"]:
     """Jacobian ``J_Rinv_R = -Ad(R) = -R``: ``(R Exp(d))^T = R^T Exp(-R d)``.
 
@@ -646,6 +672,7 @@ def jac_inverse(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3 3"]:
     return _checks.out(-x, dtype)
 
 
+@_checks.float32_exact
 def jac_act(
     R: Float[Tensor, "*b1 3 3"], points: Float[Tensor, "*b2 3"]
 ) -> tuple[Float[Tensor, "*b 3 3"], Float[Tensor, "*b 3 3"]]:
@@ -664,6 +691,7 @@ def jac_act(
     return _checks.out(-(x @ _components.hat(p)), dtype), _checks.out(x.clone(), dtype)
 
 
+@_checks.float32_exact
 def jac_rplus(
     R: Float[Tensor, "*b1 3 3"], tau: Float[Tensor, "*b2 3"]
 ) -> tuple[Float[Tensor, "*b 3 3"], Float[Tensor, "*b 3 3"]]:
@@ -680,6 +708,7 @@ def jac_rplus(
     return _checks.out(JR, dtype), _checks.out(_rodrigues.jac_matrix(v, "right"), dtype)
 
 
+@_checks.float32_exact
 def jac_rminus(
     R1: Float[Tensor, "*b1 3 3"], R0: Float[Tensor, "*b2 3 3"]
 ) -> tuple[Float[Tensor, "*b 3 3"], Float[Tensor, "*b 3 3"]]:
@@ -696,6 +725,7 @@ def jac_rminus(
     return _checks.out(J1, dtype), _checks.out(J0, dtype)
 
 
+@_checks.float32_exact
 def jac_between(
     R0: Float[Tensor, "*b1 3 3"], R1: Float[Tensor, "*b2 3 3"]
 ) -> tuple[Float[Tensor, "*b 3 3"], Float[Tensor, "*b 3 3"]]:

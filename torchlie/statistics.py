@@ -120,6 +120,7 @@ def _randn(
     return _checks.out(g.core.rplus(m, eps), dtype)
 
 
+@_checks.float32_exact
 def so3_randn(
     mean: Float[Tensor, "*b1 3 3"],
     std: Float[Tensor, "*b2"] | float | None = None,
@@ -150,6 +151,7 @@ def so3_randn(
     return _randn(_SO3, mean, std, cov, scale_tril, sample_shape, generator)
 
 
+@_checks.float32_exact
 def se3_randn(
     mean: Float[Tensor, "*b1 4 4"],
     std: Float[Tensor, "*b2"] | float | None = None,
@@ -242,6 +244,7 @@ def _karcher(g: _Group, M: Tensor, x: Tensor, w: Tensor, iterations: int) -> Ten
     return M
 
 
+@_checks.float32_exact
 def so3_mean(
     R: Float[Tensor, "*b1 N 3 3"],
     weights: Float[Tensor, "*b2 N"] | None = None,
@@ -284,6 +287,7 @@ def so3_mean(
     return _checks.out(M, dtype)
 
 
+@_checks.float32_exact
 def se3_mean(
     T: Float[Tensor, "*b1 N 4 4"],
     weights: Float[Tensor, "*b2 N"] | None = None,
@@ -357,6 +361,7 @@ def _keyframes(
     return _checks.out(g.core.interpolate(kf[idx], kf[idx + 1], u), dtype)
 
 
+@_checks.float32_exact
 def so3_interpolate_keyframes(
     times: Float[Tensor, " K"],
     keyframes: Float[Tensor, "K *b 3 3"],
@@ -387,6 +392,7 @@ def so3_interpolate_keyframes(
     return _keyframes(_SO3, times, keyframes, query_times, extrapolate)
 
 
+@_checks.float32_exact
 def se3_interpolate_keyframes(
     times: Float[Tensor, " K"],
     keyframes: Float[Tensor, "K *b 4 4"],
@@ -423,6 +429,7 @@ class Alignment(NamedTuple):
     scale: Float[Tensor, "*b"]
 
 
+@_checks.float32_exact
 def align(
     P: Float[Tensor, "*b1 N 3"],
     Q: Float[Tensor, "*b2 N 3"],
@@ -533,6 +540,7 @@ def _integrate(g: _Group, X: Tensor, v: Tensor, dt: Tensor | float, frame: str) 
     return _checks.out(out, dtype)
 
 
+@_checks.float32_exact
 def so3_integrate(
     R: Float[Tensor, "*b1 3 3"],
     omega: Float[Tensor, "*b2 3"],
@@ -553,6 +561,7 @@ def so3_integrate(
     return _integrate(_SO3, R, omega, dt, frame)
 
 
+@_checks.float32_exact
 def se3_integrate(
     T: Float[Tensor, "*b1 4 4"],
     xi: Float[Tensor, "*b2 6"],

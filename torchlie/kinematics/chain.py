@@ -521,6 +521,7 @@ class Chain:
                 )
         return tuple(self._index[n] for n in names)
 
+    @_checks.float32_exact
     def forward_kinematics(
         self,
         q: Float[Tensor, "*b n_dof"],
@@ -630,6 +631,7 @@ class Chain:
         targets = self._targets(links, "moving_dofs")
         return tuple(sorted({d for t in targets for d in self._jac_plan(t).dofs}))
 
+    @_checks.float32_exact
     def poses_and_jacobians(
         self,
         q_t: Float[Tensor, "n_dof B"],
@@ -691,6 +693,7 @@ class Chain:
         Js = [self._jacobian_columns(self._jac_plan(t), pose, q2, t, dofs) for t in targets]
         return [pose(t) for t in targets], Js
 
+    @_checks.float32_exact
     def jacobian(
         self,
         q: Float[Tensor, "*b n_dof"],
@@ -826,6 +829,7 @@ class Chain:
             out[k] = x
         return out
 
+    @_checks.float32_exact
     def inverse_kinematics(
         self,
         targets: Tensor | Mapping[str, Tensor],
@@ -891,6 +895,7 @@ class Chain:
         """
         return _dyn._inertials(self)
 
+    @_checks.float32_exact
     def inverse_dynamics(
         self,
         q: Float[Tensor, "*b n_dof"],
@@ -925,6 +930,7 @@ class Chain:
             self, q, qd, qdd, gravity=gravity, f_ext=f_ext, inertials=inertials
         )
 
+    @_checks.float32_exact
     def mass_matrix(
         self, q: Float[Tensor, "*b n_dof"], *, inertials: Inertials | None = None
     ) -> Float[Tensor, "*b n_v n_v"]:
@@ -939,6 +945,7 @@ class Chain:
         """
         return _dyn._mass_matrix(self, q, inertials=inertials)
 
+    @_checks.float32_exact
     def forward_dynamics(
         self,
         q: Float[Tensor, "*b n_dof"],
@@ -969,6 +976,7 @@ class Chain:
             self, q, qd, tau, gravity=gravity, f_ext=f_ext, inertials=inertials
         )
 
+    @_checks.float32_exact
     def bias_forces(
         self,
         q: Float[Tensor, "*b n_dof"],
@@ -990,6 +998,7 @@ class Chain:
             self, q, qd, None, gravity=gravity, inertials=inertials, _fn="bias_forces"
         )
 
+    @_checks.float32_exact
     def gravity_torques(
         self,
         q: Float[Tensor, "*b n_dof"],

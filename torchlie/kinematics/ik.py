@@ -475,6 +475,7 @@ def _starts(
     return _uniform_within(slo, shi, u).to(dtype=chain.dtype, device=chain.device)
 
 
+@_checks.float32_exact
 def inverse_kinematics(
     chain: SolverChain,
     targets: Tensor | Mapping[str, Tensor],
