@@ -13,6 +13,8 @@ pose               homogeneous ``(..., 4, 4)`` ``[[R, t], [0, 1]]``; also ``(R, 
                    7-vectors ``(t, q)`` (translation, then wxyz quaternion).
 so(3) tangent      rotation vector ``(..., 3)`` = angle * unit axis.
 se(3) tangent      twist ``(..., 6)`` = ``(rho, phi)``: translation part first, rotation last.
+similarity         ``(..., 4, 4)`` ``[[s R, t], [0, 1]]`` with ``s = exp(sigma)``; sim(3) tangent
+                   ``(..., 7)`` = ``(rho, phi, sigma)`` (:mod:`torchlie.sim3`).
 perturbation       right: ``X (+) tau = X Exp(tau)``, ``Y (-) X = Log(X^-1 Y)``; the left
                    versions are named explicitly (``lplus``, ``lminus``).
 Euler angles       scipy's naming: ``"xyz"`` lower case = extrinsic (static axes), ``"XYZ"``
@@ -33,7 +35,7 @@ Python on tensor values, so every op works under ``torch.compile(fullgraph=True)
 ``torch.func.vmap`` / ``jacrev`` / ``jacfwd`` and on CUDA.
 """
 
-from . import conversions, kinematics, nn, quaternion, se3, so3, statistics
+from . import conversions, kinematics, nn, quaternion, se3, sim3, so3, statistics
 from .groups import SE3, SO3
 
 __all__ = [
@@ -44,6 +46,7 @@ __all__ = [
     "nn",
     "quaternion",
     "se3",
+    "sim3",
     "so3",
     "statistics",
 ]
