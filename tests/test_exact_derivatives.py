@@ -45,7 +45,7 @@ import torch.autograd.forward_ad as fwAD
 from torch import Tensor
 
 import torchlie
-from torchlie import SE3, SO3, conversions, quaternion, se3, so3, statistics
+from torchlie import SE3, SO3, conversions, quaternion, se3, sim3, so3, statistics
 from torchlie import nn as tnn
 
 DT = torch.float64
@@ -339,6 +339,34 @@ case("se3.to_rt", se3.to_rt, P_)
 case("se3.from_pos_quat", se3.from_pos_quat, (ambient(7), POS_QUATS))
 case("se3.to_pos_quat", se3.to_pos_quat, P_)
 
+
+def _hat7(xi: Tensor) -> Tensor:
+    return _hat6(xi[..., :6]) + xi[..., 6, None, None] * torch.diag(_t([1.0, 1.0, 1.0, 0.0]))
+
+
+SIM = Kind(7, lambda T, d: T @ torch.linalg.matrix_exp(_hat7(d.reshape(*T.shape[:-2], 7))))
+SIMS = torch.cat([POSES[::4] @ torch.diag(_t([s, s, s, 1.0])) for s in (1.0, 2.0)])
+SIM_TANGENTS = torch.cat(
+    [torch.cat((TWISTS, torch.full_like(TWISTS[:, :1], s)), -1) for s in (0.0, 0.5)]
+)
+SCALES = _t([1.0, 2.0, 0.5])
+SIM_ = (SIM, SIMS)
+_group_cases(sim3, SIM_, (ambient(7), SIM_TANGENTS), PT_)
+# fewer points for the Jacobians built on a matrix exponential of size 14, and for distance
+# a second argument whose scale, translation and rotation differ from the first's (each of its
+# three parts has a cone where they are equal)
+_REDONE = ("sim3.jac_rminus", "sim3.jac_rplus", "sim3.distance")
+CASES[:] = [c for c in CASES if c.name not in _REDONE]
+case("sim3.jac_rminus", sim3.jac_rminus, (SIM, SIMS[::3]), (SIM, SIMS[1::3]))
+case("sim3.jac_rplus", sim3.jac_rplus, (SIM, SIMS[::3]), (ambient(7), SIM_TANGENTS[::2]))
+_SHIFT = se3.exp(_t([0.5, 0.25, 0.0, 0.3, 0.2, 0.1])) @ torch.diag(_t([3.0, 3.0, 3.0, 1.0]))
+case("sim3.distance", sim3.distance, SIM_, (SIM, SIMS[::2] @ _SHIFT))
+case("sim3.vee", sim3.vee, (ambient(4, 4), torch.cat((_hat7(SIM_TANGENTS), SIMS[:12]))))
+case("sim3.from_srt", sim3.from_srt, (ambient(), SCALES), R_, (ambient(3), TRANSLATIONS))
+case("sim3.to_srt", sim3.to_srt, SIM_)
+case("sim3.from_se3", sim3.from_se3, P_, (ambient(), SCALES))
+case("sim3.scale", sim3.scale, SIM_)
+
 for _name in (
     *("conjugate", "inverse", "normalize", "canonicalize", "exp", "log", "to_matrix"),
     *("to_rotvec", "to_xyzw", "from_xyzw", "to_jpl", "from_jpl", "to_su2"),
@@ -539,6 +567,9 @@ EXCLUDED = {
     "se3.identity": "factory",
     "se3.random": "random draw",
     "se3.is_valid": "boolean result",
+    "sim3.identity": "factory",
+    "sim3.random": "random draw",
+    "sim3.is_valid": "boolean result",
     "quaternion.identity": "factory",
     "quaternion.random": "random draw",
     "quaternion.is_unit": "boolean result",
@@ -719,7 +750,7 @@ def test_derivatives_at_exact_points(c: Case):
 
 def _public_names() -> set[str]:
     names = set()
-    for mod in (so3, se3, quaternion, conversions, statistics, tnn):
+    for mod in (so3, se3, sim3, quaternion, conversions, statistics, tnn):
         names |= {f"{mod.__name__.split('.')[-1]}.{n}" for n in mod.__all__}
     for G in (SO3, SE3):
         names |= {f"{G.__name__}.{n}" for n in dir(G) if not n.startswith("_")}
@@ -731,6 +762,7 @@ def test_every_public_function_is_checked():
     assert {n for n in torchlie.__all__ if n[0].islower()} <= {
         "so3",
         "se3",
+        "sim3",
         "quaternion",
         "conversions",
         "statistics",
