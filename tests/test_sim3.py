@@ -647,3 +647,37 @@ def test_against_pypose_sim3():
     torch.testing.assert_close(pp.mat2Sim3(T).Log().tensor(), sim3.log(T), rtol=1e-8, atol=1e-8)
     p = torch.randn(20, 3, generator=g, dtype=F64)
     torch.testing.assert_close(ours.Act(p), sim3.act(T, p), rtol=1e-10, atol=1e-10)
+
+
+# ----------------------------------------------------------------------------------------------
+# The class
+# ----------------------------------------------------------------------------------------------
+
+
+def test_sim3_class_accessors_and_converters(batch):
+    from torchlie import SE3, SO3, Sim3, quaternion
+
+    g = torch.Generator().manual_seed(8)
+    s = torch.rand(tuple(batch), generator=g, dtype=F64) + 0.5
+    R = so3.random(*batch, generator=g, dtype=F64)
+    t = torch.randn(*batch, 3, generator=g, dtype=F64)
+    X = Sim3.from_srt(s, SO3(R), t)
+    assert torch.equal(X.tensor, sim3.from_srt(s, R, t))
+    torch.testing.assert_close(X.scale, s)
+    torch.testing.assert_close(X.rotation.tensor, R)
+    assert torch.equal(X.translation, t)
+    assert isinstance(X.rotation, SO3) and isinstance(X.pose(), SE3)
+    torch.testing.assert_close(X.pose().tensor, se3.from_rt(R, t))
+    torch.testing.assert_close(Sim3.from_se3(X.pose(), s).tensor, X.tensor)
+    torch.testing.assert_close(X.quaternion(), quaternion.from_matrix(R))
+    for u, v in zip(X.to_srt(), sim3.to_srt(X.tensor), strict=True):
+        assert torch.equal(u, v)
+    p = torch.randn(*batch, 3, generator=g, dtype=F64)
+    torch.testing.assert_close(X @ p, s[..., None] * (R @ p[..., None])[..., 0] + t)
+    assert X.log().shape == (*batch, 7)
+    with pytest.raises(ValueError, match=r"torchlie\.Sim3\.from_srt: .* positive scales"):
+        Sim3.from_srt(-torch.ones(()), torch.eye(3), torch.zeros(3), check=True)
+    with pytest.raises(TypeError, match=r"torchlie\.Sim3\.compose: expected another Sim3"):
+        X.compose(SE3.identity())
+    with pytest.raises(ValueError, match=r"torchlie\.Sim3\.exp \(through torchlie\.sim3\.exp\)"):
+        Sim3.exp(torch.zeros(6))

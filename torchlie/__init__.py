@@ -36,11 +36,12 @@ Python on tensor values, so every op works under ``torch.compile(fullgraph=True)
 """
 
 from . import conversions, kinematics, nn, quaternion, se3, sim3, so3, statistics
-from .groups import SE3, SO3
+from .groups import SE3, SO3, Sim3
 
 __all__ = [
     "SE3",
     "SO3",
+    "Sim3",
     "conversions",
     "kinematics",
     "nn",

@@ -476,7 +476,7 @@ def random(
     compute, dtype = _checks.factory(_NAME + "random", batch, dtype)
     R = so3.random(*batch, generator=generator, dtype=compute, device=device)
     t = torch.randn(*batch, 3, generator=generator, dtype=compute, device=device)
-    sigma = torch.randn(*batch, generator=generator, dtype=compute, device=device)
+    sigma = torch.randn((*batch, 1), generator=generator, dtype=compute, device=device)[..., 0]
     return _checks.out(_assemble(torch.exp(sigma)[..., None, None] * R, t), dtype)
 
 
