@@ -366,6 +366,14 @@ case("sim3.from_srt", sim3.from_srt, (ambient(), SCALES), R_, (ambient(3), TRANS
 case("sim3.to_srt", sim3.to_srt, SIM_)
 case("sim3.from_se3", sim3.from_se3, P_, (ambient(), SCALES))
 case("sim3.scale", sim3.scale, SIM_)
+_SIM_SET = Kind(21, SIM.move)
+for _method in ("geodesic", "chordal"):
+    case(
+        f"statistics.sim3_mean[{_method}]",
+        partial(statistics.sim3_mean, method=_method),
+        (_SIM_SET, _sets(torch.cat((SIMS[:4], SIMS[18:22])), 3, 24)),
+        (ambient(3), WEIGHTS3),
+    )
 
 for _name in (
     *("conjugate", "inverse", "normalize", "canonicalize", "exp", "log", "to_matrix"),

@@ -681,3 +681,48 @@ def test_sim3_class_accessors_and_converters(batch):
         X.compose(SE3.identity())
     with pytest.raises(ValueError, match=r"torchlie\.Sim3\.exp \(through torchlie\.sim3\.exp\)"):
         Sim3.exp(torch.zeros(6))
+
+
+# ----------------------------------------------------------------------------------------------
+# statistics: alignment as a Sim3, the Sim(3) mean
+# ----------------------------------------------------------------------------------------------
+
+
+def test_align_with_scale_gives_the_similarity():
+    from torchlie import Sim3, statistics
+
+    g = torch.Generator().manual_seed(12)
+    T = sim3.random(3, generator=g, dtype=F64)
+    P = torch.randn(3, 10, 3, generator=g, dtype=F64)
+    Q = sim3.act(T[:, None], P)
+    fit = statistics.align(P, Q, scale=True)
+    torch.testing.assert_close(fit.matrix(), T)
+    S = fit.sim3()
+    assert isinstance(S, Sim3)
+    torch.testing.assert_close(sim3.act(S.matrix[:, None], P), Q)
+    torch.testing.assert_close(S.scale, fit.scale)  # the fields are unchanged
+    rigid = statistics.align(P, Q).matrix()  # without scale: a Sim(3) element of scale 1
+    torch.testing.assert_close(sim3.scale(rigid), torch.ones(3, dtype=F64))
+
+
+def test_sim3_mean():
+    from torchlie import statistics
+
+    g = torch.Generator().manual_seed(13)
+    M0 = sim3.random(2, generator=g, dtype=F64)
+    xi = 0.3 * torch.randn(2, 6, 7, generator=g, dtype=F64)
+    T = sim3.rplus(M0[:, None], xi)
+    w = torch.rand(2, 6, generator=g, dtype=F64) + 0.1
+    M = statistics.sim3_mean(T, w, iterations=20)
+    # stationary: sum_i w_i Log(M^-1 T_i) = 0
+    r = (w[..., None] * sim3.rminus(T, M[:, None])).sum(-2)
+    assert float(r.abs().max()) < 1e-12
+    # equivariant on both sides
+    A, B = sim3.random(2, generator=g, dtype=F64)
+    MA = statistics.sim3_mean(sim3.compose(sim3.compose(A, T), B), w, iterations=20)
+    torch.testing.assert_close(MA, sim3.compose(sim3.compose(A, M), B))
+    # chordal: geometric mean of the scales
+    Mc = statistics.sim3_mean(T, method="chordal")
+    torch.testing.assert_close(sim3.scale(Mc), sim3.scale(T).log().mean(-1).exp())
+    with pytest.raises(ValueError, match=r"torchlie\.statistics\.sim3_mean"):
+        statistics.sim3_mean(T[0, 0])
