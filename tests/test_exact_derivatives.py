@@ -366,6 +366,26 @@ case("sim3.from_srt", sim3.from_srt, (ambient(), SCALES), R_, (ambient(3), TRANS
 case("sim3.to_srt", sim3.to_srt, SIM_)
 case("sim3.from_se3", sim3.from_se3, P_, (ambient(), SCALES))
 case("sim3.scale", sim3.scale, SIM_)
+for _kind in ("angle", "chordal"):
+    case(
+        f"nn.sim3_geodesic_loss[{_kind}]",
+        partial(tnn.sim3_geodesic_loss, translation_weight=0.5, kind=_kind, reduction="none"),
+        SIM_,
+        (SIM, SIMS[::2] @ se3.exp(_t([0.5, 0.25, 0.0, 0.3, 0.2, 0.1]))),
+    )
+_Q8 = torch.cat((POS_QUATS[::5], torch.zeros(len(POS_QUATS[::5]), 1, dtype=DT)), -1)
+case("nn.Sim3Parametrization[pos_quat_sigma]", tnn.Sim3Parametrization(), (ambient(8), _Q8))
+case(
+    "nn.Sim3Parametrization[tangent]",
+    tnn.Sim3Parametrization("tangent"),
+    (ambient(7), SIM_TANGENTS),
+)
+for _rep in ("pos_quat_sigma", "tangent"):
+    case(
+        f"nn.Sim3Parametrization[{_rep}].right_inverse",
+        tnn.Sim3Parametrization(_rep).right_inverse,
+        SIM_,
+    )
 _SIM_SET = Kind(21, SIM.move)
 for _method in ("geodesic", "chordal"):
     case(

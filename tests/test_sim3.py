@@ -726,3 +726,53 @@ def test_sim3_mean():
     torch.testing.assert_close(sim3.scale(Mc), sim3.scale(T).log().mean(-1).exp())
     with pytest.raises(ValueError, match=r"torchlie\.statistics\.sim3_mean"):
         statistics.sim3_mean(T[0, 0])
+
+
+# ----------------------------------------------------------------------------------------------
+# nn: loss and parametrization
+# ----------------------------------------------------------------------------------------------
+
+
+def test_sim3_geodesic_loss():
+    from torchlie import nn as tnn
+
+    R = so3.exp(torch.tensor([0.0, 0.0, 0.5], dtype=F64))
+    A = sim3.from_srt(torch.tensor(2.0, dtype=F64), R, torch.tensor([3.0, 4.0, 0.0], dtype=F64))
+    B = sim3.identity(dtype=F64)
+    loss = tnn.sim3_geodesic_loss(A, B, 2.0, 0.5, 3.0)
+    assert float(loss) == pytest.approx(2 * 0.5 + 0.5 * 5 + 3 * math.log(2.0), rel=1e-14)
+    ch = tnn.sim3_geodesic_loss(A, B, kind="chordal")
+    assert float(ch) == pytest.approx(8 * math.sin(0.25) ** 2 + 25 + math.log(2.0) ** 2, rel=1e-14)
+    X = A.expand(3, 4, 4).clone().requires_grad_(True)
+    tnn.sim3_geodesic_loss(X, X.detach()).backward()  # zero error: the zero subgradient
+    assert bool(torch.isfinite(X.grad).all())
+    assert tnn.sim3_geodesic_loss(X, B, reduction="none").shape == (3,)
+    with pytest.raises(ValueError, match=r"torchlie\.nn\.sim3_geodesic_loss: .*scale_weight"):
+        tnn.sim3_geodesic_loss(A, B, scale_weight=-1.0)
+
+
+@pytest.mark.parametrize("rep", ["pos_quat_sigma", "tangent"])
+def test_sim3_parametrization(rep):
+    from torch.nn.utils import parametrize
+
+    from torchlie import nn as tnn
+
+    g = torch.Generator().manual_seed(14)
+    T = sim3.random(4, generator=g, dtype=F64)
+    holder = torch.nn.Module()
+    holder.T = torch.nn.Parameter(T.clone())
+    parametrize.register_parametrization(holder, "T", tnn.Sim3Parametrization(rep))
+    torch.testing.assert_close(holder.T, T)
+    target = sim3.random(4, generator=g, dtype=F64)
+    opt = torch.optim.Adam(holder.parameters(), lr=0.05)
+    first = None
+    for _ in range(60):
+        opt.zero_grad()
+        loss = tnn.sim3_geodesic_loss(holder.T, target, kind="chordal")
+        first = float(loss) if first is None else first
+        loss.backward()
+        opt.step()
+    assert bool(sim3.is_valid(holder.T).all())
+    assert float(tnn.sim3_geodesic_loss(holder.T, target, kind="chordal")) < 0.5 * first
+    with pytest.raises(ValueError, match=r"torchlie\.nn\.Sim3Parametrization"):
+        tnn.Sim3Parametrization("matrix")
