@@ -652,16 +652,20 @@ def expc(sigma: Tensor) -> Tensor:
     return torch.exp(0.5 * sigma) * sinhc(0.25 * sigma * sigma)
 
 
-#: ``sigma**2 + t2`` below which the Sim(3) coefficients take their joint series; above it the
-#: closed forms lose at most a few bits to cancellation.
-SIM3_R2 = 1.0
-#: E1(z) = (exp(z) - 1)/z = sum_n z^n/(n+1)!: terms for a float64 (or float32 computed in
-#: float64) result; the first omitted term is below the dtype's rounding for |z| < 1.
+#: E1(z) = (exp(z) - 1)/z = sum_n z^n/(n+1)!.
 _E1 = [1.0 / math.factorial(n + 1) for n in range(22)]
-_SIM3_TERMS = {torch.float64: 22, torch.float32: 15}
+#: Per input dtype: ``sigma**2 + t2`` below which the Sim(3) coefficients take their joint
+#: series, and its number of terms (the first omitted one below the rounding of the result).
+#: float64 takes the series up to ``|z| = 1``, where the closed forms and their derivatives
+#: lose at most a few bits; float32 (coefficients evaluated in float64) up to ``|z| = 0.1``,
+#: where the closed forms' cancellation, ``eps64 / |z|^3`` in the derivatives, is far below
+#: float32's rounding.
+SIM3_SERIES = {torch.float64: (1.0, 22), torch.float32: (1e-2, 8)}
 
 
-def sim3_v(sigma: Tensor, t2: Tensor, terms: int = 22) -> tuple[Tensor, Tensor, Tensor]:
+def sim3_v(
+    sigma: Tensor, t2: Tensor, dtype: torch.dtype = torch.float64
+) -> tuple[Tensor, Tensor, Tensor]:
     """``(A, B, C)`` with ``V = A I + B hat(phi) + C hat(phi)^2 = int_0^1 exp(s (hat(phi) +
     sigma I)) ds``, the matrix that maps ``rho`` to the translation of the Sim(3) exponential::
 
@@ -670,47 +674,48 @@ def sim3_v(sigma: Tensor, t2: Tensor, terms: int = 22) -> tuple[Tensor, Tensor, 
         C = (A - Re(E1(z)))/t2 = (A + sigma e^sigma cosc - e^sigma sinc)/(sigma^2 + t2)
 
     with ``z = sigma + i theta``, ``E1(z) = (e^z - 1)/z``, ``sinc`` and ``cosc`` of ``t2``.
-    ``B`` and ``C`` cancel as ``sigma`` and ``theta`` go to 0 together: below
-    ``sigma^2 + t2 = SIM3_R2`` they are the series of ``E1`` in ``z``, evaluated by Horner's
-    rule on ``p + i theta q = E1(z)`` and ``r = (E1(sigma) - p)/t2`` (real polynomials in
-    ``sigma`` and ``t2``: ``B = q``, ``C = r``, ``A = p + t2 r``); double where, so neither
-    branch produces Inf/NaN in forward or backward.  ``terms``: series terms.
+    ``B`` and ``C`` cancel as ``sigma`` and ``theta`` go to 0 together: there
+    (:data:`SIM3_SERIES` of the input ``dtype``) they are the series of ``E1`` in ``z``,
+    evaluated by Horner's rule on ``p + i theta q = E1(z)`` and ``r = (E1(sigma) - p)/t2``
+    (real polynomials in ``sigma`` and ``t2``: ``B = q``, ``C = r``, ``A = p + t2 r``); double
+    where, so neither branch produces Inf/NaN in forward or backward.
     """
-    r2 = sigma * sigma + t2
-    small = r2 < SIM3_R2
-    one = torch.ones_like(r2)
+    r2max, terms = SIM3_SERIES[dtype]
+    small = sigma * sigma + t2 < r2max
     # series branch: its own arguments only (zeros where it is not taken)
-    ss = torch.where(small, sigma, torch.zeros_like(sigma))
-    ts = torch.where(small, t2, torch.zeros_like(t2))
-    p = torch.full_like(r2, _E1[terms - 1])
-    q = torch.zeros_like(r2)
-    r = torch.zeros_like(r2)
+    ss = torch.where(small, sigma, 0.0)
+    ts = torch.where(small, t2, 0.0)
+    p = torch.full_like(t2, _E1[terms - 1])
+    q = torch.zeros_like(t2)
+    r = torch.zeros_like(t2)
     for c in _E1[terms - 2 :: -1]:
-        p, q, r = ss * p - ts * q + c, p + ss * q, ss * r + q
+        p, q, r = fma(ss * p, ts, q, value=-1.0) + c, fma(p, ss, q), fma(q, ss, r)
     # closed forms: safe arguments where the series is taken
-    sl = torch.where(small, one, sigma)
-    tl = torch.where(small, one, t2)
+    sl = torch.where(small, 1.0, sigma)
+    tl = torch.where(small, 1.0, t2)
     e = torch.exp(sl)
     A = expc(sl)
     sc, cc = sinc(tl), cosc(tl)
     inv = 1.0 / (sl * sl + tl)
-    B = (sl * e * sc + e * tl * cc - sl * A) * inv
-    C = (A + sl * e * cc - e * sc) * inv
+    B = fma(fma(sl * e * sc, e * tl, cc), sl, A, value=-1.0) * inv
+    C = fma(fma(A, sl * e, cc), e, sc, value=-1.0) * inv
     return (
-        torch.where(small, p + ts * r, expc(sigma)),
+        torch.where(small, fma(p, ts, r), expc(sigma)),
         torch.where(small, q, B),
         torch.where(small, r, C),
     )
 
 
-def sim3_v_inv(sigma: Tensor, t2: Tensor, terms: int = 22) -> tuple[Tensor, Tensor, Tensor]:
+def sim3_v_inv(
+    sigma: Tensor, t2: Tensor, dtype: torch.dtype = torch.float64
+) -> tuple[Tensor, Tensor, Tensor]:
     """``(a, b, c)`` with ``V^-1 = a I + b hat(phi) + c hat(phi)^2`` (``V`` of :func:`sim3_v`)::
 
         a = 1/A,  b = -B/det,  c = (B^2 - C D)/(A det),  D = A - t2 C,  det = D^2 + t2 B^2
 
     (``D + i theta B = E1(z)``, so ``det = |E1(z)|^2 > 0`` for ``theta < 2 pi``); no
     cancellation beyond a factor 3 in ``B^2 - C D`` near 0."""
-    A, B, C = sim3_v(sigma, t2, terms)
+    A, B, C = sim3_v(sigma, t2, dtype)
     D = A - t2 * C
     det = D * D + t2 * B * B
     return 1.0 / A, -B / det, (B * B - C * D) / (A * det)

@@ -116,8 +116,7 @@ def _poly(a: Tensor, b: Tensor, c: Tensor, phi: Tensor, v: Tensor) -> Tensor:
 
 
 def _coefficients(fn, sigma: Tensor, phi: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    terms = 22 if sigma.dtype == torch.float64 else 15
-    out = fn(_wide(sigma), _coeffs.theta2(phi), terms)
+    out = fn(_wide(sigma), _coeffs.theta2(phi), sigma.dtype)
     return tuple(x.to(sigma.dtype) for x in out)  # type: ignore[return-value]
 
 
