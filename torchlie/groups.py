@@ -1,4 +1,4 @@
-"""Thin, immutable group-element classes: :class:`SO3` and :class:`SE3`.
+"""Thin, immutable group-element classes: :class:`SO3`, :class:`SE3` and :class:`Sim3`.
 
 Each object wraps exactly one tensor, ``.tensor``: rotation matrices ``(..., 3, 3)`` for
 :class:`SO3`, homogeneous poses ``(..., 4, 4)`` for :class:`SE3`.  Every method is one call into
