@@ -769,7 +769,7 @@ def test_sim3_parametrization(rep):
     for _ in range(60):
         opt.zero_grad()
         loss = tnn.sim3_geodesic_loss(holder.T, target, kind="chordal")
-        first = float(loss) if first is None else first
+        first = float(loss.detach()) if first is None else first
         loss.backward()
         opt.step()
     assert bool(sim3.is_valid(holder.T).all())

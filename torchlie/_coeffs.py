@@ -656,11 +656,11 @@ def expc(sigma: Tensor) -> Tensor:
 _E1 = [1.0 / math.factorial(n + 1) for n in range(22)]
 #: Per input dtype: ``sigma**2 + t2`` below which the Sim(3) coefficients take their joint
 #: series, and its number of terms (the first omitted one below the rounding of the result).
-#: float64 takes the series up to ``|z| = 1``, where the closed forms and their derivatives
+#: float64 takes the series up to ``|z| = 1/2``, where the closed forms and their derivatives
 #: lose at most a few bits; float32 (coefficients evaluated in float64) up to ``|z| = 0.1``,
 #: where the closed forms' cancellation, ``eps64 / |z|^3`` in the derivatives, is far below
 #: float32's rounding.
-SIM3_SERIES = {torch.float64: (1.0, 22), torch.float32: (1e-2, 8)}
+SIM3_SERIES = {torch.float64: (0.25, 16), torch.float32: (1e-2, 8)}
 
 
 def sim3_v(
@@ -694,13 +694,13 @@ def sim3_v(
     sl = torch.where(small, 1.0, sigma)
     tl = torch.where(small, 1.0, t2)
     e = torch.exp(sl)
-    A = expc(sl)
+    A = expc(sigma)  # accurate at every sigma (its own series)
     sc, cc = sinc(tl), cosc(tl)
     inv = 1.0 / (sl * sl + tl)
     B = fma(fma(sl * e * sc, e * tl, cc), sl, A, value=-1.0) * inv
     C = fma(fma(A, sl * e, cc), e, sc, value=-1.0) * inv
     return (
-        torch.where(small, fma(p, ts, r), expc(sigma)),
+        A,
         torch.where(small, q, B),
         torch.where(small, r, C),
     )

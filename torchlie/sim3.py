@@ -24,7 +24,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, _components, _rotation_matrix, so3
+from . import _checks, _coeffs, _components, _rodrigues, _rotation_matrix, so3
 from ._autograd import CustomFunction, blocked
 from ._typing import Bool, Float
 
@@ -207,32 +207,62 @@ def _log_forward(T: Tensor) -> Tensor:
     return torch.cat((_poly(a, b, c, phi, t), phi, sigma.unsqueeze(-1)), dim=-1)
 
 
-def _solve(J: Tensor, v: Tensor) -> Tensor:
-    x = torch.linalg.solve(_wide(J), _wide(v).unsqueeze(-1)).squeeze(-1)
-    return x.to(v.dtype)
+def _vrho(rho: Tensor):
+    """``(sigma, phi) -> V(sigma, phi) rho``: the translation of ``Exp(rho, phi, sigma)``."""
+    return lambda sigma, phi: _poly(*_coefficients(_coeffs.sim3_v, sigma, phi), phi, rho)
+
+
+# The right Jacobian, by block rows: Exp(xi) Exp(eps) with eps = Jr(xi) dxi moves t by
+# M eps_rho and M by M (hat(eps_phi) + eps_sigma I), while Exp(xi + dxi) moves t by
+# V drho + d(V rho)/d(phi, sigma) (dphi, dsigma), so
+#     Jr(xi) = [[M^-1 V, M^-1 d(V rho)/dphi, M^-1 d(V rho)/dsigma], [0, so3 Jr(phi), 0], [0, 0, 1]]
+# and Jr^-1 and Jr^-T need V^-1 (closed form), so3's Jl^-1 and one product with the derivative
+# of V rho, taken by autograd of the differentiable coefficients (torch.func: the same in every
+# mode, vmap and double backward included).
 
 
 def _log_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:
-    # Along the tangent directions T hat(d): d xi = Jr(xi)^-1 d with d = (M^-1 dt,
-    # vee(skew(M^-1 dM)), tr(M^-1 dM)/3); normal directions (M S, S symmetric traceless) and the
-    # bottom row get zero.  With h = Jr(xi)^-T g and M^-T = M / s^2:
-    #     G_t = M^-T h_rho,   G_M = M^-T (hat(h_phi)/2 + h_sigma I/3).
+    # h = Jr(xi)^-T g: u = V^-T g_rho (= M^-T h_rho), h_phi = so3 Jl(phi)^-1 (g_phi - J_phi^T u),
+    # h_sigma = g_sigma - J_sigma^T u with J = d(V rho)/d(phi, sigma); the tangent part of the
+    # ambient gradient is G_t = u, G_M = M^-T (hat(h_phi)/2 + h_sigma I/3), M^-T = M / s^2.
     T, xi = saved
-    h = _solve(_jl(-xi).transpose(-1, -2), g)
-    Mt = _lin(T) * torch.exp(-2.0 * xi[..., 6])[..., None, None]
+    rho, phi, sigma = xi[..., :3], xi[..., 3:6], xi[..., 6]
+    a, b, c = _coefficients(_coeffs.sim3_v_inv, sigma, phi)
+    u = _poly(a, -b, c, phi, g[..., :3])
+    _, vjp = torch.func.vjp(_vrho(rho), sigma, phi)
+    j_sigma, j_phi = vjp(u)
+    diff = torch.is_grad_enabled()
+    h_phi = _rodrigues.jl_apply(phi, g[..., 3:6] - j_phi, inverse=True, differentiable=diff)
+    h_sigma = g[..., 6] - j_sigma
+    Mt = _lin(T) * torch.exp(-2.0 * sigma)[..., None, None]
     eye = torch.eye(3, dtype=T.dtype, device=T.device)
-    inner = 0.5 * _components.hat(h[..., 3:6]) + (h[..., 6:] / 3.0)[..., None] * eye
-    top = torch.cat((Mt @ inner, _components.mv(Mt, h[..., :3]).unsqueeze(-1)), dim=-1)
+    inner = 0.5 * _components.hat(h_phi) + (h_sigma / 3.0)[..., None, None] * eye
+    top = torch.cat((Mt @ inner, u.unsqueeze(-1)), dim=-1)
     return (torch.nn.functional.pad(top, (0, 0, 0, 1)),)
 
 
 def _log_jvp(saved: tuple[Tensor, ...], dT: Tensor) -> Tensor:
+    # Jr dxi = d with d = (M^-1 dt, vee(skew(X)), tr(X)/3), X = M^-1 dM:
+    # dsigma = d_sigma, dphi = so3 Jr(phi)^-1 d_phi, drho = V^-1 (dt - J (dphi, dsigma)).
     T, xi = saved
-    Mi = _lin(T).transpose(-1, -2) * torch.exp(-2.0 * xi[..., 6])[..., None, None]
+    rho, phi, sigma = xi[..., :3], xi[..., 3:6], xi[..., 6]
+    Mi = _lin(T).transpose(-1, -2) * torch.exp(-2.0 * sigma)[..., None, None]
     X = Mi @ _lin(dT)
-    tr = X.diagonal(dim1=-2, dim2=-1).sum(-1, keepdim=True) / 3.0
-    d = torch.cat((_components.mv(Mi, _trans(dT)), _components.vee(X), tr), dim=-1)
-    return _solve(_jl(-xi), d)
+    d_sigma = X.diagonal(dim1=-2, dim2=-1).sum(-1) / 3.0
+    d_phi = _rodrigues.jl_apply(phi, _components.vee(X), sign=-1.0, inverse=True)
+    # J (dphi, dsigma) row by row from reverse mode (forward mode does not nest in the
+    # forward-mode level this runs under)
+    _, vjp = torch.func.vjp(_vrho(rho), sigma, phi)
+    rows = []
+    for k in range(3):
+        e = torch.zeros_like(rho)
+        e[..., k] = 1.0
+        j_sigma, j_phi = vjp(e)
+        rows.append(j_sigma * d_sigma + (j_phi * d_phi).sum(-1))
+    jv = torch.stack(rows, dim=-1)
+    a, b, c = _coefficients(_coeffs.sim3_v_inv, sigma, phi)
+    d_rho = _poly(a, b, c, phi, _trans(dT) - jv)
+    return torch.cat((d_rho, d_phi, d_sigma.unsqueeze(-1)), dim=-1)
 
 
 _LogFn = CustomFunction(
