@@ -24,7 +24,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, _components, _rodrigues, _rotation_matrix, so3
+from . import _checks, _coeffs, _components, _layout, _rodrigues, _rotation_matrix, so3
 from ._autograd import CustomFunction, blocked
 from ._typing import Bool, Float
 
@@ -108,11 +108,17 @@ def _log_scale2(M: Tensor) -> Tensor:
     )
 
 
+def _poly_planes(a: Tensor, b: Tensor, c: Tensor, phi: Tensor, v: Tensor) -> list[Tensor]:
+    """The planes of ``(a I + b hat(phi) + c hat(phi)^2) v``, as
+    ``(a - c t2) v + b (phi x v) + c (phi . v) phi`` (coefficients of shape ``(...)``)."""
+    x = phi.unbind(-1)
+    t2 = _coeffs.sum_squares(x)
+    return _rodrigues.jl_components(x, v.unbind(-1), a - c * t2, b, c)
+
+
 def _poly(a: Tensor, b: Tensor, c: Tensor, phi: Tensor, v: Tensor) -> Tensor:
     """``(a I + b hat(phi) + c hat(phi)^2) v`` (coefficients of shape ``(...)``)."""
-    c1 = torch.linalg.cross(phi, v, dim=-1)
-    c2 = torch.linalg.cross(phi, c1, dim=-1)
-    return a.unsqueeze(-1) * v + b.unsqueeze(-1) * c1 + c.unsqueeze(-1) * c2
+    return _layout.interleave(_poly_planes(a, b, c, phi, v))
 
 
 def _coefficients(fn, sigma: Tensor, phi: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -123,8 +129,13 @@ def _coefficients(fn, sigma: Tensor, phi: Tensor) -> tuple[Tensor, Tensor, Tenso
 def _exp(xi: Tensor) -> Tensor:
     rho, phi, sigma = xi[..., :3], xi[..., 3:6], xi[..., 6]
     A, B, C = _coefficients(_coeffs.sim3_v, sigma, phi)
-    M = torch.exp(sigma)[..., None, None] * so3._ExpMapFn(phi)
-    return _assemble(M, _poly(A, B, C, phi, rho))
+    t = _poly_planes(A, B, C, phi, rho)
+    s = torch.exp(sigma)
+    R = so3._ExpMapFn(phi).flatten(-2).unbind(-1)
+    zero, one = torch.zeros_like(s), torch.ones_like(s)
+    rows = [[s * R[3 * i + j] for j in range(3)] + [t[i]] for i in range(3)]
+    top = [e for row in rows for e in row]
+    return _layout.interleave((*top, zero, zero, zero, one)).unflatten(-1, (4, 4))
 
 
 _exp_blocked = blocked(_exp, (1,))
@@ -204,7 +215,7 @@ def _log_forward(T: Tensor) -> Tensor:
     sigma = 0.5 * _log_scale2(M)
     phi = _rotation_matrix.log(M * torch.exp(-sigma)[..., None, None])
     a, b, c = _coefficients(_coeffs.sim3_v_inv, sigma, phi)
-    return torch.cat((_poly(a, b, c, phi, t), phi, sigma.unsqueeze(-1)), dim=-1)
+    return _layout.interleave((*_poly_planes(a, b, c, phi, t), *phi.unbind(-1), sigma))
 
 
 def _vrho(rho: Tensor):
