@@ -367,7 +367,10 @@ def test_operation_jacobians_against_finite_differences():
 def test_group_axioms_on_batches(dtype):
     g = torch.Generator().manual_seed(11)
     A, B, C = (sim3.random(4, 3, generator=g, dtype=dtype) for _ in range(3))
-    tol = {"rtol": 20 * torch.finfo(dtype).eps, "atol": 20 * torch.finfo(dtype).eps}
+    tol = {
+        "rtol": 64 * torch.finfo(dtype).eps,
+        "atol": 64 * torch.finfo(dtype).eps,
+    }  # chains of ops
     close = lambda x, y: torch.testing.assert_close(x, y, **tol)  # noqa: E731
     close(sim3.compose(sim3.compose(A, B), C), sim3.compose(A, sim3.compose(B, C)))
     I = sim3.identity(4, 3, dtype=dtype)
