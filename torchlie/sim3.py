@@ -112,7 +112,7 @@ def _poly_planes(a: Tensor, b: Tensor, c: Tensor, phi: Tensor, v: Tensor) -> lis
     """The planes of ``(a I + b hat(phi) + c hat(phi)^2) v``, as
     ``(a - c t2) v + b (phi x v) + c (phi . v) phi`` (coefficients of shape ``(...)``)."""
     x = phi.unbind(-1)
-    t2 = _coeffs.sum_squares(x)
+    t2 = _coeffs.dot(x, x)
     return _rodrigues.jl_components(x, v.unbind(-1), a - c * t2, b, c)
 
 
