@@ -96,10 +96,12 @@ def _log_scale2(M: Tensor) -> Tensor:
     """``2 sigma = log(|M|_F^2 / 3)`` of the linear block ``M = s R``: near ``s = 1`` as
     ``log1p`` of ``(sum (M_ii - 1)(M_ii + 1) + sum_(i != j) M_ij^2) / 3`` (exact at the
     identity, where ``|M|^2 - 3`` cancels), elsewhere as ``log`` of the sum of squares (double
-    where: no branch sees an argument out of its range)."""
-    d = M.diagonal(dim1=-2, dim2=-1)
-    sq = M.square().sum((-1, -2))
-    x = ((d - 1.0) * (d + 1.0)).sum(-1).add(sq - d.square().sum(-1)) / 3.0
+    where: no branch sees an argument out of its range).  Entry by entry (planes)."""
+    e = M.flatten(-2).unbind(-1)
+    d, off = (e[0], e[4], e[8]), (e[1], e[2], e[3], e[5], e[6], e[7])
+    o2 = _coeffs.dot(off, off)
+    sq = o2 + _coeffs.dot(d, d)
+    x = (_coeffs.dot([v - 1.0 for v in d], [v + 1.0 for v in d]) + o2) / 3.0
     near = x.abs() < 0.5
     return torch.where(
         near,
