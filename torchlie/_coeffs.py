@@ -660,11 +660,20 @@ _E1 = [1.0 / math.factorial(n + 1) for n in range(22)]
 #: lose at most a few bits; float32 (coefficients evaluated in float64) up to ``|z| = 0.1``,
 #: where the closed forms' cancellation, ``eps64 / |z|^3`` in the derivatives, is far below
 #: float32's rounding.
-SIM3_SERIES = {torch.float64: (0.25, 16), torch.float32: (1e-2, 8)}
+#: Forward-only evaluations (values, no derivatives; ``differentiable=False``) need the series
+#: only where the closed forms divide 0 by 0: their cancellation costs ``eps / |z|^2`` of ``C``
+#: (``eps / |z|`` of ``B``), which enters the result multiplied by ``theta^2`` (``theta``), at
+#: most ``eps`` of it.
+SIM3_SERIES = {
+    (torch.float64, True): (0.25, 16),
+    (torch.float32, True): (1e-2, 8),
+    (torch.float64, False): (1e-6, 6),
+    (torch.float32, False): (1e-6, 6),
+}
 
 
 def sim3_v(
-    sigma: Tensor, t2: Tensor, dtype: torch.dtype = torch.float64
+    sigma: Tensor, t2: Tensor, dtype: torch.dtype = torch.float64, differentiable: bool = True
 ) -> tuple[Tensor, Tensor, Tensor]:
     """``(A, B, C)`` with ``V = A I + B hat(phi) + C hat(phi)^2 = int_0^1 exp(s (hat(phi) +
     sigma I)) ds``, the matrix that maps ``rho`` to the translation of the Sim(3) exponential::
@@ -675,12 +684,13 @@ def sim3_v(
 
     with ``z = sigma + i theta``, ``E1(z) = (e^z - 1)/z``, ``sinc`` and ``cosc`` of ``t2``.
     ``B`` and ``C`` cancel as ``sigma`` and ``theta`` go to 0 together: there
-    (:data:`SIM3_SERIES` of the input ``dtype``) they are the series of ``E1`` in ``z``,
+    (:data:`SIM3_SERIES` of the input ``dtype``; the smaller region of forward-only values
+    with ``differentiable=False``) they are the series of ``E1`` in ``z``,
     evaluated by Horner's rule on ``p + i theta q = E1(z)`` and ``r = (E1(sigma) - p)/t2``
     (real polynomials in ``sigma`` and ``t2``: ``B = q``, ``C = r``, ``A = p + t2 r``); double
     where, so neither branch produces Inf/NaN in forward or backward.
     """
-    r2max, terms = SIM3_SERIES[dtype]
+    r2max, terms = SIM3_SERIES[(dtype, differentiable)]
     small = sigma * sigma + t2 < r2max
     # series branch: its own arguments only (zeros where it is not taken)
     ss = torch.where(small, sigma, 0.0)
@@ -707,7 +717,7 @@ def sim3_v(
 
 
 def sim3_v_inv(
-    sigma: Tensor, t2: Tensor, dtype: torch.dtype = torch.float64
+    sigma: Tensor, t2: Tensor, dtype: torch.dtype = torch.float64, differentiable: bool = True
 ) -> tuple[Tensor, Tensor, Tensor]:
     """``(a, b, c)`` with ``V^-1 = a I + b hat(phi) + c hat(phi)^2`` (``V`` of :func:`sim3_v`)::
 
@@ -715,7 +725,7 @@ def sim3_v_inv(
 
     (``D + i theta B = E1(z)``, so ``det = |E1(z)|^2 > 0`` for ``theta < 2 pi``); no
     cancellation beyond a factor 3 in ``B^2 - C D`` near 0."""
-    A, B, C = sim3_v(sigma, t2, dtype)
+    A, B, C = sim3_v(sigma, t2, dtype, differentiable)
     D = A - t2 * C
     det = D * D + t2 * B * B
     return 1.0 / A, -B / det, (B * B - C * D) / (A * det)

@@ -25,7 +25,7 @@ import torch
 from torch import Tensor
 
 from . import _checks, _coeffs, _components, _layout, _rodrigues, _rotation_matrix, so3
-from ._autograd import CustomFunction, blocked
+from ._autograd import CustomFunction, blocked, needs_graph, transforms_active
 from ._typing import Bool, Float
 
 __all__ = [
@@ -123,14 +123,18 @@ def _poly(a: Tensor, b: Tensor, c: Tensor, phi: Tensor, v: Tensor) -> Tensor:
     return _layout.interleave(_poly_planes(a, b, c, phi, v))
 
 
-def _coefficients(fn, sigma: Tensor, phi: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    out = fn(_wide(sigma), _coeffs.theta2(phi), sigma.dtype)
+def _coefficients(
+    fn, sigma: Tensor, phi: Tensor, differentiable: bool = True
+) -> tuple[Tensor, Tensor, Tensor]:
+    out = fn(_wide(sigma), _coeffs.theta2(phi), sigma.dtype, differentiable)
     return tuple(x.to(sigma.dtype) for x in out)  # type: ignore[return-value]
 
 
 def _exp(xi: Tensor) -> Tensor:
     rho, phi, sigma = xi[..., :3], xi[..., 3:6], xi[..., 6]
-    A, B, C = _coefficients(_coeffs.sim3_v, sigma, phi)
+    # forward-only coefficients where nothing can differentiate them
+    diff = torch.compiler.is_compiling() or transforms_active() or needs_graph((xi,))
+    A, B, C = _coefficients(_coeffs.sim3_v, sigma, phi, diff)
     t = _poly_planes(A, B, C, phi, rho)
     s = torch.exp(sigma)
     R = so3._ExpMapFn(phi).flatten(-2).unbind(-1)
@@ -216,7 +220,7 @@ def _log_forward(T: Tensor) -> Tensor:
     M, t = _lin(T), _trans(T)
     sigma = 0.5 * _log_scale2(M)
     phi = _rotation_matrix.log(M * torch.exp(-sigma)[..., None, None])
-    a, b, c = _coefficients(_coeffs.sim3_v_inv, sigma, phi)
+    a, b, c = _coefficients(_coeffs.sim3_v_inv, sigma, phi, False)
     return _layout.interleave((*_poly_planes(a, b, c, phi, t), *phi.unbind(-1), sigma))
 
 
