@@ -704,8 +704,16 @@ def sim3_v(
     sl = torch.where(small, 1.0, sigma)
     tl = torch.where(small, 1.0, t2)
     e = torch.exp(sl)
-    A = expc(sigma)  # accurate at every sigma (its own series)
-    sc, cc = sinc(tl), cosc(tl)
+    if differentiable:
+        A = expc(sigma)  # accurate at every sigma (its own series)
+        sc, cc = sinc(tl), cosc(tl)
+    else:  # forward-only: one sin and cos of the half angle (as rodrigues_values), expm1
+        h = tl.sqrt().mul_(0.5).clamp_min_(H_MIN[tl.dtype])
+        sh, ch = torch.sin(h), torch.cos(h)
+        sh_h = sh / h
+        sc, cc = sh_h * ch, 0.5 * sh_h * sh_h
+        nz = sigma != 0
+        A = torch.where(nz, torch.expm1(sigma) / torch.where(nz, sigma, 1.0), 1.0)
     inv = 1.0 / (sl * sl + tl)
     B = fma(fma(sl * e * sc, e * tl, cc), sl, A, value=-1.0) * inv
     C = fma(fma(A, sl * e, cc), e, sc, value=-1.0) * inv
