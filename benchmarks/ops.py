@@ -107,6 +107,19 @@ def planar_poses(n: int, gen: torch.Generator) -> Tensor:
     return torch.cat((top, bottom), dim=-2)
 
 
+def sim3_tangents(n: int, gen: torch.Generator) -> Tensor:
+    """``(n, 7)`` float64 ``(rho, phi, sigma)``: a twist and a standard-normal log scale."""
+    return torch.cat((twists(n, gen), torch.randn(n, 1, generator=gen, dtype=torch.float64)), -1)
+
+
+def similarities(n: int, gen: torch.Generator) -> Tensor:
+    """``(n, 4, 4)`` float64 ``[[s R, t], [0, 1]]`` (``s = exp(N(0, 1))``)."""
+    T = poses(n, gen)
+    s = torch.exp(torch.randn(n, 1, 1, generator=gen, dtype=torch.float64))
+    scale = torch.cat((s.expand(n, 3, 3), torch.ones(n, 3, 1, dtype=T.dtype)), -1)
+    return torch.cat((T[:, :3] * scale, T[:, 3:]), 1)
+
+
 # ----------------------------------------------------------------------------------------------
 # References (float64, independent of torchlie and of the peers)
 # ----------------------------------------------------------------------------------------------
@@ -199,6 +212,29 @@ def _ref_se2_log(T: Tensor) -> Tensor:
     ]
     rho = torch.linalg.solve(torch.stack(cols, dim=-1), T[..., :2, 2:])[..., 0]
     return torch.cat((rho, theta), dim=-1)
+
+
+def sim3_hat(xi: Tensor) -> Tensor:
+    """4x4 Lie-algebra matrix ``[[hat(phi) + sigma I, rho], [0, 0]]``."""
+    eye = torch.diag(torch.tensor([1.0, 1.0, 1.0, 0.0], dtype=xi.dtype))
+    return se3_hat(xi[..., :6]) + xi[..., 6, None, None] * eye
+
+
+def _ref_sim3_log(T: Tensor) -> Tensor:
+    # s from the determinant, phi from scipy, rho = V^-1 t with V's columns read off exp of
+    # (e_i, phi, sigma).
+    s = torch.linalg.det(T[..., :3, :3]).pow(1.0 / 3.0)
+    phi = _ref_so3_log(T[..., :3, :3] / s[..., None, None])
+    sigma = torch.log(s).unsqueeze(-1)
+    eye = torch.eye(3, dtype=T.dtype)
+    cols = [
+        torch.linalg.matrix_exp(sim3_hat(torch.cat((eye[i].expand_as(phi), phi, sigma), -1)))[
+            ..., :3, 3
+        ]
+        for i in range(3)
+    ]
+    rho = torch.linalg.solve(torch.stack(cols, dim=-1), T[..., :3, 3:])[..., 0]
+    return torch.cat((rho, phi, sigma), dim=-1)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -369,6 +405,20 @@ OPS: dict[str, Op] = {
             lambda n, g: (planar_poses(n, g),),
             _ref_se2_log,
             3,
+            "sim3.exp",
+            "Sim(3) exp: tangent -> similarity",
+            "sim3.exp",
+            lambda n, g: (sim3_tangents(n, g),),
+            lambda xi: torch.linalg.matrix_exp(sim3_hat(xi)),
+            16,
+        ),
+        Op(
+            "sim3.log",
+            "Sim(3) log: similarity -> tangent",
+            "sim3.log",
+            lambda n, g: (similarities(n, g),),
+            _ref_sim3_log,
+            7,
         ),
     )
 }

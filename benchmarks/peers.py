@@ -296,6 +296,14 @@ def _pypose() -> dict[str, Adapter]:
     def se3_out(x):
         return pp.SE3(x.detach()).matrix()
 
+    def sim3_in(T, *rest):
+        # PyPose stores (t, q_xyzw, s); the scale as |M| / sqrt(3), q from M / s
+        M = T[..., :3, :3]
+        s = M.square().sum((-1, -2)).div(3.0).sqrt()
+        R = M / s[..., None, None]
+        q = pp.mat2SO3(R, check=False).tensor()
+        return (torch.cat((T[..., :3, 3], q, s[..., None]), -1).contiguous(), *rest)
+
     def plain(x):
         return x.tensor() if isinstance(x, pp.LieTensor) else x
 
@@ -338,6 +346,15 @@ def _pypose() -> dict[str, Adapter]:
         ),
         "se3.inverse": Adapter(
             "pypose", "pp.SE3(x).Inv()", se3_in, lambda x: pp.SE3(x).Inv(), se3_out,
+        ),
+        "sim3.exp": Adapter(
+            "pypose", "pp.sim3(xi).Exp()", _ident, lambda xi: pp.sim3(xi).Exp(),
+            lambda x: pp.Sim3(x.detach()).matrix(),
+        ),
+        "sim3.log": Adapter(
+            "pypose", "pp.Sim3(x).Log()", sim3_in, lambda x: pp.Sim3(x).Log(), plain,
+            notes="x = (t, q_xyzw, s), converted outside the timing (pp.mat2Sim3 allocates "
+            "an N x N tensor)",
         ),
         "se3.act": Adapter(
             "pypose", "pp.SE3(x).Act(p)", se3_in, lambda x, p: pp.SE3(x).Act(p), _first,

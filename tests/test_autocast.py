@@ -59,7 +59,7 @@ SWEEP_IDS = [f"{n}-{i}" for i, (n, _) in enumerate(SWEEP)]
 
 
 def _outputs(out: object) -> list[torch.Tensor]:
-    if isinstance(out, (SO3, SE3)):
+    if isinstance(out, torchlie.groups._Group):  # SO3, SE3, SO2, SE2, Sim3
         return [out.tensor]
     if isinstance(out, torch.Tensor):
         return [out]

@@ -34,7 +34,7 @@ import numpy as np
 import pytest
 import torch
 
-from torchlie import conversions, nn, quaternion, se2, se3, so2, so3, statistics
+from torchlie import conversions, nn, quaternion, se2, se3, sim3, so2, so3, statistics
 from torchlie.kinematics import Chain, sample_robot
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "coming-from"
@@ -175,7 +175,11 @@ def inputs(page: str) -> tuple[dict[str, object], torch.Tensor]:
         + t[:, None]
         + 0.01 * torch.randn(P.shape, generator=gen, dtype=torch.float64)
     )
+    chi = torch.cat((rho, w, 0.5 * rand(1)), dim=-1)  # Sim(3) tangents (rho, phi, sigma)
     symbols = {
+        "chi": chi,
+        "omega": rand(7),
+        "Z": sim3.exp(chi),
         "w": w,
         "v": v,
         "q": order(q),
@@ -228,6 +232,7 @@ TORCHLIE = {
     "se2": se2,
     "se3": se3,
     "so2": so2,
+    "sim3": sim3,
     "so3": so3,
     "statistics": statistics,
     "Chain": Chain,

@@ -45,7 +45,7 @@ import torch.autograd.forward_ad as fwAD
 from torch import Tensor
 
 import torchlie
-from torchlie import SE3, SO3, conversions, quaternion, se2, se3, so2, so3, statistics
+from torchlie import SE3, SO3, conversions, quaternion, se2, se3, sim3, so2, so3, statistics
 from torchlie import nn as tnn
 
 DT = torch.float64
@@ -384,6 +384,62 @@ case("se2.to_rt", se2.to_rt, (POSE2, POSES2))
 case("se2.from_xytheta", se2.from_xytheta, (ambient(3), TWISTS2))
 case("se2.to_xytheta", se2.to_xytheta, (POSE2, POSES2))
 
+
+def _hat7(xi: Tensor) -> Tensor:
+    return _hat6(xi[..., :6]) + xi[..., 6, None, None] * torch.diag(_t([1.0, 1.0, 1.0, 0.0]))
+
+
+SIM = Kind(7, lambda T, d: T @ torch.linalg.matrix_exp(_hat7(d.reshape(*T.shape[:-2], 7))))
+SIMS = torch.cat([POSES[::4] @ torch.diag(_t([s, s, s, 1.0])) for s in (1.0, 2.0)])
+SIM_TANGENTS = torch.cat(
+    [torch.cat((TWISTS, torch.full_like(TWISTS[:, :1], s)), -1) for s in (0.0, 0.5)]
+)
+SCALES = _t([1.0, 2.0, 0.5])
+SIM_ = (SIM, SIMS)
+_group_cases(sim3, SIM_, (ambient(7), SIM_TANGENTS), PT_)
+# fewer points for the Jacobians built on a matrix exponential of size 14, and for distance
+# a second argument whose scale, translation and rotation differ from the first's (each of its
+# three parts has a cone where they are equal)
+_REDONE = ("sim3.jac_rminus", "sim3.jac_rplus", "sim3.distance")
+CASES[:] = [c for c in CASES if c.name not in _REDONE]
+case("sim3.jac_rminus", sim3.jac_rminus, (SIM, SIMS[::3]), (SIM, SIMS[1::3]))
+case("sim3.jac_rplus", sim3.jac_rplus, (SIM, SIMS[::3]), (ambient(7), SIM_TANGENTS[::2]))
+_SHIFT = se3.exp(_t([0.5, 0.25, 0.0, 0.3, 0.2, 0.1])) @ torch.diag(_t([3.0, 3.0, 3.0, 1.0]))
+case("sim3.distance", sim3.distance, SIM_, (SIM, SIMS[::2] @ _SHIFT))
+case("sim3.vee", sim3.vee, (ambient(4, 4), torch.cat((_hat7(SIM_TANGENTS), SIMS[:12]))))
+case("sim3.from_srt", sim3.from_srt, (ambient(), SCALES), R_, (ambient(3), TRANSLATIONS))
+case("sim3.to_srt", sim3.to_srt, SIM_)
+case("sim3.from_se3", sim3.from_se3, P_, (ambient(), SCALES))
+case("sim3.scale", sim3.scale, SIM_)
+for _kind in ("angle", "chordal"):
+    case(
+        f"nn.sim3_geodesic_loss[{_kind}]",
+        partial(tnn.sim3_geodesic_loss, translation_weight=0.5, kind=_kind, reduction="none"),
+        SIM_,
+        (SIM, SIMS[::2] @ se3.exp(_t([0.5, 0.25, 0.0, 0.3, 0.2, 0.1]))),
+    )
+_Q8 = torch.cat((POS_QUATS[::5], torch.zeros(len(POS_QUATS[::5]), 1, dtype=DT)), -1)
+case("nn.Sim3Parametrization[pos_quat_sigma]", tnn.Sim3Parametrization(), (ambient(8), _Q8))
+case(
+    "nn.Sim3Parametrization[tangent]",
+    tnn.Sim3Parametrization("tangent"),
+    (ambient(7), SIM_TANGENTS),
+)
+for _rep in ("pos_quat_sigma", "tangent"):
+    case(
+        f"nn.Sim3Parametrization[{_rep}].right_inverse",
+        tnn.Sim3Parametrization(_rep).right_inverse,
+        SIM_,
+    )
+_SIM_SET = Kind(21, SIM.move)
+for _method in ("geodesic", "chordal"):
+    case(
+        f"statistics.sim3_mean[{_method}]",
+        partial(statistics.sim3_mean, method=_method),
+        (_SIM_SET, _sets(torch.cat((SIMS[:4], SIMS[18:22])), 3, 24)),
+        (ambient(3), WEIGHTS3),
+    )
+
 for _name in (
     *("conjugate", "inverse", "normalize", "canonicalize", "exp", "log", "to_matrix"),
     *("to_rotvec", "to_xyzw", "from_xyzw", "to_jpl", "from_jpl", "to_su2"),
@@ -629,6 +685,9 @@ EXCLUDED = {
             ("is_valid", "boolean result"),
         )
     },
+    "sim3.identity": "factory",
+    "sim3.random": "random draw",
+    "sim3.is_valid": "boolean result",
     "quaternion.identity": "factory",
     "quaternion.random": "random draw",
     "quaternion.is_unit": "boolean result",
@@ -810,7 +869,7 @@ def test_derivatives_at_exact_points(c: Case):
 
 def _public_names() -> set[str]:
     names = set()
-    for mod in (so3, se3, so2, se2, quaternion, conversions, statistics, tnn):
+    for mod in (so3, se3, so2, se2, sim3, quaternion, conversions, statistics, tnn):
         names |= {f"{mod.__name__.split('.')[-1]}.{n}" for n in mod.__all__}
     for G in (SO3, SE3):
         names |= {f"{G.__name__}.{n}" for n in dir(G) if not n.startswith("_")}
@@ -824,6 +883,7 @@ def test_every_public_function_is_checked():
         "se3",
         "so2",
         "se2",
+        "sim3",
         "quaternion",
         "conversions",
         "statistics",

@@ -28,6 +28,9 @@ OPTIONS = {
     "payload_identification": (
         "--quick --states --payload --noise --iterations --out --no-plot --seed --threads".split()
     ),
+    "scaled_alignment": (
+        "--quick --poses --noise --iterations --seed --out --no-plot --threads".split()
+    ),
     "pose_graph": (
         "--quick --poses --laps --optimizer --representation --iterations --seed --out "
         "--no-plot --threads"
@@ -312,3 +315,23 @@ def test_kinematics_validation(tmp_path, capsys):
         "samples": 200,
         "results": res,
     }
+
+
+@pytest.mark.slow
+def test_scaled_alignment(tmp_path, capsys):
+    fig = load("scaled_alignment").main(["--quick", "--out", str(tmp_path)])
+    assert fig["poses"] == 60 and fig["valid"]
+    # the similarity is recovered: scale within 1 %, errors down to the noise level
+    assert abs(fig["scale_refined"] / fig["scale_true"] - 1.0) < 0.01
+    assert fig["ate_before"] > 1.0 and fig["ate_umeyama"] < 3 * fig["noise"] * fig["scale_true"]
+    assert fig["ate_refined"] <= fig["ate_umeyama"] * 1.05
+    assert fig["rot_error_deg_refined"] <= fig["rot_error_deg_umeyama"] + 1e-9
+    assert fig["rot_error_deg_refined"] < 3.0 < fig["rot_error_deg_before"]
+    assert "Umeyama (positions)" in capsys.readouterr().out
+    saved = json.loads((tmp_path / "scaled_alignment.json").read_text())
+    assert saved["ate_refined"] == fig["ate_refined"]
+    plot = tmp_path / "scaled_alignment.png"
+    if has_matplotlib():
+        assert fig["plot"] == plot and plot.stat().st_size > 1000
+    else:
+        assert fig["plot"] is None and not plot.exists()

@@ -12,8 +12,8 @@ import torch
 from torch.autograd import gradcheck
 
 import torchlie.groups
-from torchlie import quaternion, se3, so3
-from torchlie.groups import SE3, SO3
+from torchlie import quaternion, se3, sim3, so3
+from torchlie.groups import SE3, SO3, Sim3
 
 F64 = torch.float64
 
@@ -31,7 +31,7 @@ class G:
         return self.cls.__name__
 
 
-GROUPS = [G(SO3, so3, 3, 3), G(SE3, se3, 4, 6)]
+GROUPS = [G(SO3, so3, 3, 3), G(SE3, se3, 4, 6), G(Sim3, sim3, 4, 7)]
 
 
 @pytest.fixture(params=GROUPS, ids=repr)
@@ -156,7 +156,8 @@ def test_accessors_are_read_only_properties(batch):
 
 
 def test_dir_lists_only_the_public_names():
-    assert dir(torchlie.groups) == sorted(torchlie.groups.__all__) == ["SE2", "SE3", "SO2", "SO3"]
+    assert dir(torchlie.groups) == sorted(torchlie.groups.__all__)
+    assert dir(torchlie.groups) == ["SE2", "SE3", "SO2", "SO3", "Sim3"]
 
 
 def test_identity_random(grp, dtype):

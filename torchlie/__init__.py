@@ -15,6 +15,8 @@ so(3) tangent      rotation vector ``(..., 3)`` = angle * unit axis.
 se(3) tangent      twist ``(..., 6)`` = ``(rho, phi)``: translation part first, rotation last.
 planar groups      SO(2): matrices ``(..., 2, 2)``, tangent the angle ``(..., 1)``; SE(2): poses
                    ``(..., 3, 3)``, twist ``(..., 3)`` = ``(rho_x, rho_y, theta)``.
+similarity         ``(..., 4, 4)`` ``[[s R, t], [0, 1]]`` with ``s = exp(sigma)``; sim(3) tangent
+                   ``(..., 7)`` = ``(rho, phi, sigma)`` (:mod:`torchlie.sim3`).
 perturbation       right: ``X (+) tau = X Exp(tau)``, ``Y (-) X = Log(X^-1 Y)``; the left
                    versions are named explicitly (``lplus``, ``lminus``).
 Euler angles       scipy's naming: ``"xyz"`` lower case = extrinsic (static axes), ``"XYZ"``
@@ -37,14 +39,15 @@ Python on tensor values, so every op works under ``torch.compile(fullgraph=True)
 ``torch.func.vmap`` / ``jacrev`` / ``jacfwd`` and on CUDA.
 """
 
-from . import conversions, kinematics, nn, quaternion, se2, se3, so2, so3, statistics
-from .groups import SE2, SE3, SO2, SO3
+from . import conversions, kinematics, nn, quaternion, se2, se3, sim3, so2, so3, statistics
+from .groups import SE2, SE3, SO2, SO3, Sim3
 
 __all__ = [
     "SE2",
     "SE3",
     "SO2",
     "SO3",
+    "Sim3",
     "conversions",
     "kinematics",
     "nn",
@@ -52,6 +55,7 @@ __all__ = [
     "se2",
     "se3",
     "so2",
+    "sim3",
     "so3",
     "statistics",
 ]

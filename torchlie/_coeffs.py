@@ -680,3 +680,117 @@ def planar_values(t: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Te
     small = step(PLANAR_SWITCH - t.abs())
     c1 = fma(far * (1.0 - small), near, small)
     return a, b, c1, c2, r, ch
+
+
+# --------------------------------------------------------------------------------------------
+# Sim(3): coefficients of functions of sigma (log scale) and t2 = theta**2 jointly
+# --------------------------------------------------------------------------------------------
+
+_SINHC = [1.0 / math.factorial(2 * k + 1) for k in range(_N_MAX)]
+_TERMS["sinhc"] = (5, 8)
+_SERIES["sinhc"] = _SINHC
+for _dt in (torch.float16, torch.bfloat16, torch.float32, torch.float64):
+    _PLANS[("sinhc", _dt)] = _make_plan("sinhc", _dt)
+
+
+def sinhc(u: Tensor) -> Tensor:
+    """sinh(x)/x of ``u = x**2`` (even in ``x``, so a function of ``u``; smooth at 0)."""
+
+    def exact(s: Tensor) -> Tensor:
+        x = s.sqrt()
+        return torch.sinh(x) / x
+
+    return _series_where("sinhc", u, exact)
+
+
+def expc(sigma: Tensor) -> Tensor:
+    """(exp(sigma) - 1)/sigma as ``exp(sigma/2) sinhc(sigma**2/4)``: no cancellation and no
+    division by ``sigma``, smooth at 0 (value 1) with accurate derivatives of every order."""
+    return torch.exp(0.5 * sigma) * sinhc(0.25 * sigma * sigma)
+
+
+#: E1(z) = (exp(z) - 1)/z = sum_n z^n/(n+1)!.
+_E1 = [1.0 / math.factorial(n + 1) for n in range(22)]
+#: Per input dtype: ``sigma**2 + t2`` below which the Sim(3) coefficients take their joint
+#: series, and its number of terms (the first omitted one below the rounding of the result).
+#: float64 takes the series up to ``|z| = 1/2``, where the closed forms and their derivatives
+#: lose at most a few bits; float32 (coefficients evaluated in float64) up to ``|z| = 0.1``,
+#: where the closed forms' cancellation, ``eps64 / |z|^3`` in the derivatives, is far below
+#: float32's rounding.
+#: Forward-only evaluations (values, no derivatives; ``differentiable=False``) need the series
+#: only where the closed forms divide 0 by 0: their cancellation costs ``eps / |z|^2`` of ``C``
+#: (``eps / |z|`` of ``B``), which enters the result multiplied by ``theta^2`` (``theta``), at
+#: most ``eps`` of it.
+SIM3_SERIES = {
+    (torch.float64, True): (0.25, 16),
+    (torch.float32, True): (1e-2, 8),
+    (torch.float64, False): (1e-6, 6),
+    (torch.float32, False): (1e-6, 6),
+}
+
+
+def sim3_v(
+    sigma: Tensor, t2: Tensor, dtype: torch.dtype = torch.float64, differentiable: bool = True
+) -> tuple[Tensor, Tensor, Tensor]:
+    """``(A, B, C)`` with ``V = A I + B hat(phi) + C hat(phi)^2 = int_0^1 exp(s (hat(phi) +
+    sigma I)) ds``, the matrix that maps ``rho`` to the translation of the Sim(3) exponential::
+
+        A = (e^sigma - 1)/sigma
+        B = Im(E1(z))/theta = (sigma e^sigma sinc + e^sigma t2 cosc - (e^sigma - 1))/(sigma^2 + t2)
+        C = (A - Re(E1(z)))/t2 = (A + sigma e^sigma cosc - e^sigma sinc)/(sigma^2 + t2)
+
+    with ``z = sigma + i theta``, ``E1(z) = (e^z - 1)/z``, ``sinc`` and ``cosc`` of ``t2``.
+    ``B`` and ``C`` cancel as ``sigma`` and ``theta`` go to 0 together: there
+    (:data:`SIM3_SERIES` of the input ``dtype``; the smaller region of forward-only values
+    with ``differentiable=False``) they are the series of ``E1`` in ``z``,
+    evaluated by Horner's rule on ``p + i theta q = E1(z)`` and ``r = (E1(sigma) - p)/t2``
+    (real polynomials in ``sigma`` and ``t2``: ``B = q``, ``C = r``, ``A = p + t2 r``); double
+    where, so neither branch produces Inf/NaN in forward or backward.
+    """
+    r2max, terms = SIM3_SERIES[(dtype, differentiable)]
+    small = sigma * sigma + t2 < r2max
+    # series branch: its own arguments only (zeros where it is not taken)
+    ss = torch.where(small, sigma, 0.0)
+    ts = torch.where(small, t2, 0.0)
+    p = torch.full_like(t2, _E1[terms - 1])
+    q = torch.zeros_like(t2)
+    r = torch.zeros_like(t2)
+    for c in _E1[terms - 2 :: -1]:
+        p, q, r = fma(ss * p, ts, q, value=-1.0) + c, fma(p, ss, q), fma(q, ss, r)
+    # closed forms: safe arguments where the series is taken
+    sl = torch.where(small, 1.0, sigma)
+    tl = torch.where(small, 1.0, t2)
+    e = torch.exp(sl)
+    if differentiable:
+        A = expc(sigma)  # accurate at every sigma (its own series)
+        sc, cc = sinc(tl), cosc(tl)
+    else:  # forward-only: one sin and cos of the half angle (as rodrigues_values), expm1
+        h = tl.sqrt().mul_(0.5).clamp_min_(H_MIN[tl.dtype])
+        sh, ch = torch.sin(h), torch.cos(h)
+        sh_h = sh / h
+        sc, cc = sh_h * ch, 0.5 * sh_h * sh_h
+        nz = sigma != 0
+        A = torch.where(nz, torch.expm1(sigma) / torch.where(nz, sigma, 1.0), 1.0)
+    inv = 1.0 / (sl * sl + tl)
+    B = fma(fma(sl * e * sc, e * tl, cc), sl, A, value=-1.0) * inv
+    C = fma(fma(A, sl * e, cc), e, sc, value=-1.0) * inv
+    return (
+        A,
+        torch.where(small, q, B),
+        torch.where(small, r, C),
+    )
+
+
+def sim3_v_inv(
+    sigma: Tensor, t2: Tensor, dtype: torch.dtype = torch.float64, differentiable: bool = True
+) -> tuple[Tensor, Tensor, Tensor]:
+    """``(a, b, c)`` with ``V^-1 = a I + b hat(phi) + c hat(phi)^2`` (``V`` of :func:`sim3_v`)::
+
+        a = 1/A,  b = -B/det,  c = (B^2 - C D)/(A det),  D = A - t2 C,  det = D^2 + t2 B^2
+
+    (``D + i theta B = E1(z)``, so ``det = |E1(z)|^2 > 0`` for ``theta < 2 pi``); no
+    cancellation beyond a factor 3 in ``B^2 - C D`` near 0."""
+    A, B, C = sim3_v(sigma, t2, dtype, differentiable)
+    D = A - t2 * C
+    det = D * D + t2 * B * B
+    return 1.0 / A, -B / det, (B * B - C * D) / (A * det)

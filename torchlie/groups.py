@@ -1,4 +1,5 @@
-"""Thin, immutable group-element classes: :class:`SO3`, :class:`SE3`, :class:`SO2`, :class:`SE2`.
+"""Thin, immutable group-element classes: :class:`SO3`, :class:`SE3`, :class:`SO2`, :class:`SE2`
+and :class:`Sim3`.
 
 Each object wraps exactly one tensor, ``.tensor``: rotation matrices ``(..., 3, 3)`` for
 :class:`SO3`, homogeneous poses ``(..., 4, 4)`` for :class:`SE3`.  Every method is one call into
@@ -47,11 +48,12 @@ from . import _checks
 from . import quaternion as _quat
 from . import se2 as _se2
 from . import se3 as _se3
+from . import sim3 as _sim3
 from . import so2 as _so2
 from . import so3 as _so3
 from ._typing import Bool, Float
 
-__all__ = ["SO3", "SE3", "SO2", "SE2"]
+__all__ = ["SO3", "SE3", "SO2", "SE2", "Sim3"]
 
 
 def __dir__() -> list[str]:
@@ -67,6 +69,7 @@ _CORES = (
     "torchlie.quaternion.",
     "torchlie.so2.",
     "torchlie.se2.",
+    "torchlie.sim3.",
 )
 
 
@@ -834,3 +837,111 @@ for _cls in (SO2, SE2):
         flatten_with_keys_fn=_flatten_with_keys,
     )
 del _cls
+
+
+class Sim3(_Group):
+    """Similarities, wrapping ``(..., 4, 4)`` matrices ``[[s R, t], [0, 1]]`` (``s > 0``).
+
+    Tangent vectors are ``(rho, phi, sigma)`` ``(..., 7)`` (:mod:`torchlie.sim3`).  Properties
+    as for :class:`SE3` plus ``.scale`` ``(...)``; ``.rotation`` is the rotation ``R`` (an
+    :class:`SO3`) and ``.pose()`` the rigid part ``[[R, t], [0, 1]]`` (an :class:`SE3`).
+
+    Args:
+        tensor: similarities ``(..., 4, 4)``, floating point.
+        check: also check the values with :func:`torchlie.sim3.is_valid` (``ValueError``).
+        atol: tolerance of that check (default: the core's).
+
+    Example:
+        >>> S = Sim3.from_srt(torch.tensor(2.0), torch.eye(3), torch.tensor([1.0, 0.0, 0.0]))
+        >>> S @ torch.ones(3)
+        tensor([3., 2., 2.])
+        >>> (S @ S).scale
+        tensor(4.)
+    """
+
+    __slots__ = ()
+    _core = _sim3
+    _n = 4
+    _dof = 7
+
+    @classmethod
+    @_as_method("from_srt")
+    def from_srt(
+        cls,
+        s: Float[Tensor, "*b1"],
+        R: Float[Tensor, "*b2 3 3"] | SO3,
+        t: Float[Tensor, "*b3 3"],
+        *,
+        check: bool = False,
+        atol: float | None = None,
+    ) -> Sim3:
+        """From scales, rotations (matrices or an :class:`SO3`) and translations.
+
+        With ``check=True``, raises ``ValueError`` unless every ``R`` is a valid rotation and
+        every ``s`` positive.
+        """
+        if isinstance(R, SO3):
+            R = R.tensor
+        _check_atol("torchlie.Sim3.from_srt", atol)
+        if check:
+            _check_valid("torchlie.Sim3.from_srt", _so3.is_valid(R, atol=atol), "rotations")
+            _check_valid("torchlie.Sim3.from_srt", torch.as_tensor(s) > 0, "positive scales")
+        return cls._wrap(_sim3.from_srt(s, R, t))
+
+    @classmethod
+    @_as_method("from_se3")
+    def from_se3(cls, T: Float[Tensor, "*b1 4 4"] | SE3, s: Float[Tensor, "*b2"]) -> Sim3:
+        """From a rigid pose (a matrix or an :class:`SE3`) and a scale: ``[[s R, t], [0, 1]]``.
+
+        Example:
+            >>> Sim3.from_se3(SE3.identity(), torch.tensor(2.0)).scale
+            tensor(2.)
+        """
+        return cls._wrap(_sim3.from_se3(T.tensor if isinstance(T, SE3) else T, s))
+
+    @_as_method("to_srt")
+    def to_srt(
+        self,
+    ) -> tuple[Float[Tensor, "*b"], Float[Tensor, "*b 3 3"], Float[Tensor, "*b 3"]]:
+        """``(s, R, t)``: scales ``(...)``, rotation matrices and translations."""
+        return _sim3.to_srt(self.tensor)
+
+    @_as_method("pose")
+    def pose(self) -> SE3:
+        """The rigid part ``[[R, t], [0, 1]]`` as an :class:`SE3` (the scale dropped)."""
+        _, R, t = _sim3.to_srt(self.tensor)
+        return SE3._wrap(_se3.from_rt(R, t))
+
+    @property
+    def scale(self) -> Float[Tensor, "*b"]:
+        """The scale ``s`` ``(...)`` (:func:`torchlie.sim3.scale`).
+
+        Example:
+            >>> Sim3.exp(torch.tensor([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])).scale
+            tensor(2.7183)
+        """
+        return _sim3.scale(self.tensor)
+
+    @property
+    def rotation(self) -> SO3:
+        """The rotation ``R = M / s`` as an :class:`SO3`."""
+        return SO3._wrap(_sim3.to_srt(self.tensor)[1])
+
+    @property
+    def translation(self) -> Float[Tensor, "*b 3"]:
+        """The translation column ``(..., 3)`` (a copy)."""
+        return self.tensor[..., :3, 3].clone()
+
+    @_as_method("quaternion")
+    def quaternion(self) -> Float[Tensor, "*b 4"]:
+        """Canonical wxyz quaternion of the rotation ``(..., 4)``."""
+        return _quat.from_matrix(_sim3.to_srt(self.tensor)[1])
+
+
+_pytree.register_pytree_node(
+    Sim3,
+    _flatten,
+    lambda leaves, _ctx: Sim3._wrap(next(iter(leaves))),
+    serialized_type_name="torchlie.groups.Sim3",
+    flatten_with_keys_fn=_flatten_with_keys,
+)

@@ -4,13 +4,14 @@
   representation, then the map to a rotation (:func:`representation_to_matrix`).  The output is
   a valid rotation for every finite input, zero and huge ones included, with finite gradients
   (degenerate raw vectors get a documented fixed value).
-* :func:`geodesic_loss` / :func:`se3_geodesic_loss`: rotation angle (or squared chordal) and
-  translation losses with torch's ``reduction`` argument.
-* :class:`PlanarPoseHead`, :func:`so2_geodesic_loss`, :func:`se2_geodesic_loss`,
-  :class:`SO2Parametrization`, :class:`SE2Parametrization`: the same for the planar groups.
-* :class:`SO3Parametrization` / :class:`SE3Parametrization`: for
+* :func:`geodesic_loss` / :func:`se3_geodesic_loss` / :func:`sim3_geodesic_loss`: rotation
+  angle (or squared chordal), translation (and log-scale) losses with torch's ``reduction``
+  argument.
+* :class:`SO3Parametrization` / :class:`SE3Parametrization` / :class:`Sim3Parametrization`: for
   :func:`torch.nn.utils.parametrize.register_parametrization`, so that a plain parameter
   optimised by any torch optimiser (SGD, Adam, LBFGS, ...) is always read as a rotation / pose.
+* :class:`PlanarPoseHead`, :func:`so2_geodesic_loss`, :func:`se2_geodesic_loss`,
+  :class:`SO2Parametrization`, :class:`SE2Parametrization`: the same for the planar groups.
 
 Representations (sizes in :data:`REPRESENTATIONS`):
 
@@ -34,7 +35,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from . import _checks, _coeffs, se2, se3, so2, so3
+from . import _checks, _coeffs, se2, se3, sim3, so2, so3
 from . import conversions as _conv
 from . import quaternion as _quat
 from ._typing import Float
@@ -54,6 +55,8 @@ __all__ = [
     "se2_geodesic_loss",
     "SO2Parametrization",
     "SE2Parametrization",
+    "sim3_geodesic_loss",
+    "Sim3Parametrization",
 ]
 
 
@@ -635,6 +638,7 @@ class PlanarPoseHead(nn.Module):
         return SE2._wrap(T) if self.output == "SE2" else T
 
 
+@_checks.float32_exact
 def so2_geodesic_loss(
     R_pred: Float[Tensor, "*b1 2 2"],
     R_target: Float[Tensor, "*b2 2 2"],
@@ -658,6 +662,7 @@ def so2_geodesic_loss(
     return _checks.out(_reduce(loss, reduction), dtype)
 
 
+@_checks.float32_exact
 def se2_geodesic_loss(
     T_pred: Float[Tensor, "*b1 3 3"],
     T_target: Float[Tensor, "*b2 3 3"],
@@ -792,3 +797,98 @@ class SE2Parametrization(nn.Module):
         if self.representation == "matrix":
             return T.clone()
         return se2.log(T)
+
+
+@_checks.float32_exact
+def sim3_geodesic_loss(
+    T_pred: Float[Tensor, "*b1 4 4"],
+    T_target: Float[Tensor, "*b2 4 4"],
+    rotation_weight: float = 1.0,
+    translation_weight: float = 1.0,
+    scale_weight: float = 1.0,
+    kind: str = "angle",
+    reduction: str = "mean",
+) -> Float[Tensor, "*b"]:
+    """Weighted similarity error ``rotation_weight * rot + translation_weight * trans +
+    scale_weight * scale``.
+
+    ``kind="angle"``: the three parts of :func:`torchlie.sim3.distance`: the rotation angle of
+    ``R_pred^T R_target``, ``|t_pred - t_target|`` and ``|log(s_pred / s_target)|`` (each with
+    the zero subgradient where it is not differentiable, so gradients are always finite).
+    ``kind="chordal"``: ``|R_pred - R_target|_F^2``, ``|t_pred - t_target|^2`` and
+    ``log(s_pred / s_target)^2``, smooth everywhere.  Arguments as :func:`se3_geodesic_loss`.
+
+    Example:
+        >>> T = sim3.from_srt(torch.tensor(2.0), torch.eye(3), torch.tensor([3.0, 4.0, 0.0]))
+        >>> sim3_geodesic_loss(T, sim3.identity(), scale_weight=0.0)
+        tensor(5.)
+    """
+    fn = _NAME + "sim3_geodesic_loss"
+    _check_choice(fn, "kind", kind, ("angle", "chordal"))
+    _check_choice(fn, "reduction", reduction, _REDUCTIONS)
+    w_rot = _checks.nonnegative(rotation_weight, fn, "rotation_weight")
+    w_trans = _checks.nonnegative(translation_weight, fn, "translation_weight")
+    w_scale = _checks.nonnegative(scale_weight, fn, "scale_weight")
+    a, b, dtype, _ = _checks.pair(fn, T_pred, T_target, "T_pred", "T_target", (4, 4), (4, 4))
+    if kind == "angle":
+        rot, trans, scale = sim3.distance(a, b)
+    else:
+        sa, Ra, ta = sim3.to_srt(a)
+        sb, Rb, tb = sim3.to_srt(b)
+        rot, trans = _sum_squares(Ra - Rb, 2), _sum_squares(ta - tb, 1)
+        scale = torch.log(sa / sb).square()
+    loss = w_rot * rot + w_trans * trans + w_scale * scale
+    return _checks.out(_reduce(loss, reduction), dtype)
+
+
+_SIM3_PARAMS = {"pos_quat_sigma": (8,), "tangent": (7,)}
+
+
+class Sim3Parametrization(nn.Module):
+    """Keep a parameter on Sim(3): for :func:`torch.nn.utils.parametrize.register_parametrization`.
+
+    The registered tensor is always read as valid similarities ``(..., 4, 4)`` (as
+    :class:`SE3Parametrization`).  ``representation`` chooses the stored parameter:
+
+    * ``"pos_quat_sigma"`` (default): ``(..., 8)`` ``(t, q, sigma)``, read as
+      :func:`torchlie.sim3.from_srt` of ``exp(sigma)``, the rotation of ``q / |q|`` (``q = 0``
+      reads as the identity rotation) and ``t``: translation, rotation and log scale
+      decoupled, and the scale positive whatever the optimiser does.
+    * ``"tangent"``: ``(..., 7)`` ``(rho, phi, sigma)`` read as :func:`torchlie.sim3.exp`;
+      ``right_inverse`` is :func:`torchlie.sim3.log` (the parts coupled, as SE(3)'s twist).
+
+    Example:
+        >>> from torch.nn.utils import parametrize
+        >>> holder = torch.nn.Module()
+        >>> holder.T = torch.nn.Parameter(sim3.identity(5))
+        >>> _ = parametrize.register_parametrization(holder, "T", Sim3Parametrization())
+        >>> with torch.no_grad():
+        ...     _ = holder.parametrizations.T.original.add_(torch.randn(5, 8))
+        >>> bool(sim3.is_valid(holder.T).all())
+        True
+    """
+
+    def __init__(self, representation: str = "pos_quat_sigma") -> None:
+        super().__init__()
+        fn = _NAME + "Sim3Parametrization"
+        _check_choice(fn, "representation", representation, _SIM3_PARAMS)
+        self.representation = representation
+
+    def extra_repr(self) -> str:
+        return f"representation={self.representation!r}"
+
+    def forward(self, X: Tensor) -> Float[Tensor, "*b 4 4"]:
+        """The similarities ``(..., 4, 4)`` of the stored parameter ``X``."""
+        _checks.tensor(X, _NAME + "Sim3Parametrization", "X", _SIM3_PARAMS[self.representation])
+        if self.representation == "tangent":
+            return sim3.exp(X)
+        R = _quat.to_matrix(_identity_if_zero(X[..., 3:7]))
+        return sim3.from_srt(torch.exp(X[..., 7]), R, X[..., :3])
+
+    def right_inverse(self, T: Float[Tensor, "*b 4 4"]) -> Tensor:
+        """The stored parameter that reads as the similarities ``T``."""
+        _checks.tensor(T, _NAME + "Sim3Parametrization.right_inverse", "T", (4, 4))
+        if self.representation == "tangent":
+            return sim3.log(T)
+        s, R, t = sim3.to_srt(T)
+        return torch.cat((t, _quat.from_matrix(R), torch.log(s).unsqueeze(-1)), -1)

@@ -268,6 +268,7 @@ def _jac_left_inv(xi: Tensor) -> Tensor:
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def hat(xi: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     """``[[0, -theta, rho_x], [theta, 0, rho_y], [0, 0, 0]]`` of ``xi = (rho_x, rho_y, theta)``.
 
@@ -284,6 +285,7 @@ def hat(xi: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     return _checks.out(out, dtype)
 
 
+@_checks.float32_exact
 def vee(Xi: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3"]:
     """Inverse of :func:`hat`: ``(Xi[0, 2], Xi[1, 2], (Xi[1, 0] - Xi[0, 1])/2)``.
 
@@ -296,6 +298,7 @@ def vee(Xi: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3"]:
     return _checks.out(torch.stack((x[..., 0, 2], x[..., 1, 2], t), dim=-1), dtype)
 
 
+@_checks.float32_exact
 def exp(xi: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     """Pose of the twist ``xi = (rho, theta)``: ``[[R(theta), V(theta) rho], [0, 1]]``.
 
@@ -313,6 +316,7 @@ def exp(xi: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     return _checks.out(_ExpFn(x), dtype)
 
 
+@_checks.float32_exact
 def log(T: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3"]:
     """Twist ``(rho, theta)`` of ``T``: ``theta = so2.log(R)`` in ``(-pi, pi]``,
     ``rho = V(theta)^-1 t = [[e, theta/2], [-theta/2, e]] t`` with ``e = (theta/2) cot(theta/2)``.
@@ -336,6 +340,7 @@ def log(T: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3"]:
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def compose(T1: Float[Tensor, "*b1 3 3"], T2: Float[Tensor, "*b2 3 3"]) -> Float[Tensor, "*b 3 3"]:
     """``T1 @ T2`` from blocks (``R1 R2``, ``R1 t2 + t1``); the bottom row is exactly
     ``(0, 0, 1)``; batch shapes broadcast.
@@ -349,6 +354,7 @@ def compose(T1: Float[Tensor, "*b1 3 3"], T2: Float[Tensor, "*b2 3 3"]) -> Float
     return _checks.out(_compose(a, b), dtype)
 
 
+@_checks.float32_exact
 def inverse(T: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3 3"]:
     """``T^-1 = [[R^T, -R^T t], [0, 1]]``.
 
@@ -361,6 +367,7 @@ def inverse(T: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3 3"]:
     return _checks.out(_inverse(x), dtype)
 
 
+@_checks.float32_exact
 def act(T: Float[Tensor, "*b1 3 3"], points: Float[Tensor, "*b2 2"]) -> Float[Tensor, "*b 2"]:
     """Transform points: ``R p + t`` (batch shapes broadcast).
 
@@ -374,6 +381,7 @@ def act(T: Float[Tensor, "*b1 3 3"], points: Float[Tensor, "*b2 2"]) -> Float[Te
     return _checks.out(out, dtype)
 
 
+@_checks.float32_exact
 def adjoint(T: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3 3"]:
     """Adjoint matrix ``Ad_T = [[R, (t_y, -t_x)^T], [0, 1]]`` on twists ``(rho, theta)``.
 
@@ -389,6 +397,7 @@ def adjoint(T: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3 3"]:
     return _checks.out(_adjoint(x), dtype)
 
 
+@_checks.float32_exact
 def ad(xi: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     """Small adjoint ``ad(rho, theta) = [[0, -theta, rho_y], [theta, 0, -rho_x], [0, 0, 0]]``.
 
@@ -408,6 +417,7 @@ def ad(xi: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     return _checks.out(out, dtype)
 
 
+@_checks.float32_exact
 def jac_left(xi: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     """Left Jacobian ``Jl(xi)`` (module docstring): ``Exp(xi + d) ~= Exp(Jl(xi) d) Exp(xi)``.
 
@@ -419,6 +429,7 @@ def jac_left(xi: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     return _checks.out(_jac_left(x), dtype)
 
 
+@_checks.float32_exact
 def jac_right(xi: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     """Right Jacobian ``Jr(xi) = Jl(-xi)``: ``Exp(xi + d) ~= Exp(xi) Exp(Jr(xi) d)``.
 
@@ -431,6 +442,7 @@ def jac_right(xi: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     return _checks.out(_jac_left(-x), dtype)
 
 
+@_checks.float32_exact
 def jac_left_inv(xi: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     """``Jl(xi)^-1 = [[V^-1, -V^-1 q], [0, 1]]``, closed form, finite for ``|theta| < 2 pi``.
 
@@ -443,6 +455,7 @@ def jac_left_inv(xi: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     return _checks.out(_jac_left_inv(x), dtype)
 
 
+@_checks.float32_exact
 def jac_right_inv(xi: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     """``Jr(xi)^-1 = Jl(-xi)^-1``; ``jac_right_inv(log(T))`` is the Jacobian of :func:`log`.
 
@@ -460,6 +473,7 @@ def jac_right_inv(xi: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def identity(
     *batch: int, dtype: torch.dtype | None = None, device: torch.device | str | None = None
 ) -> Float[Tensor, "*batch 3 3"]:
@@ -473,6 +487,7 @@ def identity(
     return torch.eye(3, dtype=dtype, device=device).expand(*batch, 3, 3).clone()
 
 
+@_checks.float32_exact
 def random(
     *batch: int,
     generator: torch.Generator | None = None,
@@ -492,6 +507,7 @@ def random(
     return _checks.out(_assemble(R, t), dtype)
 
 
+@_checks.float32_exact
 def is_valid(T: Float[Tensor, "*b 3 3"], atol: float | None = None) -> Bool[Tensor, "*b"]:
     """Per element: finite, rotation block valid (:func:`torchlie.so2.is_valid`) and bottom row
     ``(0, 0, 1)``, within ``atol`` (default ``100 * eps`` of the dtype, ``4 * eps`` for half).
@@ -508,6 +524,7 @@ def is_valid(T: Float[Tensor, "*b 3 3"], atol: float | None = None) -> Bool[Tens
     return so2.is_valid(x[..., :2, :2], atol=tol) & bottom & trans
 
 
+@_checks.float32_exact
 def from_rt(R: Float[Tensor, "*b1 2 2"], t: Float[Tensor, "*b2 2"]) -> Float[Tensor, "*b 3 3"]:
     """Pose ``[[R, t], [0, 1]]`` from a rotation matrix and a translation (batches broadcast).
 
@@ -521,6 +538,7 @@ def from_rt(R: Float[Tensor, "*b1 2 2"], t: Float[Tensor, "*b2 2"]) -> Float[Ten
     return _checks.out(_assemble(r.expand(*batch, 2, 2), v.expand(*batch, 2)), dtype)
 
 
+@_checks.float32_exact
 def to_rt(T: Float[Tensor, "*b 3 3"]) -> tuple[Float[Tensor, "*b 2 2"], Float[Tensor, "*b 2"]]:
     """Rotation block and translation ``(R, t)`` of ``T`` (copies).
 
@@ -532,6 +550,7 @@ def to_rt(T: Float[Tensor, "*b 3 3"]) -> tuple[Float[Tensor, "*b 2 2"], Float[Te
     return T[..., :2, :2].clone(), T[..., :2, 2].clone()
 
 
+@_checks.float32_exact
 def from_xytheta(pose: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     """Pose of the planar coordinates ``(x, y, theta)``: translation ``(x, y)``, rotation by
     ``theta`` (not the twist: ``exp`` couples translation and rotation).
@@ -547,6 +566,7 @@ def from_xytheta(pose: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     return _checks.out(_pose(torch.cos(t), torch.sin(t), px, py), dtype)
 
 
+@_checks.float32_exact
 def to_xytheta(T: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3"]:
     """``(x, y, theta)`` of ``T``: its translation and the angle of :func:`torchlie.so2.log`.
 
@@ -564,6 +584,7 @@ def to_xytheta(T: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3"]:
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def interpolate(
     T0: Float[Tensor, "*b1 3 3"], T1: Float[Tensor, "*b2 3 3"], t: Float[Tensor, "*b3"] | float
 ) -> Float[Tensor, "*b 3 3"]:
@@ -583,6 +604,7 @@ def interpolate(
     return _checks.out(_compose(a, _ExpFn(t.unsqueeze(-1) * xi)), dtype)
 
 
+@_checks.float32_exact
 def distance(
     T1: Float[Tensor, "*b1 3 3"], T2: Float[Tensor, "*b2 3 3"]
 ) -> tuple[Float[Tensor, "*b"], Float[Tensor, "*b"]]:
@@ -600,6 +622,7 @@ def distance(
     return _checks.out(angle, dtype), _checks.out(trans, dtype)
 
 
+@_checks.float32_exact
 def rplus(T: Float[Tensor, "*b1 3 3"], xi: Float[Tensor, "*b2 3"]) -> Float[Tensor, "*b 3 3"]:
     """Right plus ``T Exp(xi)`` (batch shapes broadcast).
 
@@ -611,6 +634,7 @@ def rplus(T: Float[Tensor, "*b1 3 3"], xi: Float[Tensor, "*b2 3"]) -> Float[Tens
     return _checks.out(_compose(x, _ExpFn(v)), dtype)
 
 
+@_checks.float32_exact
 def rminus(T1: Float[Tensor, "*b1 3 3"], T0: Float[Tensor, "*b2 3 3"]) -> Float[Tensor, "*b 3"]:
     """Right minus ``Log(T0^-1 T1)``; ``rplus(T0, rminus(T1, T0)) == T1``.
 
@@ -623,6 +647,7 @@ def rminus(T1: Float[Tensor, "*b1 3 3"], T0: Float[Tensor, "*b2 3 3"]) -> Float[
     return _checks.out(_LogFn(_between(b, a)), dtype)
 
 
+@_checks.float32_exact
 def lplus(T: Float[Tensor, "*b1 3 3"], xi: Float[Tensor, "*b2 3"]) -> Float[Tensor, "*b 3 3"]:
     """Left plus ``Exp(xi) T`` (the perturbation in the world frame).
 
@@ -635,6 +660,7 @@ def lplus(T: Float[Tensor, "*b1 3 3"], xi: Float[Tensor, "*b2 3"]) -> Float[Tens
     return _checks.out(_compose(_ExpFn(v), x), dtype)
 
 
+@_checks.float32_exact
 def lminus(T1: Float[Tensor, "*b1 3 3"], T0: Float[Tensor, "*b2 3 3"]) -> Float[Tensor, "*b 3"]:
     """Left minus ``Log(T1 T0^-1)``; ``lplus(T0, lminus(T1, T0)) == T1``.
 
@@ -647,6 +673,7 @@ def lminus(T1: Float[Tensor, "*b1 3 3"], T0: Float[Tensor, "*b2 3 3"]) -> Float[
     return _checks.out(_LogFn(_compose(a, _inverse(b))), dtype)
 
 
+@_checks.float32_exact
 def between(T0: Float[Tensor, "*b1 3 3"], T1: Float[Tensor, "*b2 3 3"]) -> Float[Tensor, "*b 3 3"]:
     """Relative pose ``T0^-1 T1`` (``T1`` in the frame of ``T0``).
 
@@ -668,6 +695,7 @@ def _eye3(batch: torch.Size, like: Tensor) -> Tensor:
     return torch.eye(3, dtype=like.dtype, device=like.device).expand(*batch, 3, 3).clone()
 
 
+@_checks.float32_exact
 def jac_compose(
     T1: Float[Tensor, "*b1 3 3"], T2: Float[Tensor, "*b2 3 3"]
 ) -> tuple[Float[Tensor, "*b 3 3"], Float[Tensor, "*b 3 3"]]:
@@ -684,6 +712,7 @@ def jac_compose(
     return _checks.out(J1, dtype), _checks.out(_eye3(batch, a), dtype)
 
 
+@_checks.float32_exact
 def jac_inverse(T: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3 3"]:
     """Jacobian of ``T^-1``: ``-Ad(T)``.
 
@@ -695,6 +724,7 @@ def jac_inverse(T: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3 3"]:
     return _checks.out(-_adjoint(x), dtype)
 
 
+@_checks.float32_exact
 def jac_act(
     T: Float[Tensor, "*b1 3 3"], points: Float[Tensor, "*b2 2"]
 ) -> tuple[Float[Tensor, "*b 2 3"], Float[Tensor, "*b 2 2"]]:
@@ -713,6 +743,7 @@ def jac_act(
     return _checks.out(JT, dtype), _checks.out(R.clone(), dtype)
 
 
+@_checks.float32_exact
 def jac_rplus(
     T: Float[Tensor, "*b1 3 3"], xi: Float[Tensor, "*b2 3"]
 ) -> tuple[Float[Tensor, "*b 3 3"], Float[Tensor, "*b 3 3"]]:
@@ -728,6 +759,7 @@ def jac_rplus(
     return _checks.out(_adjoint(_ExpFn(-v)), dtype), _checks.out(_jac_left(-v), dtype)
 
 
+@_checks.float32_exact
 def jac_rminus(
     T1: Float[Tensor, "*b1 3 3"], T0: Float[Tensor, "*b2 3 3"]
 ) -> tuple[Float[Tensor, "*b 3 3"], Float[Tensor, "*b 3 3"]]:
@@ -743,6 +775,7 @@ def jac_rminus(
     return _checks.out(_jac_left_inv(-xi), dtype), _checks.out(-_jac_left_inv(xi), dtype)
 
 
+@_checks.float32_exact
 def jac_between(
     T0: Float[Tensor, "*b1 3 3"], T1: Float[Tensor, "*b2 3 3"]
 ) -> tuple[Float[Tensor, "*b 3 3"], Float[Tensor, "*b 3 3"]]:

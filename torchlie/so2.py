@@ -195,6 +195,7 @@ def _ones(batch: torch.Size, like: Tensor, value: float = 1.0) -> Tensor:
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def hat(theta: Float[Tensor, "*b 1"]) -> Float[Tensor, "*b 2 2"]:
     """``[[0, -theta], [theta, 0]]``.
 
@@ -208,6 +209,7 @@ def hat(theta: Float[Tensor, "*b 1"]) -> Float[Tensor, "*b 2 2"]:
     return _checks.out(matrix(torch.zeros_like(t), t), dtype)
 
 
+@_checks.float32_exact
 def vee(Theta: Float[Tensor, "*b 2 2"]) -> Float[Tensor, "*b 1"]:
     """Inverse of :func:`hat`, applied to the skew-symmetric part: ``(M10 - M01)/2``.
 
@@ -219,6 +221,7 @@ def vee(Theta: Float[Tensor, "*b 2 2"]) -> Float[Tensor, "*b 1"]:
     return _checks.out((0.5 * (x[..., 1, 0] - x[..., 0, 1])).unsqueeze(-1), dtype)
 
 
+@_checks.float32_exact
 def exp(theta: Float[Tensor, "*b 1"]) -> Float[Tensor, "*b 2 2"]:
     """Rotation matrix ``[[cos t, -sin t], [sin t, cos t]]`` of the angle ``theta``.
 
@@ -234,6 +237,7 @@ def exp(theta: Float[Tensor, "*b 1"]) -> Float[Tensor, "*b 2 2"]:
     return _checks.out(_ExpFn(x), dtype)
 
 
+@_checks.float32_exact
 def log(R: Float[Tensor, "*b 2 2"]) -> Float[Tensor, "*b 1"]:
     """Angle of ``R`` in ``(-pi, pi]``: ``atan2(R10 - R01, R00 + R11)``.
 
@@ -258,6 +262,7 @@ def log(R: Float[Tensor, "*b 2 2"]) -> Float[Tensor, "*b 1"]:
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def compose(R1: Float[Tensor, "*b1 2 2"], R2: Float[Tensor, "*b2 2 2"]) -> Float[Tensor, "*b 2 2"]:
     """``R1 @ R2`` (batch shapes broadcast).
 
@@ -270,6 +275,7 @@ def compose(R1: Float[Tensor, "*b1 2 2"], R2: Float[Tensor, "*b2 2 2"]) -> Float
     return _checks.out(a @ b, dtype)
 
 
+@_checks.float32_exact
 def inverse(R: Float[Tensor, "*b 2 2"]) -> Float[Tensor, "*b 2 2"]:
     """``R^T``.
 
@@ -282,6 +288,7 @@ def inverse(R: Float[Tensor, "*b 2 2"]) -> Float[Tensor, "*b 2 2"]:
     return _checks.out(x.transpose(-1, -2).clone(), dtype)
 
 
+@_checks.float32_exact
 def act(R: Float[Tensor, "*b1 2 2"], points: Float[Tensor, "*b2 2"]) -> Float[Tensor, "*b 2"]:
     """Rotate points: ``R @ p`` (batch shapes broadcast).
 
@@ -293,6 +300,7 @@ def act(R: Float[Tensor, "*b1 2 2"], points: Float[Tensor, "*b2 2"]) -> Float[Te
     return _checks.out((a @ p.unsqueeze(-1)).squeeze(-1), dtype)
 
 
+@_checks.float32_exact
 def adjoint(R: Float[Tensor, "*b 2 2"]) -> Float[Tensor, "*b 1 1"]:
     """Adjoint matrix of SO(2): ``[[1]]`` (the group is commutative).
 
@@ -304,6 +312,7 @@ def adjoint(R: Float[Tensor, "*b 2 2"]) -> Float[Tensor, "*b 1 1"]:
     return _checks.out(_ones(x.shape[:-2], x), dtype)
 
 
+@_checks.float32_exact
 def ad(theta: Float[Tensor, "*b 1"]) -> Float[Tensor, "*b 1 1"]:
     """Small adjoint of so(2): ``[[0]]`` (the Lie bracket vanishes).
 
@@ -320,6 +329,7 @@ def _jac(fn: str, theta: Tensor) -> Tensor:
     return _checks.out(_ones(x.shape[:-1], x), dtype)
 
 
+@_checks.float32_exact
 def jac_left(theta: Float[Tensor, "*b 1"]) -> Float[Tensor, "*b 1 1"]:
     """Left Jacobian ``[[1]]``: ``Exp(t + d) = Exp(d) Exp(t)``.
 
@@ -330,6 +340,7 @@ def jac_left(theta: Float[Tensor, "*b 1"]) -> Float[Tensor, "*b 1 1"]:
     return _jac("jac_left", theta)
 
 
+@_checks.float32_exact
 def jac_right(theta: Float[Tensor, "*b 1"]) -> Float[Tensor, "*b 1 1"]:
     """Right Jacobian ``[[1]]``: ``Exp(t + d) = Exp(t) Exp(d)``.
 
@@ -340,6 +351,7 @@ def jac_right(theta: Float[Tensor, "*b 1"]) -> Float[Tensor, "*b 1 1"]:
     return _jac("jac_right", theta)
 
 
+@_checks.float32_exact
 def jac_left_inv(theta: Float[Tensor, "*b 1"]) -> Float[Tensor, "*b 1 1"]:
     """Inverse left Jacobian ``[[1]]``.
 
@@ -350,6 +362,7 @@ def jac_left_inv(theta: Float[Tensor, "*b 1"]) -> Float[Tensor, "*b 1 1"]:
     return _jac("jac_left_inv", theta)
 
 
+@_checks.float32_exact
 def jac_right_inv(theta: Float[Tensor, "*b 1"]) -> Float[Tensor, "*b 1 1"]:
     """Inverse right Jacobian ``[[1]]``.
 
@@ -365,6 +378,7 @@ def jac_right_inv(theta: Float[Tensor, "*b 1"]) -> Float[Tensor, "*b 1 1"]:
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def identity(
     *batch: int, dtype: torch.dtype | None = None, device: torch.device | str | None = None
 ) -> Float[Tensor, "*batch 2 2"]:
@@ -378,6 +392,7 @@ def identity(
     return torch.eye(2, dtype=dtype, device=device).expand(*batch, 2, 2).clone()
 
 
+@_checks.float32_exact
 def random(
     *batch: int,
     generator: torch.Generator | None = None,
@@ -396,6 +411,7 @@ def random(
     return _checks.out(_exp((2.0 * u - 1.0) * math.pi), dtype)
 
 
+@_checks.float32_exact
 def is_valid(R: Float[Tensor, "*b 2 2"], atol: float | None = None) -> Bool[Tensor, "*b"]:
     """Per element: finite, ``R^T R = I`` and ``det R = 1`` within ``atol``.
 
@@ -415,6 +431,7 @@ def is_valid(R: Float[Tensor, "*b 2 2"], atol: float | None = None) -> Bool[Tens
     return orth & det & torch.isfinite(x).all(dim=-1).all(dim=-1)
 
 
+@_checks.float32_exact
 def to_complex(R: Float[Tensor, "*b 2 2"]) -> Float[Tensor, "*b 2"]:
     """Unit complex number ``(cos theta, sin theta)`` of ``R`` as a real ``(..., 2)`` tensor
     (the first column of ``R``, a copy).
@@ -427,6 +444,7 @@ def to_complex(R: Float[Tensor, "*b 2 2"]) -> Float[Tensor, "*b 2"]:
     return _checks.out(x[..., :, 0].clone(), dtype)
 
 
+@_checks.float32_exact
 def from_complex(z: Float[Tensor, "*b 2"]) -> Float[Tensor, "*b 2 2"]:
     """Rotation of the complex number ``z = (re, im)``, a real ``(..., 2)`` tensor.
 
@@ -444,6 +462,7 @@ def from_complex(z: Float[Tensor, "*b 2"]) -> Float[Tensor, "*b 2 2"]:
     return _checks.out(matrix(u[..., 0], u[..., 1]), dtype)
 
 
+@_checks.float32_exact
 def angle_to_complex(theta: Float[Tensor, "*b 1"]) -> Float[Tensor, "*b 2"]:
     """Unit complex number ``(cos theta, sin theta)`` of the angle ``theta``.
 
@@ -455,6 +474,7 @@ def angle_to_complex(theta: Float[Tensor, "*b 1"]) -> Float[Tensor, "*b 2"]:
     return _checks.out(torch.cat((torch.cos(x), torch.sin(x)), dim=-1), dtype)
 
 
+@_checks.float32_exact
 def complex_to_angle(z: Float[Tensor, "*b 2"]) -> Float[Tensor, "*b 1"]:
     """Angle ``atan2(im, re)`` of the complex number ``z = (re, im)`` in ``(-pi, pi]`` (any
     non-zero scale; the same value and gradient as :func:`log` of its rotation).
@@ -472,6 +492,7 @@ def complex_to_angle(z: Float[Tensor, "*b 2"]) -> Float[Tensor, "*b 1"]:
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def distance(R1: Float[Tensor, "*b1 2 2"], R2: Float[Tensor, "*b2 2 2"]) -> Float[Tensor, "*b"]:
     """Geodesic distance: ``|log(R1^T R2)|`` in ``[0, pi]``.
 
@@ -488,6 +509,7 @@ def distance(R1: Float[Tensor, "*b1 2 2"], R2: Float[Tensor, "*b2 2 2"]) -> Floa
     return _checks.out(_coeffs.atan2(y.abs(), x), dtype)
 
 
+@_checks.float32_exact
 def interpolate(
     R0: Float[Tensor, "*b1 2 2"], R1: Float[Tensor, "*b2 2 2"], t: Float[Tensor, "*b3"] | float
 ) -> Float[Tensor, "*b 2 2"]:
@@ -509,6 +531,7 @@ def interpolate(
     return _checks.out(a @ _ExpFn(t.unsqueeze(-1) * w), dtype)
 
 
+@_checks.float32_exact
 def rplus(R: Float[Tensor, "*b1 2 2"], tau: Float[Tensor, "*b2 1"]) -> Float[Tensor, "*b 2 2"]:
     """Right plus ``R Exp(tau)``.
 
@@ -520,6 +543,7 @@ def rplus(R: Float[Tensor, "*b1 2 2"], tau: Float[Tensor, "*b2 1"]) -> Float[Ten
     return _checks.out(x @ _ExpFn(v), dtype)
 
 
+@_checks.float32_exact
 def rminus(R1: Float[Tensor, "*b1 2 2"], R0: Float[Tensor, "*b2 2 2"]) -> Float[Tensor, "*b 1"]:
     """Right minus ``Log(R0^T R1)`` in ``(-pi, pi]``; ``rplus(R0, rminus(R1, R0)) == R1``.
 
@@ -531,6 +555,7 @@ def rminus(R1: Float[Tensor, "*b1 2 2"], R0: Float[Tensor, "*b2 2 2"]) -> Float[
     return _checks.out(_LogFn(b.transpose(-1, -2) @ a), dtype)
 
 
+@_checks.float32_exact
 def lplus(R: Float[Tensor, "*b1 2 2"], tau: Float[Tensor, "*b2 1"]) -> Float[Tensor, "*b 2 2"]:
     """Left plus ``Exp(tau) R`` (equal to :func:`rplus`: the group is commutative).
 
@@ -542,6 +567,7 @@ def lplus(R: Float[Tensor, "*b1 2 2"], tau: Float[Tensor, "*b2 1"]) -> Float[Ten
     return _checks.out(_ExpFn(v) @ x, dtype)
 
 
+@_checks.float32_exact
 def lminus(R1: Float[Tensor, "*b1 2 2"], R0: Float[Tensor, "*b2 2 2"]) -> Float[Tensor, "*b 1"]:
     """Left minus ``Log(R1 R0^T)``; ``lplus(R0, lminus(R1, R0)) == R1``.
 
@@ -553,6 +579,7 @@ def lminus(R1: Float[Tensor, "*b1 2 2"], R0: Float[Tensor, "*b2 2 2"]) -> Float[
     return _checks.out(_LogFn(a @ b.transpose(-1, -2)), dtype)
 
 
+@_checks.float32_exact
 def between(R0: Float[Tensor, "*b1 2 2"], R1: Float[Tensor, "*b2 2 2"]) -> Float[Tensor, "*b 2 2"]:
     """Relative rotation ``R0^T R1``.
 
@@ -569,6 +596,7 @@ def between(R0: Float[Tensor, "*b1 2 2"], R1: Float[Tensor, "*b2 2 2"]) -> Float
 # ----------------------------------------------------------------------------------------------
 
 
+@_checks.float32_exact
 def jac_compose(
     R1: Float[Tensor, "*b1 2 2"], R2: Float[Tensor, "*b2 2 2"]
 ) -> tuple[Float[Tensor, "*b 1 1"], Float[Tensor, "*b 1 1"]]:
@@ -582,6 +610,7 @@ def jac_compose(
     return _checks.out(_ones(batch, a), dtype), _checks.out(_ones(batch, a), dtype)
 
 
+@_checks.float32_exact
 def jac_inverse(R: Float[Tensor, "*b 2 2"]) -> Float[Tensor, "*b 1 1"]:
     """Jacobian of ``R^T``: ``[[-1]]``.
 
@@ -593,6 +622,7 @@ def jac_inverse(R: Float[Tensor, "*b 2 2"]) -> Float[Tensor, "*b 1 1"]:
     return _checks.out(_ones(x.shape[:-2], x, -1.0), dtype)
 
 
+@_checks.float32_exact
 def jac_act(
     R: Float[Tensor, "*b1 2 2"], points: Float[Tensor, "*b2 2"]
 ) -> tuple[Float[Tensor, "*b 2 1"], Float[Tensor, "*b 2 2"]]:
@@ -610,6 +640,7 @@ def jac_act(
     return _checks.out(x @ q.unsqueeze(-1), dtype), _checks.out(x.clone(), dtype)
 
 
+@_checks.float32_exact
 def jac_rplus(
     R: Float[Tensor, "*b1 2 2"], tau: Float[Tensor, "*b2 1"]
 ) -> tuple[Float[Tensor, "*b 1 1"], Float[Tensor, "*b 1 1"]]:
@@ -623,6 +654,7 @@ def jac_rplus(
     return _checks.out(_ones(batch, x), dtype), _checks.out(_ones(batch, x), dtype)
 
 
+@_checks.float32_exact
 def jac_rminus(
     R1: Float[Tensor, "*b1 2 2"], R0: Float[Tensor, "*b2 2 2"]
 ) -> tuple[Float[Tensor, "*b 1 1"], Float[Tensor, "*b 1 1"]]:
@@ -636,6 +668,7 @@ def jac_rminus(
     return _checks.out(_ones(batch, a), dtype), _checks.out(_ones(batch, a, -1.0), dtype)
 
 
+@_checks.float32_exact
 def jac_between(
     R0: Float[Tensor, "*b1 2 2"], R1: Float[Tensor, "*b2 2 2"]
 ) -> tuple[Float[Tensor, "*b 1 1"], Float[Tensor, "*b 1 1"]]:

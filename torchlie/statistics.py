@@ -1,4 +1,4 @@
-"""Statistics, interpolation, alignment and kinematics on SO(3) and SE(3).
+"""Statistics, interpolation, alignment and kinematics on SO(3), SE(3) and Sim(3).
 
 Functions are named ``so3_*`` / ``se3_*`` by group and take plain tensors in the conventions of
 :mod:`torchlie`: rotations ``(..., 3, 3)``, poses ``(..., 4, 4)``, rotation vectors ``(..., 3)``,
@@ -6,9 +6,10 @@ twists ``(rho, phi)`` ``(..., 6)``, right perturbations ``X Exp(eps)``.
 
 * :func:`so3_randn`, :func:`se3_randn`: Gaussian noise in the tangent space about a mean,
   ``X = M Exp(eps)``, ``eps ~ N(0, Sigma)``.
-* :func:`so3_mean`, :func:`se3_mean`: weighted means of a set ``(..., N, n, n)`` (the last batch
-  dimension is the set), ``"chordal"`` (closed form) or ``"geodesic"`` (Karcher iteration with a
-  fixed iteration count, so nothing synchronises a device and the result is differentiable).
+* :func:`so3_mean`, :func:`se3_mean`, :func:`sim3_mean`: weighted means of a set
+  ``(..., N, n, n)`` (the last batch dimension is the set), ``"chordal"`` (closed form) or
+  ``"geodesic"`` (Karcher iteration with a fixed iteration count, so nothing synchronises a
+  device and the result is differentiable).
 * :func:`so3_interpolate_keyframes`, :func:`se3_interpolate_keyframes`: piecewise-geodesic
   trajectories through timed keyframes, evaluated at any query times.
 * :func:`align`: weighted Kabsch / Umeyama alignment of point sets (rotation, translation and
@@ -32,7 +33,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from . import _checks, se3, so3
+from . import _checks, se3, sim3, so3
 from ._typing import Float
 
 __all__ = [
@@ -40,6 +41,7 @@ __all__ = [
     "se3_randn",
     "so3_mean",
     "se3_mean",
+    "sim3_mean",
     "so3_interpolate_keyframes",
     "se3_interpolate_keyframes",
     "Alignment",
@@ -67,6 +69,7 @@ class _Group(NamedTuple):
 
 _SO3 = _Group("so3", so3, 3, 3)
 _SE3 = _Group("se3", se3, 4, 6)
+_SIM3 = _Group("sim3", sim3, 4, 7)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -324,6 +327,37 @@ def se3_mean(
     return _checks.out(M, dtype)
 
 
+@_checks.float32_exact
+def sim3_mean(
+    T: Float[Tensor, "*b1 N 4 4"],
+    weights: Float[Tensor, "*b2 N"] | None = None,
+    *,
+    method: str = "geodesic",
+    iterations: int = 10,
+) -> Float[Tensor, "*b 4 4"]:
+    """Weighted mean of a set of similarities (the set is the last batch dimension).
+
+    ``method="chordal"``: rotation as :func:`so3_mean`'s chordal mean, scale the weighted
+    geometric mean of the scales, translation the weighted mean of the translations.
+    ``method="geodesic"`` (default): the exponential barycenter, ``sum_i w_i Log(M^-1 T_i) = 0``
+    in Sim(3)'s exponential coordinates, by ``iterations`` fixed steps from the chordal mean
+    (as :func:`se3_mean`); equivariant under left and right multiplication.
+
+    Example:
+        >>> T = sim3.from_srt(torch.tensor([1.0, 4.0]), torch.eye(3), torch.zeros(2, 3))
+        >>> sim3.scale(sim3_mean(T))
+        tensor(2.)
+    """
+    fn = _NAME + "sim3_mean"
+    _check_method(fn, method, iterations)
+    x, w, dtype = _set(fn, _SIM3, T, weights, "T")
+    s, R, t = sim3.to_srt(x)
+    M = sim3.from_srt(torch.exp(_wsum(w, torch.log(s), 0)), _chordal_so3(R, w), _wsum(w, t, 1))
+    if method == "geodesic":
+        M = _karcher(_SIM3, M, x, w, iterations)
+    return _checks.out(M, dtype)
+
+
 # ----------------------------------------------------------------------------------------------
 # Keyframe interpolation
 # ----------------------------------------------------------------------------------------------
@@ -422,11 +456,38 @@ def se3_interpolate_keyframes(
 
 
 class Alignment(NamedTuple):
-    """Result of :func:`align`: ``q ~= scale * rotation @ p + translation``."""
+    """Result of :func:`align`: ``q ~= scale * rotation @ p + translation``.
+
+    The fields are as they always were; :meth:`matrix` and :meth:`sim3` give the same
+    transform as one Sim(3) element (a rigid one, scale 1, without ``scale=True``).
+    """
 
     rotation: Float[Tensor, "*b 3 3"]
     translation: Float[Tensor, "*b 3"]
     scale: Float[Tensor, "*b"]
+
+    def matrix(self) -> Float[Tensor, "*b 4 4"]:
+        """``[[scale rotation, translation], [0, 1]]`` (:func:`torchlie.sim3.from_srt`).
+
+        Example:
+            >>> P = torch.eye(3)
+            >>> align(P, 2.0 * P, scale=True, translation=False).matrix().diagonal()
+            tensor([2., 2., 2., 1.])
+        """
+        return sim3.from_srt(self.scale, self.rotation, self.translation)
+
+    def sim3(self):
+        """The transform as a :class:`torchlie.Sim3` (apply it with ``@``).
+
+        Example:
+            >>> P = torch.eye(3)
+            >>> fit = align(P, 2.0 * P + 1.0, scale=True)
+            >>> torch.allclose(fit.sim3() @ P, 2.0 * P + 1.0, atol=1e-6)
+            True
+        """
+        from .groups import Sim3
+
+        return Sim3._wrap(self.matrix())
 
 
 @_checks.float32_exact
@@ -461,7 +522,9 @@ def align(
     to it.
 
     Returns:
-        :class:`Alignment` ``(rotation (..., 3, 3), translation (..., 3), scale (...))``.
+        :class:`Alignment` ``(rotation (..., 3, 3), translation (..., 3), scale (...))``; its
+        ``.sim3()`` is the same transform as a :class:`torchlie.Sim3` and ``.matrix()`` its
+        ``(..., 4, 4)`` matrix ``[[s R, t], [0, 1]]``.
 
     Example:
         >>> P = torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])

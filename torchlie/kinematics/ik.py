@@ -93,7 +93,7 @@ from __future__ import annotations
 import math
 import reprlib
 from collections.abc import Mapping, Sequence
-from typing import NamedTuple, Protocol
+from typing import NamedTuple, Protocol, runtime_checkable
 
 import torch
 from torch import Tensor
@@ -146,6 +146,7 @@ class IKResult(NamedTuple):
     iterations: Tensor
 
 
+@runtime_checkable
 class SolverChain(Protocol):
     """What the solver uses of a robot: :class:`~torchlie.kinematics.Chain` provides it, and
     the solver touches nothing else of it.

@@ -1,0 +1,781 @@
+"""torchlie.sim3: values and gradients against 60-digit references from the matrix exponential
+of ``hat(xi)``, Jacobians against high-precision finite differences of their definitions,
+group axioms, gradcheck, bad input, vmap, compile and PyPose's ``Sim3``.
+
+Errors are norm-wise relative per element, ``|out - ref| / |ref|``, as in ``test_precision``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import mpmath as mp
+import numpy as np
+import pytest
+import scipy.linalg
+import torch
+from torch.autograd import gradcheck, gradgradcheck
+
+from torchlie import _coeffs, se3, sim3, so3
+
+F64 = torch.float64
+PI = math.pi
+ANGLES = [0.0, 1e-12, 1e-8, 1e-4, 1.0, 3.0, PI - 1e-8, PI]
+SIGMAS = [0.0, 1e-12, 1e-6, 0.5, -3.0, 20.0]
+VALUE_ULP, GRAD_ULP = 4.0, 8.0
+DPS = 60  # digits of the references
+
+# ----------------------------------------------------------------------------------------------
+# High-precision references: mp.expm of hat(xi) (not the closed forms under test)
+# ----------------------------------------------------------------------------------------------
+
+
+def grid(dtype: torch.dtype) -> torch.Tensor:
+    """Every angle with every sigma (a random axis and a random rho each), rounded to dtype."""
+    g = torch.Generator().manual_seed(7)
+    n = len(ANGLES) * len(SIGMAS)
+    ax = torch.nn.functional.normalize(torch.randn(n, 3, generator=g, dtype=F64), dim=-1)
+    rho = torch.randn(n, 3, generator=g, dtype=F64)
+    th = torch.tensor([a for a in ANGLES for _ in SIGMAS], dtype=F64)
+    sg = torch.tensor([s for _ in ANGLES for s in SIGMAS], dtype=F64)
+    return torch.cat((rho, th[:, None] * ax, sg[:, None]), -1).to(dtype)
+
+
+def _mhat(x) -> mp.matrix:
+    r = [v if isinstance(v, mp.mpf) else mp.mpf(float(v)) for v in x]
+    H = mp.zeros(4, 4)
+    H[0, 1], H[0, 2], H[1, 2] = -r[5], r[4], -r[3]
+    H[1, 0], H[2, 0], H[2, 1] = r[5], -r[4], r[3]
+    for i in range(3):
+        H[i, i] = r[6]
+        H[i, 3] = r[i]
+    return H
+
+
+def _mvee(X) -> list:
+    return [X[0, 3], X[1, 3], X[2, 3], (X[2, 1] - X[1, 2]) / 2, (X[0, 2] - X[2, 0]) / 2] + [
+        (X[1, 0] - X[0, 1]) / 2,
+        (X[0, 0] + X[1, 1] + X[2, 2]) / 3,
+    ]
+
+
+def _ad_np(x) -> np.ndarray:
+    """ad(x) written out (float64)."""
+    r, p, s = np.asarray(x[:3], float), np.asarray(x[3:6], float), float(x[6])
+
+    def hat(v):
+        return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+
+    A = np.zeros((7, 7))
+    A[:3, :3] = hat(p) + s * np.eye(3)
+    A[:3, 3:6] = hat(r)
+    A[:3, 6] = -r
+    A[3:6, 3:6] = hat(p)
+    return A
+
+
+def _mp_jr(x) -> mp.matrix:
+    """Jr(x) = int_0^1 expm(-s ad(x)) ds, the top-right block of expm([[-ad, I], [0, 0]])."""
+    A = _ad_np([-float(v) for v in x])
+    B = mp.zeros(14, 14)
+    for i in range(7):
+        for j in range(7):
+            B[i, j] = mp.mpf(A[i, j])
+        B[i, 7 + i] = 1
+    E = mp.expm(B)
+    return mp.matrix([[E[i, 7 + j] for j in range(7)] for i in range(7)])
+
+
+def _projected(T: np.ndarray) -> mp.matrix:
+    """``T`` with its linear block projected as log reads it: ``s = |M| / sqrt(3)``, the
+    rotation ``polar(M / s)`` (Newton-Schulz)."""
+    M = mp.matrix([[mp.mpf(float(T[i, j])) for j in range(3)] for i in range(3)])
+    s = mp.sqrt(sum(M[i, j] ** 2 for i in range(3) for j in range(3)) / 3)
+    R = M / s
+    for _ in range(3):
+        R = R * (3 * mp.eye(3) - R.T * R) / 2
+    P = mp.eye(4)
+    for i in range(3):
+        for j in range(3):
+            P[i, j] = s * R[i, j]
+        P[i, 3] = mp.mpf(float(T[i, 3]))
+    return P
+
+
+def _mp_log(T: np.ndarray, start) -> list:
+    """The exact log of the projected ``T`` nearest ``start``: two Newton steps
+    ``x += Jr(x)^-1 vee(logm(expm(hat x)^-1 P))`` (the correction is of the order of rounding,
+    so ``Jr^-1`` in float64 suffices)."""
+    P = _projected(T)
+    x = [mp.mpf(float(v)) for v in start]
+    for _ in range(2):
+        d = mp.matrix(_mvee(mp.logm(mp.inverse(mp.expm(_mhat(x))) * P)))
+        A = _ad_np([-float(v) for v in x])
+        Jr = scipy.linalg.expm(np.block([[A, np.eye(7)], [np.zeros((7, 14))]]))[:7, 7:]
+        step = mp.matrix(np.linalg.inv(Jr).tolist()) * d
+        x = [x[i] + step[i] for i in range(7)]
+    return x
+
+
+def _f64(rows) -> torch.Tensor:
+    return torch.tensor(np.array(rows, dtype=object).astype(np.float64), dtype=F64)
+
+
+_CACHE: dict[torch.dtype, dict[str, torch.Tensor]] = {}
+
+
+def references(dtype: torch.dtype) -> dict[str, torch.Tensor]:
+    """Inputs (rounded to ``dtype``) and references, computed once per session."""
+    if dtype in _CACHE:
+        return _CACHE[dtype]
+    with mp.workdps(DPS):
+        xi = grid(dtype)
+        T_ref, G_ref, T_in, log_ref, J_ref = [], [], [], [], []
+        for x in xi.double().numpy():
+            E = mp.expm(_mhat(x))
+            Jr = _mp_jr(x)
+            T_ref.append(E.tolist())
+            # d Exp(x) / d x_k = Exp(x) hat(Jr(x) e_k)
+            cols = [E * _mhat([Jr[i, k] for i in range(7)]) for k in range(7)]
+            G_ref.append([[[cols[k][i, j] for k in range(7)] for j in range(4)] for i in range(4)])
+        out = {"xi": xi, "T_ref": _f64(T_ref), "exp_grad_ref": _f64(G_ref)}
+        T_in = out["T_ref"].to(dtype)
+        start = sim3.log(T_in.double())
+        for T, s in zip(T_in.double().numpy(), start.numpy(), strict=True):
+            x = _mp_log(T, s)
+            log_ref.append(x)
+            J_ref.append((_mp_jr(x) ** -1).tolist())
+        out.update(T_in=T_in, log_ref=_f64(log_ref), log_grad_ref=_f64(J_ref))
+    _CACHE[dtype] = out
+    return out
+
+
+def _ulp(out: torch.Tensor, ref: torch.Tensor, nd: int, dtype: torch.dtype) -> torch.Tensor:
+    dims = tuple(range(-nd, 0))
+    diff = (out.double() - ref).square().sum(dims).sqrt()
+    scale = ref.square().sum(dims).sqrt()
+    return torch.where(scale > 0, diff / torch.where(scale > 0, scale, 1.0), diff) / (
+        torch.finfo(dtype).eps
+    )
+
+
+def _where(err: torch.Tensor, xi: torch.Tensor) -> str:
+    i = int(err.argmax())
+    x = xi[i].double()
+    return f"{float(err[i]):.3g} ulp at theta={float(x[3:6].norm()):.17g}, sigma={float(x[6])}"
+
+
+@pytest.mark.slow
+def test_exp_values_and_gradients(dtype):
+    r = references(dtype)
+    err = _ulp(sim3.exp(r["xi"]), r["T_ref"], 2, dtype)
+    assert float(err.max()) <= VALUE_ULP, _where(err, r["xi"])
+    J = torch.func.vmap(torch.func.jacrev(sim3.exp))(r["xi"])
+    assert bool(torch.isfinite(J).all())
+    err = _ulp(J, r["exp_grad_ref"], 3, dtype)
+    assert float(err.max()) <= GRAD_ULP, _where(err, r["xi"])
+    # plain backward (no transform) agrees with the same reference
+    x = r["xi"].clone().requires_grad_(True)
+    G = torch.randn(x.shape[0], 4, 4, generator=torch.Generator().manual_seed(0), dtype=F64)
+    (g,) = torch.autograd.grad(sim3.exp(x), x, G.to(dtype))
+    err = _ulp(g, torch.einsum("nij,nijk->nk", G, r["exp_grad_ref"]), 1, dtype)
+    assert float(err.max()) <= GRAD_ULP * 4, _where(err, r["xi"])  # a sum of 16 products
+
+
+@pytest.mark.slow
+def test_log_values_and_gradients(dtype):
+    r = references(dtype)
+    out = sim3.log(r["T_in"])
+    assert bool((out[:, 3:6].norm(dim=-1) <= PI * (1 + 4 * torch.finfo(dtype).eps)).all())
+    err = _ulp(out, r["log_ref"], 1, dtype)
+    assert float(err.max()) <= VALUE_ULP, _where(err, r["xi"])
+    # d/dd log(T Exp(d)) at d = 0 is Jr(log T)^-1 (finite at pi)
+    d0 = torch.zeros(r["xi"].shape[0], 7, dtype=dtype)
+    J = torch.func.vmap(torch.func.jacrev(lambda d, T: sim3.log(sim3.compose(T, sim3.exp(d)))))(
+        d0, r["T_in"]
+    )
+    assert bool(torch.isfinite(J).all())
+    err = _ulp(J, r["log_grad_ref"], 2, dtype)
+    assert float(err.max()) <= GRAD_ULP, _where(err, r["xi"])
+
+
+@pytest.mark.slow
+def test_log_of_exp_over_the_grid(dtype):
+    xi = grid(dtype)
+    back = sim3.log(sim3.exp(xi))
+    T1, T2 = sim3.exp(back.double()), sim3.exp(xi.double())
+    err = _ulp(T1, T2, 2, dtype)  # at pi the axis may flip: compare the elements
+    assert float(err.max()) <= 16, _where(err, xi)
+
+
+def test_coefficients_at_their_limits():
+    """V's coefficients at sigma = theta = 0 and at sigma = 0 (so3's Jl), both branches."""
+    z = torch.zeros(3, dtype=F64)
+    A, B, C = _coeffs.sim3_v(z, z)
+    assert torch.equal(A, torch.ones(3, dtype=F64))
+    assert torch.allclose(B, torch.full((3,), 0.5, dtype=F64), rtol=0, atol=1e-16)
+    assert torch.allclose(C, torch.full((3,), 1 / 6, dtype=F64), rtol=0, atol=1e-16)
+    ts = [0.3, 1.0, 3.0]
+    t = torch.tensor(ts, dtype=F64)
+    with mp.workdps(DPS):
+        B_ref = [2 * mp.sin(mp.mpf(v) / 2) ** 2 / mp.mpf(v) ** 2 for v in ts]
+        C_ref = [(mp.mpf(v) - mp.sin(mp.mpf(v))) / mp.mpf(v) ** 3 for v in ts]
+        c_ref = [(1 - mp.mpf(v) / 2 / mp.tan(mp.mpf(v) / 2)) / mp.mpf(v) ** 2 for v in ts]
+    A, B, C = _coeffs.sim3_v(torch.zeros(3, dtype=F64), t * t)
+    assert torch.equal(A, torch.ones(3, dtype=F64))
+    torch.testing.assert_close(B, _f64(B_ref), rtol=4e-16, atol=0)
+    torch.testing.assert_close(C, _f64(C_ref), rtol=1.2e-15, atol=0)
+    # a, b, c of V^-1 at sigma = 0 are so3's Jl^-1 coefficients
+    a, b, c = _coeffs.sim3_v_inv(torch.zeros(3, dtype=F64), t * t)
+    torch.testing.assert_close(b, torch.full((3,), -0.5, dtype=F64), rtol=4e-16, atol=0)
+    torch.testing.assert_close(c, _f64(c_ref), rtol=2e-15, atol=0)
+
+
+def test_sigma_zero_is_se3(dtype):
+    xi = grid(dtype)[::7]
+    T = sim3.exp(torch.cat((xi[:, :6], torch.zeros_like(xi[:, 6:])), -1))
+    torch.testing.assert_close(T, se3.exp(xi[:, :6]), rtol=0, atol=8 * torch.finfo(dtype).eps)
+
+
+# ----------------------------------------------------------------------------------------------
+# Jacobians against high-precision finite differences of their definitions
+# ----------------------------------------------------------------------------------------------
+
+JAC_POINTS = [
+    [0.3, -1.0, 2.0, 0.1, 0.2, -0.3, 0.5],
+    [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+    [0.5, 0.5, -1.0, 0.0, PI - 1e-3, 0.0, -3.0],
+    [-1.0, 2.0, 0.5, 1.0, 1.0, 1.0, 0.0],
+    [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+]
+
+
+def _fd_jacobian(f, x) -> list:
+    """Central differences at 60 digits (step 1e-18: truncation O(h^2) below 1e-30)."""
+    h = mp.mpf("1e-18")
+    cols = []
+    for k in range(7):
+        e = [mp.mpf(0)] * 7
+        e[k] = h
+        a = f([x[i] + e[i] for i in range(7)])
+        b = f([x[i] - e[i] for i in range(7)])
+        cols.append([(a[i] - b[i]) / (2 * h) for i in range(7)])
+    return [[cols[k][i] for k in range(7)] for i in range(7)]
+
+
+@pytest.mark.parametrize("x", JAC_POINTS)
+def test_jac_left_and_right_against_finite_differences(x):
+    with mp.workdps(DPS):
+        xm = [mp.mpf(v) for v in x]
+        E = mp.expm(_mhat(xm))
+        Ei = mp.inverse(E)
+        # Exp(x + d) = Exp(Jl d) Exp(x) = Exp(x) Exp(Jr d)
+        Jl = _fd_jacobian(lambda y: _mvee(mp.logm(mp.expm(_mhat(y)) * Ei)), xm)
+        Jr = _fd_jacobian(lambda y: _mvee(mp.logm(Ei * mp.expm(_mhat(y)))), xm)
+    xi = torch.tensor(x, dtype=F64)
+    for out, ref in ((sim3.jac_left(xi), Jl), (sim3.jac_right(xi), Jr)):
+        torch.testing.assert_close(
+            out, _f64(ref), rtol=0, atol=1e-13 * (1 + float(_f64(ref).abs().max()))
+        )
+    eye = torch.eye(7, dtype=F64)
+    torch.testing.assert_close(sim3.jac_left_inv(xi) @ sim3.jac_left(xi), eye, rtol=0, atol=1e-13)
+    torch.testing.assert_close(sim3.jac_right_inv(xi) @ sim3.jac_right(xi), eye, rtol=0, atol=1e-13)
+    torch.testing.assert_close(
+        sim3.jac_left(xi), sim3.adjoint(sim3.exp(xi)) @ sim3.jac_right(xi), rtol=0, atol=1e-13
+    )
+
+
+def test_jac_left_blocks():
+    """The rho block is V of exp, the phi block so3's Jl, sigma's column has 1 at the bottom."""
+    xi = torch.tensor(JAC_POINTS[0], dtype=F64)
+    J = sim3.jac_left(xi)
+    rho_unit = torch.eye(3, dtype=F64)
+    V = torch.stack([sim3.exp(torch.cat((e, xi[3:]))).mT[3, :3] for e in rho_unit], -1)
+    torch.testing.assert_close(J[:3, :3], V, rtol=0, atol=1e-14)
+    torch.testing.assert_close(J[3:6, 3:6], so3.jac_left(xi[3:6]), rtol=0, atol=1e-14)
+    assert float(J[6, 6]) == pytest.approx(1.0, abs=1e-15)
+    assert float(J[6, :6].abs().max()) < 1e-15 and float(J[3:6, 6].abs().max()) < 1e-15
+
+
+def test_adjoint_and_ad(dtype):
+    g = torch.Generator().manual_seed(3)
+    T = sim3.random(5, generator=g, dtype=F64)
+    x = torch.randn(5, 7, generator=g, dtype=F64)
+    y = torch.randn(5, 7, generator=g, dtype=F64)
+    # T hat(x) T^-1 = hat(Ad_T x), exactly (a linear identity)
+    lhs = T @ sim3.hat(x) @ torch.linalg.inv(T)
+    torch.testing.assert_close(lhs, sim3.hat((sim3.adjoint(T) @ x[..., None])[..., 0]))
+    # ad(x) y is the bracket; adjoint(exp(x)) = matrix_exp(ad(x))
+    X, Y = sim3.hat(x), sim3.hat(y)
+    br = sim3.vee(X @ Y - Y @ X)
+    torch.testing.assert_close((sim3.ad(x) @ y[..., None])[..., 0], br)
+    torch.testing.assert_close(sim3.adjoint(sim3.exp(x)), torch.linalg.matrix_exp(sim3.ad(x)))
+    Td = T.to(dtype)
+    assert sim3.adjoint(Td).dtype == dtype
+
+
+def _tangent_fd(f, X, h=1e-6):
+    """d/dd Log(f(X)^-1 f(X Exp(d))) at 0, central differences in float64 (``X`` a tuple of
+    arguments, the first perturbed on the right if it is an element, additively if a vector)."""
+    Y = f(*X)
+    cols = []
+    for k in range(7 if X[0].shape[-1] == 4 else X[0].shape[-1]):
+        outs = []
+        for s in (h, -h):
+            if X[0].shape[-1] == 4:
+                d = torch.zeros(7, dtype=F64)
+                d[k] = s
+                a = sim3.compose(X[0], sim3.exp(d))
+            else:
+                a = X[0].clone()
+                a[k] += s
+            Z = f(a, *X[1:])
+            outs.append(sim3.log(sim3.between(Y, Z)) if Z.shape[-1] == 4 else Z)
+        cols.append((outs[0] - outs[1]) / (2 * h))
+    return torch.stack(cols, -1)
+
+
+def test_operation_jacobians_against_finite_differences():
+    g = torch.Generator().manual_seed(5)
+    A, B = sim3.random(2, generator=g, dtype=F64)
+    xi = torch.tensor(JAC_POINTS[0], dtype=F64)
+    p = torch.tensor([0.3, -0.7, 1.1], dtype=F64)
+    tol = {"rtol": 0, "atol": 1e-7}
+    J1, J2 = sim3.jac_compose(A, B)
+    torch.testing.assert_close(J1, _tangent_fd(sim3.compose, (A, B)), **tol)
+    torch.testing.assert_close(J2, _tangent_fd(lambda b, a: sim3.compose(a, b), (B, A)), **tol)
+    torch.testing.assert_close(sim3.jac_inverse(A), _tangent_fd(sim3.inverse, (A,)), **tol)
+    JT, Jp = sim3.jac_act(A, p)
+    torch.testing.assert_close(JT, _tangent_fd(sim3.act, (A, p)), **tol)
+    torch.testing.assert_close(Jp, _tangent_fd(lambda q, a: sim3.act(a, q), (p, A)), **tol)
+    JT, Jx = sim3.jac_rplus(A, xi)
+    torch.testing.assert_close(JT, _tangent_fd(sim3.rplus, (A, xi)), **tol)
+    torch.testing.assert_close(Jx, _tangent_fd(lambda x, a: sim3.rplus(a, x), (xi, A)), **tol)
+    J1, J0 = sim3.jac_rminus(A, B)
+    torch.testing.assert_close(J1, _tangent_fd(sim3.rminus, (A, B)), **tol)
+    torch.testing.assert_close(J0, _tangent_fd(lambda b, a: sim3.rminus(a, b), (B, A)), **tol)
+    J0, J1 = sim3.jac_between(A, B)
+    torch.testing.assert_close(J0, _tangent_fd(sim3.between, (A, B)), **tol)
+    torch.testing.assert_close(J1, _tangent_fd(lambda b, a: sim3.between(a, b), (B, A)), **tol)
+
+
+# ----------------------------------------------------------------------------------------------
+# Group axioms, conversions, metrics
+# ----------------------------------------------------------------------------------------------
+
+
+def test_group_axioms_on_batches(dtype):
+    g = torch.Generator().manual_seed(11)
+    A, B, C = (sim3.random(4, 3, generator=g, dtype=dtype) for _ in range(3))
+    tol = {
+        "rtol": 64 * torch.finfo(dtype).eps,
+        "atol": 64 * torch.finfo(dtype).eps,
+    }  # chains of ops
+    close = lambda x, y: torch.testing.assert_close(x, y, **tol)  # noqa: E731
+    close(sim3.compose(sim3.compose(A, B), C), sim3.compose(A, sim3.compose(B, C)))
+    I = sim3.identity(4, 3, dtype=dtype)
+    close(sim3.compose(A, I), A)
+    close(sim3.compose(I, A), A)
+    close(sim3.compose(A, sim3.inverse(A)), I)
+    close(sim3.compose(sim3.inverse(A), A), I)
+    close(sim3.compose(A, B), A @ B)
+    p = torch.randn(4, 3, 3, generator=g, dtype=dtype)
+    close(sim3.act(sim3.compose(A, B), p), sim3.act(A, sim3.act(B, p)))
+    close(
+        sim3.act(A, p), (A @ torch.nn.functional.pad(p, (0, 1), value=1.0)[..., None])[..., :3, 0]
+    )
+    close(sim3.between(A, B), sim3.compose(sim3.inverse(A), B))
+    x = sim3.log(sim3.between(A, B))
+    close(sim3.rplus(A, x), B)
+    close(sim3.rminus(B, A), x)
+    close(sim3.lplus(A, sim3.lminus(B, A)), B)
+    close(sim3.interpolate(A, B, 0.0), A)
+    close(sim3.interpolate(A, B, 1.0), B)
+    assert bool(
+        sim3.is_valid(sim3.compose(A, B), atol=1e-4 if dtype == torch.float32 else None).all()
+    )
+
+
+def test_exp_is_matrix_exp_and_log_inverts(dtype):
+    g = torch.Generator().manual_seed(2)
+    xi = torch.randn(50, 7, generator=g, dtype=F64)
+    xi[:, 3:6] = (
+        torch.nn.functional.normalize(xi[:, 3:6], dim=-1)
+        * torch.rand(50, 1, generator=g, dtype=F64)
+        * 3
+    )
+    tol = 16 * torch.finfo(dtype).eps
+    T = sim3.exp(xi.to(dtype))
+    torch.testing.assert_close(
+        T.double(), torch.linalg.matrix_exp(sim3.hat(xi)), rtol=tol, atol=tol
+    )
+    torch.testing.assert_close(sim3.log(T).double(), xi, rtol=100 * tol, atol=100 * tol)
+
+
+def test_converters(dtype):
+    g = torch.Generator().manual_seed(4)
+    s = torch.rand(6, generator=g, dtype=dtype) + 0.5
+    R = so3.random(6, generator=g, dtype=dtype)
+    t = torch.randn(6, 3, generator=g, dtype=dtype)
+    T = sim3.from_srt(s, R, t)
+    s2, R2, t2 = sim3.to_srt(T)
+    tol = {"rtol": 8 * torch.finfo(dtype).eps, "atol": 8 * torch.finfo(dtype).eps}
+    torch.testing.assert_close(s2, s, **tol)
+    torch.testing.assert_close(R2, R, **tol)
+    assert torch.equal(t2, t)
+    torch.testing.assert_close(sim3.scale(T), s, **tol)
+    torch.testing.assert_close(sim3.from_se3(se3.from_rt(R, t), s), T, **tol)
+    xi = sim3.log(T)
+    torch.testing.assert_close(torch.exp(xi[:, 6]), s, **tol)
+    assert bool(sim3.is_valid(T, atol=1e-4).all())
+    # broadcasting: one scale for a batch
+    assert sim3.from_srt(s[0], R, t).shape == (6, 4, 4)
+
+
+def test_is_valid_per_element():
+    T = sim3.identity(5, dtype=F64)
+    T[1, 3, 0] = 1.0  # bottom row
+    T[2, :3, :3] = torch.diag(torch.tensor([1.0, 2.0, 1.0], dtype=F64))  # not a scaled rotation
+    T[3, :3, :3] = -torch.eye(3, dtype=F64)  # a reflection
+    T[4, 0, 3] = float("nan")
+    assert sim3.is_valid(T).tolist() == [True, False, False, False, False]
+
+
+def test_distance():
+    R = so3.exp(torch.tensor([0.0, 0.0, 2.0], dtype=F64))
+    T1 = sim3.from_srt(
+        torch.tensor(3.0, dtype=F64), torch.eye(3, dtype=F64), torch.zeros(3, dtype=F64)
+    )
+    T2 = sim3.from_srt(torch.tensor(0.5, dtype=F64), R, torch.tensor([3.0, 4.0, 0.0], dtype=F64))
+    a, t, s = sim3.distance(T1, T2)
+    assert float(a) == pytest.approx(2.0, abs=1e-15)
+    assert float(t) == pytest.approx(5.0, abs=1e-15)
+    assert float(s) == pytest.approx(math.log(6.0), abs=1e-15)
+    T = T1.clone().requires_grad_(True)
+    sum(sim3.distance(T, T1)).backward()
+    assert bool(torch.isfinite(T.grad).all())
+
+
+def test_literal_values():
+    """A pure scaling, a pure translation, and the translation of a rotation with scale."""
+    T = sim3.exp(torch.tensor([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, math.log(2.0)], dtype=F64))
+    torch.testing.assert_close(T, torch.diag(torch.tensor([2.0, 2.0, 2.0, 1.0], dtype=F64)))
+    T = sim3.exp(torch.tensor([1.0, 2.0, 3.0, 0.0, 0.0, 0.0, 0.0], dtype=F64))
+    assert T[:3, 3].tolist() == [1.0, 2.0, 3.0]
+    # rho along the axis: V rho = A rho = (e^sigma - 1)/sigma rho
+    T = sim3.exp(torch.tensor([0.0, 0.0, 1.0, 0.0, 0.0, 0.7, 0.5], dtype=F64))
+    assert float(T[2, 3]) == pytest.approx(math.expm1(0.5) / 0.5, rel=1e-15)
+
+
+# ----------------------------------------------------------------------------------------------
+# Gradients: gradcheck, finiteness, the projected gradient of log
+# ----------------------------------------------------------------------------------------------
+
+GRAD_XI = [
+    [0.3, -1.0, 2.0, 0.0, 0.0, 0.0, 0.0],
+    [0.3, -1.0, 2.0, 1e-8, 0.0, 0.0, 1e-9],
+    [0.3, -1.0, 2.0, 0.4, 0.5, -0.2, 0.7],
+    [0.3, -1.0, 2.0, 0.0, PI - 1e-3, 0.0, -1.0],
+    [0.3, -1.0, 2.0, 0.3, 0.3, 0.3, 3.0],
+]
+
+
+@pytest.mark.parametrize("x", GRAD_XI)
+def test_gradcheck_exp_log(x):
+    xi = torch.tensor(x, dtype=F64, requires_grad=True)
+    assert gradcheck(sim3.exp, (xi,))
+    assert gradgradcheck(sim3.exp, (xi,))
+    T = sim3.exp(xi.detach()).requires_grad_(True)
+    assert gradcheck(sim3.log, (T,))
+    assert gradgradcheck(sim3.log, (T,))
+    # in tangent coordinates
+    d = torch.zeros(7, dtype=F64, requires_grad=True)
+    assert gradcheck(lambda d: sim3.log(sim3.compose(T.detach(), sim3.exp(d))), (d,))
+
+
+def test_gradcheck_group_ops():
+    g = torch.Generator().manual_seed(9)
+    A, B = sim3.random(2, 2, generator=g, dtype=F64).requires_grad_(True)
+    p = torch.randn(2, 3, generator=g, dtype=F64, requires_grad=True)
+    t = torch.tensor([0.3, 0.8], dtype=F64, requires_grad=True)
+    for fn, args in (
+        (sim3.compose, (A, B)),
+        (sim3.inverse, (A,)),
+        (sim3.act, (A, p)),
+        (sim3.between, (A, B)),
+        (sim3.interpolate, (A, B, t)),
+        (sim3.rminus, (A, B)),
+        (sim3.adjoint, (A,)),
+        (lambda x: sim3.jac_left(x), (torch.tensor(JAC_POINTS[0], dtype=F64, requires_grad=True),)),
+    ):
+        assert gradcheck(fn, args), fn
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_gradients_finite_over_the_grid(dtype):
+    xi = grid(dtype).requires_grad_(True)
+    T = sim3.exp(xi)
+    (g,) = torch.autograd.grad(T.sum() + sim3.log(T).sum(), xi)
+    assert bool(torch.isfinite(g).all())
+    Tl = sim3.exp(grid(dtype)).requires_grad_(True)
+    (g,) = torch.autograd.grad(sim3.log(Tl).square().sum(), Tl)
+    assert bool(torch.isfinite(g).all())
+
+
+def test_log_gradient_is_the_projected_gradient():
+    """Along M S (S symmetric, traceless) the derivative is 0; along T hat(d) it is Jr^-1 d."""
+    xi = torch.tensor(JAC_POINTS[2], dtype=F64)
+    T = sim3.exp(xi)
+    S = torch.tensor([[1.0, 2.0, 0.0], [2.0, -3.0, 1.0], [0.0, 1.0, 2.0]], dtype=F64)
+    dT = torch.zeros(4, 4, dtype=F64)
+    dT[:3, :3] = T[:3, :3] @ S
+    _, jvp = torch.func.jvp(sim3.log, (T,), (dT,))
+    assert float(jvp.abs().max()) < 1e-12
+    d = torch.tensor([0.1, -0.2, 0.3, 0.4, -0.5, 0.6, -0.7], dtype=F64)
+    _, jvp = torch.func.jvp(sim3.log, (T,), (T @ sim3.hat(d),))
+    torch.testing.assert_close(jvp, sim3.jac_right_inv(xi) @ d)
+
+
+# ----------------------------------------------------------------------------------------------
+# Batching, dtypes, bad input, transforms
+# ----------------------------------------------------------------------------------------------
+
+
+def test_batch_shapes_and_half(batch, dtype):
+    g = torch.Generator().manual_seed(1)
+    xi = torch.randn(*batch, 7, generator=g, dtype=dtype)
+    T = sim3.exp(xi)
+    assert T.shape == (*batch, 4, 4) and T.dtype == dtype
+    assert sim3.log(T).shape == (*batch, 7)
+    assert sim3.jac_left(xi).shape == (*batch, 7, 7)
+    h = sim3.exp(xi.half())
+    assert h.dtype == torch.float16
+    torch.testing.assert_close(h.float(), sim3.exp(xi.half().float()).half().float())
+
+
+def test_large_batch_in_blocks_matches_small():
+    from torchlie import _autograd
+
+    xi = grid(F64).repeat(2 * _autograd.BLOCK // 48 + 1, 1)
+    big = sim3.exp(xi)
+    torch.testing.assert_close(big[:96], sim3.exp(xi[:96]), rtol=0, atol=0)
+
+
+def test_nan_stays_in_its_element(dtype):
+    xi = grid(dtype)[:6].clone()
+    xi[2, 4] = float("nan")
+    x = xi.clone().requires_grad_(True)
+    T = sim3.exp(x)
+    (g,) = torch.autograd.grad(T.sum(), x)
+    rows = torch.arange(6) != 2
+    assert bool(torch.isfinite(T[rows]).all()) and bool(torch.isfinite(g[rows]).all())
+    L = sim3.log(sim3.exp(xi))
+    assert bool(torch.isfinite(L[rows]).all()) and bool(torch.isnan(L[2]).any())
+
+
+@pytest.mark.parametrize(
+    ("fn", "args", "match"),
+    [
+        (sim3.exp, (torch.zeros(6),), r"torchlie\.sim3\.exp: expected xi of shape \(\.\.\., 7\)"),
+        (sim3.log, (torch.zeros(3, 3),), r"torchlie\.sim3\.log: expected T of shape"),
+        (sim3.hat, (torch.zeros(2, 6),), r"torchlie\.sim3\.hat"),
+        (sim3.act, (torch.eye(4), torch.zeros(4)), r"torchlie\.sim3\.act: expected points"),
+        (sim3.compose, (torch.eye(4).expand(2, 4, 4), torch.eye(4).expand(3, 4, 4)), "broadcast"),
+        (sim3.jac_left, (torch.zeros(3, 6),), r"torchlie\.sim3\.jac_left"),
+    ],
+)
+def test_bad_shapes_raise_value_error(fn, args, match):
+    with pytest.raises(ValueError, match=match):
+        fn(*args)
+
+
+def test_bad_types_raise_type_error():
+    with pytest.raises(TypeError, match=r"torchlie\.sim3\.exp: expected xi to be a floating"):
+        sim3.exp(torch.zeros(7, dtype=torch.int64))
+    with pytest.raises(TypeError, match=r"torchlie\.sim3\.compose: expected inputs of one dtype"):
+        sim3.compose(torch.eye(4), torch.eye(4, dtype=F64))
+    with pytest.raises(TypeError, match=r"torchlie\.sim3\.log: expected T to be a torch\.Tensor"):
+        sim3.log([[1.0]])
+    with pytest.raises(TypeError, match=r"torchlie\.sim3\.random"):
+        sim3.random(2, dtype=torch.int32)
+
+
+def test_vmap_and_forward_mode():
+    xi = grid(F64)[:10]
+    J = torch.func.vmap(torch.func.jacfwd(sim3.exp))(xi)
+    Jr = torch.func.vmap(torch.func.jacrev(sim3.exp))(xi)
+    torch.testing.assert_close(J, Jr)
+    T = sim3.exp(xi)
+    Jl = torch.func.vmap(torch.func.jacfwd(sim3.log))(T)
+    Jlr = torch.func.vmap(torch.func.jacrev(sim3.log))(T)
+    torch.testing.assert_close(Jl, Jlr)
+    out = torch.func.vmap(sim3.compose)(T, T)
+    torch.testing.assert_close(out, T @ T)
+    torch.testing.assert_close(torch.func.vmap(sim3.jac_left)(xi), sim3.jac_left(xi))
+
+
+@pytest.mark.compile
+def test_compile_fullgraph_matches_eager():
+    xi = grid(F64)[:12]
+    T = sim3.exp(xi)
+    for fn, args in ((sim3.exp, (xi,)), (sim3.log, (T,))):
+        c = torch.compile(fn, fullgraph=True)
+        torch.testing.assert_close(c(*args), fn(*args), rtol=1e-13, atol=1e-13)
+
+
+# ----------------------------------------------------------------------------------------------
+# PyPose's Sim3
+# ----------------------------------------------------------------------------------------------
+
+
+def test_against_pypose_sim3():
+    """PyPose's Sim3 stores ``(t, q_xyzw, s)`` and its sim3 tangent is ``(rho, phi, sigma)``
+    in torchlie's order; its ``Exp``/``Log`` are the group exponential and logarithm."""
+    pp = pytest.importorskip("pypose")
+    g = torch.Generator().manual_seed(6)
+    xi = torch.randn(20, 7, generator=g, dtype=F64)
+    T = sim3.exp(xi)
+    ours = pp.sim3(xi).Exp()
+    s, R, t = sim3.to_srt(T)
+    from torchlie import quaternion
+
+    q = quaternion.to_xyzw(quaternion.from_matrix(R))
+    theirs = ours.tensor()
+    torch.testing.assert_close(theirs[:, :3], t, rtol=1e-10, atol=1e-10)
+    # quaternions up to sign
+    sign = torch.sign((theirs[:, 3:7] * q).sum(-1, keepdim=True))
+    torch.testing.assert_close(theirs[:, 3:7] * sign, q, rtol=1e-10, atol=1e-10)
+    torch.testing.assert_close(theirs[:, 7], s, rtol=1e-10, atol=1e-10)
+    torch.testing.assert_close(ours.matrix(), T, rtol=1e-10, atol=1e-10)
+    torch.testing.assert_close(pp.mat2Sim3(T).Log().tensor(), sim3.log(T), rtol=1e-8, atol=1e-8)
+    p = torch.randn(20, 3, generator=g, dtype=F64)
+    torch.testing.assert_close(ours.Act(p), sim3.act(T, p), rtol=1e-10, atol=1e-10)
+
+
+# ----------------------------------------------------------------------------------------------
+# The class
+# ----------------------------------------------------------------------------------------------
+
+
+def test_sim3_class_accessors_and_converters(batch):
+    from torchlie import SE3, SO3, Sim3, quaternion
+
+    g = torch.Generator().manual_seed(8)
+    s = torch.rand(tuple(batch), generator=g, dtype=F64) + 0.5
+    R = so3.random(*batch, generator=g, dtype=F64)
+    t = torch.randn(*batch, 3, generator=g, dtype=F64)
+    X = Sim3.from_srt(s, SO3(R), t)
+    assert torch.equal(X.tensor, sim3.from_srt(s, R, t))
+    torch.testing.assert_close(X.scale, s)
+    torch.testing.assert_close(X.rotation.tensor, R)
+    assert torch.equal(X.translation, t)
+    assert isinstance(X.rotation, SO3) and isinstance(X.pose(), SE3)
+    torch.testing.assert_close(X.pose().tensor, se3.from_rt(R, t))
+    torch.testing.assert_close(Sim3.from_se3(X.pose(), s).tensor, X.tensor)
+    torch.testing.assert_close(X.quaternion(), quaternion.from_matrix(R))
+    for u, v in zip(X.to_srt(), sim3.to_srt(X.tensor), strict=True):
+        assert torch.equal(u, v)
+    p = torch.randn(*batch, 3, generator=g, dtype=F64)
+    torch.testing.assert_close(X @ p, s[..., None] * (R @ p[..., None])[..., 0] + t)
+    assert X.log().shape == (*batch, 7)
+    with pytest.raises(ValueError, match=r"torchlie\.Sim3\.from_srt: .* positive scales"):
+        Sim3.from_srt(-torch.ones(()), torch.eye(3), torch.zeros(3), check=True)
+    with pytest.raises(TypeError, match=r"torchlie\.Sim3\.compose: expected another Sim3"):
+        X.compose(SE3.identity())
+    with pytest.raises(ValueError, match=r"torchlie\.Sim3\.exp \(through torchlie\.sim3\.exp\)"):
+        Sim3.exp(torch.zeros(6))
+
+
+# ----------------------------------------------------------------------------------------------
+# statistics: alignment as a Sim3, the Sim(3) mean
+# ----------------------------------------------------------------------------------------------
+
+
+def test_align_with_scale_gives_the_similarity():
+    from torchlie import Sim3, statistics
+
+    g = torch.Generator().manual_seed(12)
+    T = sim3.random(3, generator=g, dtype=F64)
+    P = torch.randn(3, 10, 3, generator=g, dtype=F64)
+    Q = sim3.act(T[:, None], P)
+    fit = statistics.align(P, Q, scale=True)
+    torch.testing.assert_close(fit.matrix(), T)
+    S = fit.sim3()
+    assert isinstance(S, Sim3)
+    torch.testing.assert_close(sim3.act(S.matrix[:, None], P), Q)
+    torch.testing.assert_close(S.scale, fit.scale)  # the fields are unchanged
+    rigid = statistics.align(P, Q).matrix()  # without scale: a Sim(3) element of scale 1
+    torch.testing.assert_close(sim3.scale(rigid), torch.ones(3, dtype=F64))
+
+
+def test_sim3_mean():
+    from torchlie import statistics
+
+    g = torch.Generator().manual_seed(13)
+    M0 = sim3.random(2, generator=g, dtype=F64)
+    xi = 0.3 * torch.randn(2, 6, 7, generator=g, dtype=F64)
+    T = sim3.rplus(M0[:, None], xi)
+    w = torch.rand(2, 6, generator=g, dtype=F64) + 0.1
+    M = statistics.sim3_mean(T, w, iterations=20)
+    # stationary: sum_i w_i Log(M^-1 T_i) = 0
+    r = (w[..., None] * sim3.rminus(T, M[:, None])).sum(-2)
+    assert float(r.abs().max()) < 1e-12
+    # equivariant on both sides
+    A, B = sim3.random(2, generator=g, dtype=F64)
+    MA = statistics.sim3_mean(sim3.compose(sim3.compose(A, T), B), w, iterations=20)
+    torch.testing.assert_close(MA, sim3.compose(sim3.compose(A, M), B))
+    # chordal: geometric mean of the scales
+    Mc = statistics.sim3_mean(T, method="chordal")
+    torch.testing.assert_close(sim3.scale(Mc), sim3.scale(T).log().mean(-1).exp())
+    with pytest.raises(ValueError, match=r"torchlie\.statistics\.sim3_mean"):
+        statistics.sim3_mean(T[0, 0])
+
+
+# ----------------------------------------------------------------------------------------------
+# nn: loss and parametrization
+# ----------------------------------------------------------------------------------------------
+
+
+def test_sim3_geodesic_loss():
+    from torchlie import nn as tnn
+
+    R = so3.exp(torch.tensor([0.0, 0.0, 0.5], dtype=F64))
+    A = sim3.from_srt(torch.tensor(2.0, dtype=F64), R, torch.tensor([3.0, 4.0, 0.0], dtype=F64))
+    B = sim3.identity(dtype=F64)
+    loss = tnn.sim3_geodesic_loss(A, B, 2.0, 0.5, 3.0)
+    assert float(loss) == pytest.approx(2 * 0.5 + 0.5 * 5 + 3 * math.log(2.0), rel=1e-14)
+    ch = tnn.sim3_geodesic_loss(A, B, kind="chordal")
+    assert float(ch) == pytest.approx(8 * math.sin(0.25) ** 2 + 25 + math.log(2.0) ** 2, rel=1e-14)
+    X = A.expand(3, 4, 4).clone().requires_grad_(True)
+    tnn.sim3_geodesic_loss(X, X.detach()).backward()  # zero error: the zero subgradient
+    assert bool(torch.isfinite(X.grad).all())
+    assert tnn.sim3_geodesic_loss(X, B, reduction="none").shape == (3,)
+    with pytest.raises(ValueError, match=r"torchlie\.nn\.sim3_geodesic_loss: .*scale_weight"):
+        tnn.sim3_geodesic_loss(A, B, scale_weight=-1.0)
+
+
+@pytest.mark.parametrize("rep", ["pos_quat_sigma", "tangent"])
+def test_sim3_parametrization(rep):
+    from torch.nn.utils import parametrize
+
+    from torchlie import nn as tnn
+
+    g = torch.Generator().manual_seed(14)
+    T = sim3.random(4, generator=g, dtype=F64)
+    holder = torch.nn.Module()
+    holder.T = torch.nn.Parameter(T.clone())
+    parametrize.register_parametrization(holder, "T", tnn.Sim3Parametrization(rep))
+    torch.testing.assert_close(holder.T, T)
+    target = sim3.random(4, generator=g, dtype=F64)
+    opt = torch.optim.Adam(holder.parameters(), lr=0.05)
+    first = None
+    for _ in range(60):
+        opt.zero_grad()
+        loss = tnn.sim3_geodesic_loss(holder.T, target, kind="chordal")
+        first = float(loss.detach()) if first is None else first
+        loss.backward()
+        opt.step()
+    assert bool(sim3.is_valid(holder.T).all())
+    assert float(tnn.sim3_geodesic_loss(holder.T, target, kind="chordal").detach()) < 0.5 * first
+    with pytest.raises(ValueError, match=r"torchlie\.nn\.Sim3Parametrization"):
+        tnn.Sim3Parametrization("matrix")

@@ -1,0 +1,855 @@
+"""Sim(3): similarity transforms ``(..., 4, 4)`` and their tangents ``(..., 7)``.
+
+Conventions (see :mod:`torchlie`): a similarity is ``T = [[s R, t], [0, 1]]`` with scale
+``s = exp(sigma) > 0``, and acts on points as ``p -> s R p + t``; a tangent is
+``xi = (rho, phi, sigma)``: translation part first, rotation vector, then log scale, with
+``hat(xi) = [[hat(phi) + sigma I, rho], [0, 0]]``; perturbations are on the right,
+``T (+) d = T Exp(d)``.  Built on :mod:`torchlie.so3` and the coefficient source
+:mod:`torchlie._coeffs`::
+
+    Exp(rho, phi, sigma) = [[e^sigma so3.exp(phi), V rho], [0, 1]]
+    V = int_0^1 e^(s sigma) so3.exp(s phi) ds = A I + B hat(phi) + C hat(phi)^2
+    A = (e^sigma - 1)/sigma,  B + ...: see torchlie._coeffs.sim3_v
+
+so at ``sigma = 0`` the rotation and translation are those of :mod:`torchlie.se3`
+(``V = so3.jac_left(phi)``).  :func:`log` returns a rotation angle in ``[0, pi]`` with so3's
+rule at pi.  The adjoint on tangents is ``Ad_T = [[s R, hat(t) R, -t], [0, R, 0], [0, 0, 1]]``
+and the small adjoint ``ad(xi) = [[hat(phi) + sigma I, hat(rho), -rho], [0, hat(phi), 0],
+[0, 0, 0]]``; ``jac_left(xi) = int_0^1 exp(s ad(xi)) ds``.  Jacobians of operations follow
+Sola et al. (as :mod:`torchlie.se3`): ``f(X Exp(d)) ~= f(X) Exp(J_Y_X d)``.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from . import _checks, _coeffs, _components, _layout, _rodrigues, _rotation_matrix, so3
+from ._autograd import CustomFunction, blocked, needs_graph, transforms_active
+from ._typing import Bool, Float
+
+__all__ = [
+    "hat",
+    "vee",
+    "exp",
+    "log",
+    "compose",
+    "inverse",
+    "act",
+    "adjoint",
+    "ad",
+    "jac_left",
+    "jac_right",
+    "jac_left_inv",
+    "jac_right_inv",
+    "identity",
+    "random",
+    "is_valid",
+    "from_srt",
+    "to_srt",
+    "from_se3",
+    "scale",
+    "interpolate",
+    "distance",
+    "rplus",
+    "rminus",
+    "lplus",
+    "lminus",
+    "between",
+    "jac_compose",
+    "jac_inverse",
+    "jac_act",
+    "jac_rplus",
+    "jac_rminus",
+    "jac_between",
+]
+
+_NAME = "torchlie.sim3."
+
+# ----------------------------------------------------------------------------------------------
+# Component helpers (private)
+# ----------------------------------------------------------------------------------------------
+
+
+def _lin(T: Tensor) -> Tensor:
+    """The linear block ``s R``."""
+    return T[..., :3, :3]
+
+
+def _trans(T: Tensor) -> Tensor:
+    return T[..., :3, 3]
+
+
+def _assemble(M: Tensor, t: Tensor) -> Tensor:
+    """``[[M, t], [0, 1]]`` (``M`` and ``t`` share their batch shape)."""
+    top = torch.cat((M, t.unsqueeze(-1)), dim=-1)
+    bottom = torch.cat((torch.zeros_like(t), torch.ones_like(t[..., :1])), dim=-1)
+    return torch.cat((top, bottom.unsqueeze(-2)), dim=-2)
+
+
+def _wide(x: Tensor) -> Tensor:
+    """The precision coefficients are evaluated in (float64 for float32, as ``_coeffs``)."""
+    return x.double() if x.dtype == torch.float32 else x
+
+
+def _log_scale2(M: Tensor) -> Tensor:
+    """``2 sigma = log(|M|_F^2 / 3)`` of the linear block ``M = s R``: near ``s = 1`` as
+    ``log1p`` of ``(sum (M_ii - 1)(M_ii + 1) + sum_(i != j) M_ij^2) / 3`` (exact at the
+    identity, where ``|M|^2 - 3`` cancels), elsewhere as ``log`` of the sum of squares (double
+    where: no branch sees an argument out of its range).  Entry by entry (planes)."""
+    e = M.flatten(-2).unbind(-1)
+    d, off = (e[0], e[4], e[8]), (e[1], e[2], e[3], e[5], e[6], e[7])
+    o2 = _coeffs.dot(off, off)
+    sq = o2 + _coeffs.dot(d, d)
+    x = (_coeffs.dot([v - 1.0 for v in d], [v + 1.0 for v in d]) + o2) / 3.0
+    near = x.abs() < 0.5
+    return torch.where(
+        near,
+        torch.log1p(torch.where(near, x, 0.0)),
+        torch.log(torch.where(near, 1.0, sq / 3.0)),
+    )
+
+
+def _poly_planes(a: Tensor, b: Tensor, c: Tensor, phi: Tensor, v: Tensor) -> list[Tensor]:
+    """The planes of ``(a I + b hat(phi) + c hat(phi)^2) v``, as
+    ``(a - c t2) v + b (phi x v) + c (phi . v) phi`` (coefficients of shape ``(...)``)."""
+    x = phi.unbind(-1)
+    t2 = _coeffs.dot(x, x)
+    return _rodrigues.jl_components(x, v.unbind(-1), a - c * t2, b, c)
+
+
+def _poly(a: Tensor, b: Tensor, c: Tensor, phi: Tensor, v: Tensor) -> Tensor:
+    """``(a I + b hat(phi) + c hat(phi)^2) v`` (coefficients of shape ``(...)``)."""
+    return _layout.interleave(_poly_planes(a, b, c, phi, v))
+
+
+def _coefficients(
+    fn, sigma: Tensor, phi: Tensor, differentiable: bool = True
+) -> tuple[Tensor, Tensor, Tensor]:
+    out = fn(_wide(sigma), _coeffs.theta2(phi), sigma.dtype, differentiable)
+    return tuple(x.to(sigma.dtype) for x in out)  # type: ignore[return-value]
+
+
+def _exp(xi: Tensor) -> Tensor:
+    rho, phi, sigma = xi[..., :3], xi[..., 3:6], xi[..., 6]
+    # forward-only coefficients where nothing can differentiate them
+    diff = torch.compiler.is_compiling() or transforms_active() or needs_graph((xi,))
+    A, B, C = _coefficients(_coeffs.sim3_v, sigma, phi, diff)
+    t = _poly_planes(A, B, C, phi, rho)
+    s = torch.exp(sigma)
+    R = so3._ExpMapFn(phi).flatten(-2).unbind(-1)
+    zero, one = torch.zeros_like(s), torch.ones_like(s)
+    rows = [[s * R[3 * i + j] for j in range(3)] + [t[i]] for i in range(3)]
+    top = [e for row in rows for e in row]
+    return _layout.interleave((*top, zero, zero, zero, one)).unflatten(-1, (4, 4))
+
+
+_exp_blocked = blocked(_exp, (1,))
+
+
+def _inverse(T: Tensor) -> Tensor:
+    """``[[M^-1, -M^-1 t], [0, 1]]`` with ``M^-1 = M^T / s^2``."""
+    Mi = _lin(T).transpose(-1, -2) * torch.exp(-_log_scale2(_lin(T)))[..., None, None]
+    return _assemble(Mi, -_components.mv(Mi, _trans(T)))
+
+
+def _compose(A: Tensor, B: Tensor) -> Tensor:
+    M = _lin(A) @ _lin(B)
+    t = _components.mv(_lin(A), _trans(B)) + _trans(A)
+    batch = M.shape[:-2]
+    return _assemble(M, t.expand(*batch, 3))
+
+
+def _between(A: Tensor, B: Tensor) -> Tensor:
+    return _compose(_inverse(A), B)
+
+
+def _hat(xi: Tensor) -> Tensor:
+    rho, phi, sigma = xi[..., :3], xi[..., 3:6], xi[..., 6:]
+    eye = torch.eye(3, dtype=xi.dtype, device=xi.device)
+    top = torch.cat((_components.hat(phi) + sigma[..., None] * eye, rho.unsqueeze(-1)), dim=-1)
+    return torch.cat((top, torch.zeros_like(top[..., :1, :])), dim=-2)
+
+
+def _rows(*blocks: tuple[Tensor, ...]) -> Tensor:
+    return torch.cat([torch.cat(row, dim=-1) for row in blocks], dim=-2)
+
+
+def _adjoint(T: Tensor) -> Tensor:
+    M, t = _lin(T), _trans(T)
+    R = M * torch.exp(-0.5 * _log_scale2(M))[..., None, None]
+    z31, z13 = torch.zeros_like(t).unsqueeze(-1), torch.zeros_like(t).unsqueeze(-2)
+    one = torch.ones_like(t[..., :1]).unsqueeze(-1)
+    return _rows(
+        (M, _components.hat(t) @ R, -t.unsqueeze(-1)),
+        (torch.zeros_like(R), R, z31),
+        (z13, z13, one),
+    )
+
+
+def _ad(xi: Tensor) -> Tensor:
+    rho, phi, sigma = xi[..., :3], xi[..., 3:6], xi[..., 6:]
+    P = _components.hat(phi)
+    eye = torch.eye(3, dtype=xi.dtype, device=xi.device)
+    z31, z13 = torch.zeros_like(rho).unsqueeze(-1), torch.zeros_like(rho).unsqueeze(-2)
+    z11 = torch.zeros_like(sigma).unsqueeze(-1)
+    return _rows(
+        (P + sigma[..., None] * eye, _components.hat(rho), -rho.unsqueeze(-1)),
+        (torch.zeros_like(P), P, z31),
+        (z13, z13, z11),
+    )
+
+
+def _jl(xi: Tensor) -> Tensor:
+    """``Jl(xi) = int_0^1 exp(s ad(xi)) ds``: the top-right block of the exponential of
+    ``[[ad(xi), I], [0, 0]]`` (evaluated in float64 for float32 input)."""
+    x = _wide(xi)
+    a = _ad(x)
+    eye = torch.eye(7, dtype=x.dtype, device=x.device).expand(a.shape)
+    zero = torch.zeros_like(a)
+    J = torch.linalg.matrix_exp(_rows((a, eye), (zero, zero)))[..., :7, 7:]
+    return J.to(xi.dtype)
+
+
+# ----------------------------------------------------------------------------------------------
+# log: a custom Function (gradient of log o projection, as se3.log)
+# ----------------------------------------------------------------------------------------------
+
+
+def _log_forward(T: Tensor) -> Tensor:
+    M, t = _lin(T), _trans(T)
+    sigma = 0.5 * _log_scale2(M)
+    phi = _rotation_matrix.log(M * torch.exp(-sigma)[..., None, None])
+    a, b, c = _coefficients(_coeffs.sim3_v_inv, sigma, phi, False)
+    return _layout.interleave((*_poly_planes(a, b, c, phi, t), *phi.unbind(-1), sigma))
+
+
+def _vrho(rho: Tensor):
+    """``(sigma, phi) -> V(sigma, phi) rho``: the translation of ``Exp(rho, phi, sigma)``."""
+    return lambda sigma, phi: _poly(*_coefficients(_coeffs.sim3_v, sigma, phi), phi, rho)
+
+
+# The right Jacobian, by block rows: Exp(xi) Exp(eps) with eps = Jr(xi) dxi moves t by
+# M eps_rho and M by M (hat(eps_phi) + eps_sigma I), while Exp(xi + dxi) moves t by
+# V drho + d(V rho)/d(phi, sigma) (dphi, dsigma), so
+#     Jr(xi) = [[M^-1 V, M^-1 d(V rho)/dphi, M^-1 d(V rho)/dsigma], [0, so3 Jr(phi), 0], [0, 0, 1]]
+# and Jr^-1 and Jr^-T need V^-1 (closed form), so3's Jl^-1 and one product with the derivative
+# of V rho, taken by autograd of the differentiable coefficients (torch.func: the same in every
+# mode, vmap and double backward included).
+
+
+def _log_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:
+    # h = Jr(xi)^-T g: u = V^-T g_rho (= M^-T h_rho), h_phi = so3 Jl(phi)^-1 (g_phi - J_phi^T u),
+    # h_sigma = g_sigma - J_sigma^T u with J = d(V rho)/d(phi, sigma); the tangent part of the
+    # ambient gradient is G_t = u, G_M = M^-T (hat(h_phi)/2 + h_sigma I/3), M^-T = M / s^2.
+    T, xi = saved
+    rho, phi, sigma = xi[..., :3], xi[..., 3:6], xi[..., 6]
+    a, b, c = _coefficients(_coeffs.sim3_v_inv, sigma, phi)
+    u = _poly(a, -b, c, phi, g[..., :3])
+    _, vjp = torch.func.vjp(_vrho(rho), sigma, phi)
+    j_sigma, j_phi = vjp(u)
+    diff = torch.is_grad_enabled()
+    h_phi = _rodrigues.jl_apply(phi, g[..., 3:6] - j_phi, inverse=True, differentiable=diff)
+    h_sigma = g[..., 6] - j_sigma
+    Mt = _lin(T) * torch.exp(-2.0 * sigma)[..., None, None]
+    eye = torch.eye(3, dtype=T.dtype, device=T.device)
+    inner = 0.5 * _components.hat(h_phi) + (h_sigma / 3.0)[..., None, None] * eye
+    top = torch.cat((Mt @ inner, u.unsqueeze(-1)), dim=-1)
+    return (torch.nn.functional.pad(top, (0, 0, 0, 1)),)
+
+
+def _log_jvp(saved: tuple[Tensor, ...], dT: Tensor) -> Tensor:
+    # Jr dxi = d with d = (M^-1 dt, vee(skew(X)), tr(X)/3), X = M^-1 dM:
+    # dsigma = d_sigma, dphi = so3 Jr(phi)^-1 d_phi, drho = V^-1 (dt - J (dphi, dsigma)).
+    T, xi = saved
+    rho, phi, sigma = xi[..., :3], xi[..., 3:6], xi[..., 6]
+    Mi = _lin(T).transpose(-1, -2) * torch.exp(-2.0 * sigma)[..., None, None]
+    X = Mi @ _lin(dT)
+    d_sigma = X.diagonal(dim1=-2, dim2=-1).sum(-1) / 3.0
+    d_phi = _rodrigues.jl_apply(phi, _components.vee(X), sign=-1.0, inverse=True)
+    # J (dphi, dsigma) row by row from reverse mode (forward mode does not nest in the
+    # forward-mode level this runs under)
+    _, vjp = torch.func.vjp(_vrho(rho), sigma, phi)
+    rows = []
+    for k in range(3):
+        e = torch.zeros_like(rho)
+        e[..., k] = 1.0
+        j_sigma, j_phi = vjp(e)
+        rows.append(j_sigma * d_sigma + (j_phi * d_phi).sum(-1))
+    jv = torch.stack(rows, dim=-1)
+    a, b, c = _coefficients(_coeffs.sim3_v_inv, sigma, phi)
+    d_rho = _poly(a, b, c, phi, _trans(dT) - jv)
+    return torch.cat((d_rho, d_phi, d_sigma.unsqueeze(-1)), dim=-1)
+
+
+_LogFn = CustomFunction(
+    "Sim3Log",
+    forward=_log_forward,
+    save=lambda inputs, out: (inputs[0], out),
+    backward=_log_backward,
+    jvp=_log_jvp,
+    event_dims=(2,),
+)
+
+
+# ----------------------------------------------------------------------------------------------
+# hat / vee, exp / log
+# ----------------------------------------------------------------------------------------------
+
+
+@_checks.float32_exact
+def hat(xi: Float[Tensor, "*b 7"]) -> Float[Tensor, "*b 4 4"]:
+    """The 4x4 matrix ``[[hat(phi) + sigma I, rho], [0, 0]]`` of ``xi = (rho, phi, sigma)``.
+
+    Example:
+        >>> hat(torch.tensor([1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 0.5]))
+        tensor([[ 0.5000, -6.0000,  5.0000,  1.0000],
+                [ 6.0000,  0.5000, -4.0000,  2.0000],
+                [-5.0000,  4.0000,  0.5000,  3.0000],
+                [ 0.0000,  0.0000,  0.0000,  0.0000]])
+    """
+    x, dtype = _checks.tensor(xi, _NAME + "hat", "xi", (7,))
+    return _checks.out(_hat(x), dtype)
+
+
+@_checks.float32_exact
+def vee(Xi: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 7"]:
+    """Inverse of :func:`hat`: ``(Xi[:3, 3], so3.vee(Xi[:3, :3]), trace(Xi[:3, :3]) / 3)``.
+
+    The bottom row is ignored.
+
+    Example:
+        >>> vee(hat(torch.tensor([1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 0.5])))
+        tensor([1.0000, 2.0000, 3.0000, 4.0000, 5.0000, 6.0000, 0.5000])
+    """
+    x, dtype = _checks.tensor(Xi, _NAME + "vee", "Xi", (4, 4))
+    B = _lin(x)
+    tr = B.diagonal(dim1=-2, dim2=-1).sum(-1, keepdim=True) / 3.0
+    return _checks.out(torch.cat((_trans(x), _components.vee(B), tr), dim=-1), dtype)
+
+
+@_checks.float32_exact
+def exp(xi: Float[Tensor, "*b 7"]) -> Float[Tensor, "*b 4 4"]:
+    """Similarity of ``xi = (rho, phi, sigma)``: ``[[e^sigma so3.exp(phi), V rho], [0, 1]]``.
+
+    ``V = A I + B hat(phi) + C hat(phi)^2`` with the coefficients of
+    :func:`torchlie._coeffs.sim3_v`: closed forms away from 0 and a series in
+    ``sigma + i theta`` near it, where they cancel (double where: every derivative is finite,
+    at 0 and pi included; autograd differentiates the formula, any order, forward mode too).
+
+    Example:
+        >>> T = exp(torch.tensor([1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]))
+        >>> T[:3, 3]
+        tensor([1., 0., 0.])
+    """
+    x, dtype = _checks.tensor(xi, _NAME + "exp", "xi", (7,))
+    return _checks.out(_exp_blocked(x), dtype)
+
+
+@_checks.float32_exact
+def log(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 7"]:
+    """Tangent ``(rho, phi, sigma)`` of ``T``: ``sigma = log(|M|_F / sqrt(3))`` of the linear
+    block ``M = s R``, ``phi = so3.log(M / s)`` and ``rho = V^-1 t``.
+
+    The rotation angle ``|phi|`` is in ``[0, pi]``; at exactly pi the axis sign follows
+    :func:`torchlie.so3.log`'s rule.  The bottom row of ``T`` is not read.
+
+    Gradient meaning (as :func:`torchlie.se3.log`): the backward pass is the gradient of ``log``
+    composed with the projection of ``M`` onto the scaled rotations: along the tangent
+    directions ``T hat(d)`` it is the exact derivative ``Jr(xi)^-1 d``; the directions ``M S``
+    (``S`` symmetric and traceless) and the bottom row get zero.  The forward pass agrees with
+    it to first order, so plain ``gradcheck`` on a raw matrix passes; finite at ``theta = pi``.
+    Double backward and forward mode are supported.
+
+    Example:
+        >>> xi = torch.tensor([1.0, 2.0, 3.0, 0.1, 0.2, 0.3, 0.5])
+        >>> torch.allclose(log(exp(xi)), xi, atol=1e-6)
+        True
+    """
+    x, dtype = _checks.tensor(T, _NAME + "log", "T", (4, 4))
+    return _checks.out(_LogFn(x), dtype)
+
+
+# ----------------------------------------------------------------------------------------------
+# Group operations
+# ----------------------------------------------------------------------------------------------
+
+
+@_checks.float32_exact
+def compose(T1: Float[Tensor, "*b1 4 4"], T2: Float[Tensor, "*b2 4 4"]) -> Float[Tensor, "*b 4 4"]:
+    """``T1 @ T2`` from blocks (``M1 M2``, ``M1 t2 + t1``); batch shapes broadcast.
+
+    Example:
+        >>> T = exp(torch.tensor([1.0, 0.0, 0.0, 0.0, 0.0, 0.5, 0.2]))
+        >>> U = exp(torch.tensor([2.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.4]))
+        >>> torch.allclose(compose(T, T), U)
+        True
+    """
+    a, b, dtype, _ = _checks.pair(_NAME + "compose", T1, T2, "T1", "T2", (4, 4), (4, 4))
+    return _checks.out(_compose(a, b), dtype)
+
+
+@_checks.float32_exact
+def inverse(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 4 4"]:
+    """``T^-1 = [[R^T / s, -R^T t / s], [0, 1]]``.
+
+    Example:
+        >>> T = exp(torch.tensor([1.0, 2.0, 3.0, 0.1, 0.2, 0.3, 0.5]))
+        >>> torch.allclose(compose(inverse(T), T), torch.eye(4), atol=1e-6)
+        True
+    """
+    x, dtype = _checks.tensor(T, _NAME + "inverse", "T", (4, 4))
+    return _checks.out(_inverse(x), dtype)
+
+
+@_checks.float32_exact
+def act(T: Float[Tensor, "*b1 4 4"], points: Float[Tensor, "*b2 3"]) -> Float[Tensor, "*b 3"]:
+    """Transform points: ``s R p + t`` (batch shapes broadcast).
+
+    Example:
+        >>> T = from_srt(torch.tensor(2.0), torch.eye(3), torch.tensor([1.0, 0.0, 0.0]))
+        >>> act(T, torch.tensor([1.0, 1.0, 1.0]))
+        tensor([3., 2., 2.])
+    """
+    x, p, dtype, _ = _checks.pair(_NAME + "act", T, points, "T", "points", (4, 4), (3,))
+    return _checks.out(_components.mv(_lin(x), p) + _trans(x), dtype)
+
+
+@_checks.float32_exact
+def adjoint(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 7 7"]:
+    """Adjoint ``Ad_T = [[s R, hat(t) R, -t], [0, R, 0], [0, 0, 1]]``: ``T Exp(xi) T^-1 =
+    Exp(Ad_T xi)``.
+
+    Example:
+        >>> T = from_srt(torch.tensor(2.0), torch.eye(3), torch.zeros(3))
+        >>> adjoint(T).diagonal()
+        tensor([2., 2., 2., 1., 1., 1., 1.])
+    """
+    x, dtype = _checks.tensor(T, _NAME + "adjoint", "T", (4, 4))
+    return _checks.out(_adjoint(x), dtype)
+
+
+@_checks.float32_exact
+def ad(xi: Float[Tensor, "*b 7"]) -> Float[Tensor, "*b 7 7"]:
+    """Small adjoint ``[[hat(phi) + sigma I, hat(rho), -rho], [0, hat(phi), 0], [0, 0, 0]]``.
+
+    ``ad(x) y = vee(hat(x) hat(y) - hat(y) hat(x))`` and ``adjoint(exp(x)) = matrix_exp(ad(x))``.
+
+    Example:
+        >>> ad(torch.tensor([1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]))[:3, 6]
+        tensor([-1., -0., -0.])
+    """
+    x, dtype = _checks.tensor(xi, _NAME + "ad", "xi", (7,))
+    return _checks.out(_ad(x), dtype)
+
+
+def _jac(fn: str, xi: Tensor, inv: bool, sign: float) -> Tensor:
+    x, dtype = _checks.tensor(xi, _NAME + fn, "xi", (7,))
+    J = _jl(x if sign > 0 else -x)
+    return _checks.out(torch.linalg.inv(_wide(J)).to(J.dtype) if inv else J, dtype)
+
+
+@_checks.float32_exact
+def jac_left(xi: Float[Tensor, "*b 7"]) -> Float[Tensor, "*b 7 7"]:
+    """Left Jacobian ``Jl(xi) = int_0^1 exp(s ad(xi)) ds``: ``Exp(xi + d) ~= Exp(Jl(xi) d)
+    Exp(xi)``.
+
+    Its blocks are ``V`` (of :func:`exp`) on ``rho``, ``so3.jac_left(phi)`` on ``phi`` and 1 on
+    ``sigma``; it is evaluated as a block of one matrix exponential of size 14.
+
+    Example:
+        >>> torch.allclose(jac_left(torch.zeros(7)), torch.eye(7))
+        True
+    """
+    return _jac("jac_left", xi, False, 1.0)
+
+
+@_checks.float32_exact
+def jac_right(xi: Float[Tensor, "*b 7"]) -> Float[Tensor, "*b 7 7"]:
+    """Right Jacobian ``Jr(xi) = Jl(-xi)``: ``Exp(xi + d) ~= Exp(xi) Exp(Jr(xi) d)``.
+
+    Example:
+        >>> xi = torch.tensor([1.0, 2.0, 3.0, 0.1, 0.2, 0.3, 0.5])
+        >>> torch.allclose(jac_left(xi), adjoint(exp(xi)) @ jac_right(xi), atol=1e-5)
+        True
+    """
+    return _jac("jac_right", xi, False, -1.0)
+
+
+@_checks.float32_exact
+def jac_left_inv(xi: Float[Tensor, "*b 7"]) -> Float[Tensor, "*b 7 7"]:
+    """``Jl(xi)^-1``, finite for rotation angles below ``2 pi``.
+
+    Example:
+        >>> xi = torch.tensor([1.0, 2.0, 3.0, 0.1, 0.2, 0.3, 0.5])
+        >>> torch.allclose(jac_left_inv(xi) @ jac_left(xi), torch.eye(7), atol=1e-5)
+        True
+    """
+    return _jac("jac_left_inv", xi, True, 1.0)
+
+
+@_checks.float32_exact
+def jac_right_inv(xi: Float[Tensor, "*b 7"]) -> Float[Tensor, "*b 7 7"]:
+    """``Jr(xi)^-1 = Jl(-xi)^-1``; ``jac_right_inv(log(T))`` is the Jacobian ``J_Log(T)_T``.
+
+    Example:
+        >>> xi = torch.tensor([1.0, 2.0, 3.0, 0.1, 0.2, 0.3, 0.5])
+        >>> torch.allclose(jac_right_inv(xi) @ jac_right(xi), torch.eye(7), atol=1e-5)
+        True
+    """
+    return _jac("jac_right_inv", xi, True, -1.0)
+
+
+# ----------------------------------------------------------------------------------------------
+# Construction, validation, conversions
+# ----------------------------------------------------------------------------------------------
+
+
+@_checks.float32_exact
+def identity(
+    *batch: int, dtype: torch.dtype | None = None, device: torch.device | str | None = None
+) -> Float[Tensor, "*batch 4 4"]:
+    """Identity similarities of shape ``(*batch, 4, 4)``.
+
+    Example:
+        >>> identity(2).shape
+        torch.Size([2, 4, 4])
+    """
+    _, dtype = _checks.factory(_NAME + "identity", batch, dtype)
+    return torch.eye(4, dtype=dtype, device=device).expand(*batch, 4, 4).clone()
+
+
+@_checks.float32_exact
+def random(
+    *batch: int,
+    generator: torch.Generator | None = None,
+    dtype: torch.dtype | None = None,
+    device: torch.device | str | None = None,
+) -> Float[Tensor, "*batch 4 4"]:
+    """Random similarities: Haar-uniform rotations, translations ``N(0, I)``, log scales
+    ``N(0, 1)``.
+
+    Example:
+        >>> T = random(4, generator=torch.Generator().manual_seed(0))
+        >>> bool(is_valid(T).all())
+        True
+    """
+    compute, dtype = _checks.factory(_NAME + "random", batch, dtype)
+    R = so3.random(*batch, generator=generator, dtype=compute, device=device)
+    t = torch.randn(*batch, 3, generator=generator, dtype=compute, device=device)
+    sigma = torch.randn((*batch, 1), generator=generator, dtype=compute, device=device)[..., 0]
+    return _checks.out(_assemble(torch.exp(sigma)[..., None, None] * R, t), dtype)
+
+
+@_checks.float32_exact
+def is_valid(T: Float[Tensor, "*b 4 4"], atol: float | None = None) -> Bool[Tensor, "*b"]:
+    """Per element: finite, ``M / s`` a rotation (:func:`torchlie.so3.is_valid`, ``s`` the
+    scale of :func:`scale`), ``s > 0`` and bottom row ``(0, 0, 0, 1)``, each within ``atol``
+    (default ``100 * eps`` of the dtype, ``4 * eps`` for half).
+
+    Example:
+        >>> is_valid(torch.stack((identity(), -identity())))
+        tensor([ True, False])
+    """
+    x, _ = _checks.tensor(T, _NAME + "is_valid", "T", (4, 4))
+    tol = _checks.tolerance(atol, _NAME + "is_valid", "atol", T.dtype)
+    s = torch.exp(0.5 * _log_scale2(_lin(x)))
+    pos = s > 0
+    R = _lin(x) / torch.where(pos, s, 1.0)[..., None, None]
+    last = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=x.dtype, device=x.device)
+    bottom = (x[..., 3, :] - last).abs().amax(dim=-1) <= tol
+    finite = torch.isfinite(x).flatten(-2).all(dim=-1)
+    return so3.is_valid(R, atol=tol) & pos & bottom & finite
+
+
+@_checks.float32_exact
+def from_srt(
+    s: Float[Tensor, "*b1"], R: Float[Tensor, "*b2 3 3"], t: Float[Tensor, "*b3 3"]
+) -> Float[Tensor, "*b 4 4"]:
+    """Similarity ``[[s R, t], [0, 1]]`` from a scale, a rotation matrix and a translation
+    (batch shapes broadcast).
+
+    Example:
+        >>> from_srt(torch.tensor(2.0), torch.eye(3), torch.tensor([1.0, 2.0, 3.0]))[:3]
+        tensor([[2., 0., 0., 1.],
+                [0., 2., 0., 2.],
+                [0., 0., 2., 3.]])
+    """
+    fn = _NAME + "from_srt"
+    r, v, dtype, _ = _checks.pair(fn, R, t, "R", "t", (3, 3), (3,))
+    k, _ = _checks.tensor(s, fn, "s", ())
+    _checks.same_dtype(fn, s=s, R=R)
+    batch = _checks.batch_broadcast(fn, (k.shape, "s"), (r.shape[:-2], "R"), (v.shape[:-1], "t"))
+    M = (k[..., None, None] * r).expand(*batch, 3, 3)
+    return _checks.out(_assemble(M, v.expand(*batch, 3)), dtype)
+
+
+@_checks.float32_exact
+def to_srt(
+    T: Float[Tensor, "*b 4 4"],
+) -> tuple[Float[Tensor, "*b"], Float[Tensor, "*b 3 3"], Float[Tensor, "*b 3"]]:
+    """Scale, rotation and translation ``(s, R, t)`` of ``T`` (``s = |M|_F / sqrt(3)``,
+    ``R = M / s``).
+
+    Example:
+        >>> s, R, t = to_srt(from_srt(torch.tensor(2.0), torch.eye(3), torch.ones(3)))
+        >>> s
+        tensor(2.)
+    """
+    x, dtype = _checks.tensor(T, _NAME + "to_srt", "T", (4, 4))
+    s = torch.exp(0.5 * _log_scale2(_lin(x)))
+    R = _lin(x) / s[..., None, None]
+    return _checks.out(s, dtype), _checks.out(R, dtype), _checks.out(_trans(x).clone(), dtype)
+
+
+@_checks.float32_exact
+def from_se3(T: Float[Tensor, "*b1 4 4"], s: Float[Tensor, "*b2"]) -> Float[Tensor, "*b 4 4"]:
+    """Similarity ``[[s R, t], [0, 1]]`` from an SE(3) pose ``[[R, t], [0, 1]]`` and a scale.
+
+    Example:
+        >>> from_se3(torch.eye(4), torch.tensor(3.0)).diagonal()
+        tensor([3., 3., 3., 1.])
+    """
+    fn = _NAME + "from_se3"
+    x, dtype = _checks.tensor(T, fn, "T", (4, 4))
+    k, _ = _checks.tensor(s, fn, "s", ())
+    _checks.same_dtype(fn, T=T, s=s)
+    batch = _checks.batch_broadcast(fn, (x.shape[:-2], "T"), (k.shape, "s"))
+    M = (k[..., None, None] * _lin(x)).expand(*batch, 3, 3)
+    return _checks.out(_assemble(M, _trans(x).expand(*batch, 3)), dtype)
+
+
+@_checks.float32_exact
+def scale(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b"]:
+    """The scale ``s = |M|_F / sqrt(3)`` of the linear block ``M = s R``.
+
+    Example:
+        >>> scale(exp(torch.tensor([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])))
+        tensor(2.7183)
+    """
+    x, dtype = _checks.tensor(T, _NAME + "scale", "T", (4, 4))
+    return _checks.out(torch.exp(0.5 * _log_scale2(_lin(x))), dtype)
+
+
+# ----------------------------------------------------------------------------------------------
+# Metrics and interpolation
+# ----------------------------------------------------------------------------------------------
+
+
+@_checks.float32_exact
+def interpolate(
+    T0: Float[Tensor, "*b1 4 4"], T1: Float[Tensor, "*b2 4 4"], t: Float[Tensor, "*b3"] | float
+) -> Float[Tensor, "*b 4 4"]:
+    """Geodesic interpolation ``T0 Exp(t Log(T0^-1 T1))`` (``t`` broadcasts with the batch).
+
+    ``t = 0`` gives ``T0`` and ``t = 1`` gives ``T1``; the log scale moves linearly in ``t``.
+    ``t`` is a tensor of the dtype of ``T0`` or numbers.
+
+    Example:
+        >>> T1 = exp(torch.tensor([2.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.8]))
+        >>> mid = exp(torch.tensor([1.0, 0.0, 0.0, 0.0, 0.0, 0.5, 0.4]))
+        >>> torch.allclose(interpolate(identity(), T1, 0.5), mid, atol=1e-6)
+        True
+    """
+    fn = _NAME + "interpolate"
+    a, b, dtype, _ = _checks.pair(fn, T0, T1, "T0", "T1", (4, 4), (4, 4))
+    t = _checks.real(t, fn, "t", a, ("T0", T0))
+    _checks.batch_broadcast(fn, (a.shape[:-2], "T0"), (b.shape[:-2], "T1"), (t.shape, "t"))
+    xi = _LogFn(_between(a, b))
+    return _checks.out(_compose(a, _exp(t.unsqueeze(-1) * xi)), dtype)
+
+
+@_checks.float32_exact
+def distance(
+    T1: Float[Tensor, "*b1 4 4"], T2: Float[Tensor, "*b2 4 4"]
+) -> tuple[Float[Tensor, "*b"], Float[Tensor, "*b"], Float[Tensor, "*b"]]:
+    """``(angle, translation, log_scale)``: the rotation angle of ``R1^T R2`` in ``[0, pi]``,
+    ``|t2 - t1|`` and ``|log(s2 / s1)|``, each in its own units (no weighting imposed; the zero
+    subgradient where one is not differentiable, so gradients are always finite).
+
+    Example:
+        >>> T2 = from_srt(torch.tensor(2.0), so3.exp(torch.tensor([0.0, 0.3, 0.0])), torch.ones(3))
+        >>> [round(float(d), 4) for d in distance(identity(), T2)]
+        [0.3, 1.7321, 0.6931]
+    """
+    a, b, dtype, batch = _checks.pair(_NAME + "distance", T1, T2, "T1", "T2", (4, 4), (4, 4))
+    la, lb = _log_scale2(_lin(a)), _log_scale2(_lin(b))
+    k = torch.exp(-0.5 * (la + lb))[..., None, None]
+    angle = _rotation_matrix.angle(_lin(a).transpose(-1, -2) @ _lin(b) * k)
+    trans = _coeffs.norm(_trans(b) - _trans(a)).expand(batch)
+    ds = 0.5 * (lb - la)
+    ds = _coeffs.norm(ds.unsqueeze(-1)).expand(batch)
+    angle = angle.expand(batch)
+    return _checks.out(angle, dtype), _checks.out(trans, dtype), _checks.out(ds, dtype)
+
+
+# ----------------------------------------------------------------------------------------------
+# Lie-group operations and their Jacobians
+# ----------------------------------------------------------------------------------------------
+
+
+@_checks.float32_exact
+def rplus(T: Float[Tensor, "*b1 4 4"], xi: Float[Tensor, "*b2 7"]) -> Float[Tensor, "*b 4 4"]:
+    """Right plus ``T (+) xi = T Exp(xi)`` (batch shapes broadcast).
+
+    Example:
+        >>> rplus(identity(), torch.tensor([1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]))[:3, 3]
+        tensor([1., 0., 0.])
+    """
+    x, v, dtype, _ = _checks.pair(_NAME + "rplus", T, xi, "T", "xi", (4, 4), (7,))
+    return _checks.out(_compose(x, _exp(v)), dtype)
+
+
+@_checks.float32_exact
+def rminus(T1: Float[Tensor, "*b1 4 4"], T0: Float[Tensor, "*b2 4 4"]) -> Float[Tensor, "*b 7"]:
+    """Right minus ``T1 (-) T0 = Log(T0^-1 T1)``, so that ``rplus(T0, rminus(T1, T0)) == T1``.
+
+    Example:
+        >>> xi = torch.tensor([1.0, 2.0, 3.0, 0.1, 0.2, 0.3, 0.5])
+        >>> T0 = exp(torch.tensor([0.5, 0.0, 0.0, 0.0, 1.0, 0.0, -0.2]))
+        >>> torch.allclose(rminus(rplus(T0, xi), T0), xi, atol=1e-5)
+        True
+    """
+    a, b, dtype, _ = _checks.pair(_NAME + "rminus", T1, T0, "T1", "T0", (4, 4), (4, 4))
+    return _checks.out(_LogFn(_between(b, a)), dtype)
+
+
+@_checks.float32_exact
+def lplus(T: Float[Tensor, "*b1 4 4"], xi: Float[Tensor, "*b2 7"]) -> Float[Tensor, "*b 4 4"]:
+    """Left plus ``Exp(xi) T`` (the perturbation is expressed in the world frame).
+
+    Example:
+        >>> T = from_srt(torch.tensor(1.0), torch.eye(3), torch.tensor([1.0, 0.0, 0.0]))
+        >>> lplus(T, torch.tensor([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]))[:3, 3]
+        tensor([2.7183, 0.0000, 0.0000])
+    """
+    x, v, dtype, _ = _checks.pair(_NAME + "lplus", T, xi, "T", "xi", (4, 4), (7,))
+    return _checks.out(_compose(_exp(v), x), dtype)
+
+
+@_checks.float32_exact
+def lminus(T1: Float[Tensor, "*b1 4 4"], T0: Float[Tensor, "*b2 4 4"]) -> Float[Tensor, "*b 7"]:
+    """Left minus ``Log(T1 T0^-1)``, so that ``lplus(T0, lminus(T1, T0)) == T1``.
+
+    Example:
+        >>> xi = torch.tensor([1.0, 2.0, 3.0, 0.1, 0.2, 0.3, 0.5])
+        >>> T0 = exp(torch.tensor([0.5, 0.0, 0.0, 0.0, 1.0, 0.0, -0.2]))
+        >>> torch.allclose(lminus(lplus(T0, xi), T0), xi, atol=1e-5)
+        True
+    """
+    a, b, dtype, _ = _checks.pair(_NAME + "lminus", T1, T0, "T1", "T0", (4, 4), (4, 4))
+    return _checks.out(_LogFn(_compose(a, _inverse(b))), dtype)
+
+
+@_checks.float32_exact
+def between(T0: Float[Tensor, "*b1 4 4"], T1: Float[Tensor, "*b2 4 4"]) -> Float[Tensor, "*b 4 4"]:
+    """Relative similarity ``T0^-1 T1``.
+
+    Example:
+        >>> T0 = from_srt(torch.tensor(2.0), torch.eye(3), torch.tensor([1.0, 0.0, 0.0]))
+        >>> T1 = from_srt(torch.tensor(2.0), torch.eye(3), torch.tensor([1.0, 2.0, 0.0]))
+        >>> between(T0, T1)[:3, 3]
+        tensor([0., 1., 0.])
+    """
+    a, b, dtype, _ = _checks.pair(_NAME + "between", T0, T1, "T0", "T1", (4, 4), (4, 4))
+    return _checks.out(_between(a, b), dtype)
+
+
+def _eye7(batch: torch.Size, like: Tensor) -> Tensor:
+    return torch.eye(7, dtype=like.dtype, device=like.device).expand(*batch, 7, 7).clone()
+
+
+@_checks.float32_exact
+def jac_compose(
+    T1: Float[Tensor, "*b1 4 4"], T2: Float[Tensor, "*b2 4 4"]
+) -> tuple[Float[Tensor, "*b 7 7"], Float[Tensor, "*b 7 7"]]:
+    """Jacobians of ``T1 T2``: ``(J_T1T2_T1, J_T1T2_T2) = (Ad(T2)^-1, I)``.
+
+    Example:
+        >>> T2 = exp(torch.tensor([1.0, 2.0, 3.0, 0.1, 0.2, 0.3, 0.5]))
+        >>> J1, J2 = jac_compose(identity(), T2)
+        >>> torch.allclose(J1, adjoint(inverse(T2)), atol=1e-6)
+        True
+    """
+    a, b, dtype, batch = _checks.pair(_NAME + "jac_compose", T1, T2, "T1", "T2", (4, 4), (4, 4))
+    J1 = _adjoint(_inverse(b)).expand(*batch, 7, 7).clone()
+    return _checks.out(J1, dtype), _checks.out(_eye7(batch, a), dtype)
+
+
+@_checks.float32_exact
+def jac_inverse(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 7 7"]:
+    """Jacobian ``J_Tinv_T = -Ad(T)``: ``(T Exp(d))^-1 = T^-1 Exp(-Ad(T) d)``.
+
+    Example:
+        >>> torch.equal(jac_inverse(identity()), -torch.eye(7))
+        True
+    """
+    x, dtype = _checks.tensor(T, _NAME + "jac_inverse", "T", (4, 4))
+    return _checks.out(-_adjoint(x), dtype)
+
+
+@_checks.float32_exact
+def jac_act(
+    T: Float[Tensor, "*b1 4 4"], points: Float[Tensor, "*b2 3"]
+) -> tuple[Float[Tensor, "*b 3 7"], Float[Tensor, "*b 3 3"]]:
+    """Jacobians of ``T p``: ``(J_Tp_T, J_Tp_p) = ([M, -M hat(p), M p], M)`` with ``M = s R``.
+
+    Example:
+        >>> JT, Jp = jac_act(identity(), torch.tensor([1.0, 2.0, 3.0]))
+        >>> JT[:, 6]
+        tensor([1., 2., 3.])
+    """
+    x, p, dtype, batch = _checks.pair(_NAME + "jac_act", T, points, "T", "points", (4, 4), (3,))
+    M = _lin(x).expand(*batch, 3, 3)
+    JT = torch.cat((M, -(M @ _components.hat(p)), _components.mv(M, p).unsqueeze(-1)), dim=-1)
+    return _checks.out(JT, dtype), _checks.out(M.clone(), dtype)
+
+
+@_checks.float32_exact
+def jac_rplus(
+    T: Float[Tensor, "*b1 4 4"], xi: Float[Tensor, "*b2 7"]
+) -> tuple[Float[Tensor, "*b 7 7"], Float[Tensor, "*b 7 7"]]:
+    """Jacobians of ``T Exp(xi)``: ``(J_T, J_xi) = (Ad(Exp(xi))^-1, Jr(xi))``.
+
+    Example:
+        >>> JT, Jxi = jac_rplus(identity(), torch.zeros(7))
+        >>> torch.allclose(JT, torch.eye(7)) and torch.allclose(Jxi, torch.eye(7))
+        True
+    """
+    x, v, dtype, batch = _checks.pair(_NAME + "jac_rplus", T, xi, "T", "xi", (4, 4), (7,))
+    v = v.expand(*batch, 7)
+    return _checks.out(_adjoint(_exp(-v)), dtype), _checks.out(_jl(-v), dtype)
+
+
+@_checks.float32_exact
+def jac_rminus(
+    T1: Float[Tensor, "*b1 4 4"], T0: Float[Tensor, "*b2 4 4"]
+) -> tuple[Float[Tensor, "*b 7 7"], Float[Tensor, "*b 7 7"]]:
+    """Jacobians of ``xi = Log(T0^-1 T1)``: ``(J_xi_T1, J_xi_T0) = (Jr(xi)^-1, -Jl(xi)^-1)``.
+
+    Example:
+        >>> J1, J0 = jac_rminus(identity(), identity())
+        >>> torch.allclose(J1, torch.eye(7)) and torch.allclose(J0, -torch.eye(7))
+        True
+    """
+    a, b, dtype, _ = _checks.pair(_NAME + "jac_rminus", T1, T0, "T1", "T0", (4, 4), (4, 4))
+    xi = _LogFn(_between(b, a))
+    J1 = torch.linalg.inv(_wide(_jl(-xi))).to(xi.dtype)
+    J0 = -torch.linalg.inv(_wide(_jl(xi))).to(xi.dtype)
+    return _checks.out(J1, dtype), _checks.out(J0, dtype)
+
+
+@_checks.float32_exact
+def jac_between(
+    T0: Float[Tensor, "*b1 4 4"], T1: Float[Tensor, "*b2 4 4"]
+) -> tuple[Float[Tensor, "*b 7 7"], Float[Tensor, "*b 7 7"]]:
+    """Jacobians of ``T0^-1 T1``: ``(J_T0, J_T1) = (-Ad(T1^-1 T0), I)``.
+
+    Example:
+        >>> J0, J1 = jac_between(identity(), identity())
+        >>> torch.equal(J0, -torch.eye(7)) and torch.equal(J1, torch.eye(7))
+        True
+    """
+    a, b, dtype, batch = _checks.pair(_NAME + "jac_between", T0, T1, "T0", "T1", (4, 4), (4, 4))
+    J0 = -_adjoint(_between(b, a)).expand(*batch, 7, 7)
+    return _checks.out(J0, dtype), _checks.out(_eye7(batch, a), dtype)
