@@ -405,6 +405,8 @@ OPS: dict[str, Op] = {
             lambda n, g: (planar_poses(n, g),),
             _ref_se2_log,
             3,
+        ),
+        Op(
             "sim3.exp",
             "Sim(3) exp: tangent -> similarity",
             "sim3.exp",

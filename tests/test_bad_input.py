@@ -16,7 +16,7 @@ import torch
 from torch.nn.utils import parametrize
 
 import torchlie
-from torchlie import SE2, SE3, SO2, SO3, _checks, conversions, se2, se3, so2, so3
+from torchlie import SE2, SE3, SO2, SO3, Sim3, _checks, conversions, se2, se3, sim3, so2, so3
 from torchlie import nn as tnn
 from torchlie import quaternion as quat
 from torchlie import statistics as st
@@ -574,11 +574,14 @@ _ELEMENTS = {  # kind -> (an element, its trailing dimensions)
     "T2": (se2.exp(torch.tensor([0.1, 0.2, 0.3], dtype=F64)), 2),
     "v1": (torch.tensor([0.3], dtype=F64), 1),
     "v2": (torch.tensor([0.1, -0.2], dtype=F64), 1),
+    "S": (sim3.exp(torch.tensor([0.1, -0.2, 0.3, 0.2, 0.1, -0.3, 0.4], dtype=F64)), 2),
+    "v8": (torch.cat((torch.tensor([1.0, 2.0, 3.0], dtype=F64), _Q1, torch.ones(1, dtype=F64))), 1),
 }
 # Sets (means, align: the set last) and keyframes (first): that dimension is a batch dimension.
 _SETS = {
     "Rset": (_R1, lambda b: (*b[1:], 2)),
     "Tset": (_T1, lambda b: (*b[1:], 2)),
+    "Sset": (sim3.exp(torch.full((7,), 0.2, dtype=F64)), lambda b: (*b[1:], 2)),
     "wset": (torch.tensor(1.0, dtype=F64), lambda b: (*b[1:], 2)),
     "Pset": (_P1, lambda b: b[1:]),
     "Qset": (2 * _P1 + 1, lambda b: b[1:]),
@@ -607,7 +610,7 @@ def _arg(kind: object, b: tuple[int, ...]) -> object:
 
 _OWNERS = {"so3": so3, "se3": se3, "quaternion": quat, "conversions": conversions,
            "statistics": st, "nn": tnn, "SO3": SO3, "SE3": SE3, "": torchlie,
-           "so2": so2, "se2": se2, "SO2": SO2, "SE2": SE2}  # fmt: skip
+           "so2": so2, "se2": se2, "SO2": SO2, "SE2": SE2, "sim3": sim3, "Sim3": Sim3}  # fmt: skip
 
 
 def _on(path: str, *args: object, **kwargs: object) -> tuple[str, object]:
@@ -709,8 +712,8 @@ BATCHED += [
                                                             ("twist", "v6"))),
 ]  # fmt: skip
 # The planar groups: the same verbs.
-for _m, _E, _tan in (("so2", "R2", "v1"), ("se2", "T2", "v3")):
-    _G = _m.upper()
+for _m, _E, _tan in (("so2", "R2", "v1"), ("se2", "T2", "v3"), ("sim3", "S", "v7")):
+    _G = "Sim3" if _m == "sim3" else _m.upper()
     _jacs = ("jac_left", "jac_right", "jac_left_inv", "jac_right_inv")
     BATCHED += [_on(f"{_m}.{f}", _tan) for f in ("hat", "exp", "ad", *_jacs)]
     BATCHED += [_on(f"{_m}.{f}", _E) for f in ("vee", "log", "inverse", "adjoint", "is_valid")]
@@ -718,7 +721,8 @@ for _m, _E, _tan in (("so2", "R2", "v1"), ("se2", "T2", "v3")):
     BATCHED += [_on(f"{_m}.{f}", _E, _E) for f in (*_pairs, "jac_compose", "jac_rminus")]
     BATCHED += [_on(f"{_m}.jac_between", _E, _E), _on(f"{_m}.jac_inverse", _E)]
     BATCHED += [_on(f"{_m}.{f}", _E, _tan) for f in ("rplus", "lplus", "jac_rplus")]
-    BATCHED += [_on(f"{_m}.{f}", _E, "v2") for f in ("act", "jac_act")]
+    _pt = "v3" if _m == "sim3" else "v2"
+    BATCHED += [_on(f"{_m}.{f}", _E, _pt) for f in ("act", "jac_act")]
     BATCHED += [_on(f"{p}.{f}", "*b", dtype=F64) for p in (_m, _G) for f in ("identity", "random")]
     BATCHED += [_on(f"{_m}.interpolate", _E, _E, 0.3), _on(f"{_G}.exp", _tan)]
 BATCHED += [
@@ -736,12 +740,20 @@ BATCHED += [
                                                             ("angle", "v1"))),
     *(_param(tnn.SE2Parametrization, rep, k) for rep, k in (("pos_complex", "v4"),
                                                             ("matrix", "T2"), ("twist", "v3"))),
+    _on("sim3.from_srt", "s", "R", "v3"),
+    _on("sim3.to_srt", "S"),
+    _on("sim3.from_se3", "T", "s"),
+    _on("sim3.scale", "S"),
+    _on("statistics.sim3_mean", "Sset", "wset"),
+    _on("nn.sim3_geodesic_loss", "S", "S"),
+    *(_param(tnn.Sim3Parametrization, rep, k) for rep, k in (("pos_quat_sigma", "v8"),
+                                                             ("tangent", "v7"))),
 ]  # fmt: skip
 _BATCHED_IDS = [f"{n}-{i}" for i, (n, _) in enumerate(BATCHED)]
 
 
 def _outputs(out: object) -> list[torch.Tensor]:
-    if isinstance(out, (SO3, SE3, SO2, SE2)):
+    if isinstance(out, (SO3, SE3, SO2, SE2, Sim3)):
         return [out.tensor]
     if isinstance(out, torch.Tensor):
         return [out]
@@ -778,7 +790,17 @@ def test_the_batch_limit_covers_every_public_function():
               "nn.RotationHead", "nn.PoseHead", "nn.PlanarPoseHead"}  # fmt: skip
     missing = [
         f"{owner}.{f}"
-        for owner in ("so3", "se3", "quaternion", "conversions", "statistics", "nn", "so2", "se2")
+        for owner in (
+            "so3",
+            "se3",
+            "quaternion",
+            "conversions",
+            "statistics",
+            "nn",
+            "so2",
+            "se2",
+            "sim3",
+        )
         for f in _OWNERS[owner].__all__
         if f"torchlie.{owner}.{f}" not in tested and f"{owner}.{f}" not in exempt
     ]

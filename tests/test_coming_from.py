@@ -187,7 +187,7 @@ def inputs(page: str) -> tuple[dict[str, object], torch.Tensor]:
         "h": order(q * (0.5 + torch.rand(n, 1, generator=gen, dtype=torch.float64))),
         "R": R,
         "S": S,
-        "M": R + 0.4 * rand(3, 3),  # near a rotation: positive determinant
+        "M": R + 0.2 * torch.tanh(rand(3, 3)),  # |M - R|_F < 1: positive determinant
         "t": t,
         "u": u,
         "T": se3.from_rt(R, t),

@@ -60,7 +60,6 @@ def float32_exact(fn):
     ``torch.compile`` traces the autocast state and the context manager into the graph.
     """
 
-    @functools.wraps(fn)
     def guarded(*args, **kwargs):
         device = _device_type(args, kwargs)
         if torch.is_autocast_enabled(device):
@@ -68,7 +67,12 @@ def float32_exact(fn):
                 return fn(*args, **kwargs)
         return fn(*args, **kwargs)
 
-    return guarded
+    # A code object of its own per op: torch.compile keeps its compiled graphs per code object
+    # (guarded by the closure's ``fn``), so wrappers sharing one would exhaust its recompile
+    # limit after a few ops compiled on their own (``torch.compile(so3.exp)``, ...).
+    guarded.__code__ = guarded.__code__.replace(co_name=fn.__name__)
+    guarded.float32_exact = True
+    return functools.wraps(fn)(guarded)
 
 
 def _device_type(args: tuple, kwargs: dict) -> str:
