@@ -23,6 +23,7 @@ PI = math.pi
 ANGLES = [0.0, 1e-12, 1e-8, 1e-4, 1.0, 3.0, PI - 1e-8, PI]
 SIGMAS = [0.0, 1e-12, 1e-6, 0.5, -3.0, 20.0]
 VALUE_ULP, GRAD_ULP = 4.0, 8.0
+JAC_ULP = 6.0  # 7x7 Jacobians: at most 3.9 (float64) and 1.5 (float32) measured; 3x3 products
 DPS = 60  # digits of the references
 
 # ----------------------------------------------------------------------------------------------
@@ -130,15 +131,18 @@ def references(dtype: torch.dtype) -> dict[str, torch.Tensor]:
         return _CACHE[dtype]
     with mp.workdps(DPS):
         xi = grid(dtype)
-        T_ref, G_ref, T_in, log_ref, J_ref = [], [], [], [], []
+        T_ref, G_ref, T_in, log_ref, J_ref, Jr_ref, Jri_ref = [], [], [], [], [], [], []
         for x in xi.double().numpy():
             E = mp.expm(_mhat(x))
             Jr = _mp_jr(x)
             T_ref.append(E.tolist())
+            Jr_ref.append(Jr.tolist())
+            Jri_ref.append((Jr**-1).tolist())
             # d Exp(x) / d x_k = Exp(x) hat(Jr(x) e_k)
             cols = [E * _mhat([Jr[i, k] for i in range(7)]) for k in range(7)]
             G_ref.append([[[cols[k][i, j] for k in range(7)] for j in range(4)] for i in range(4)])
         out = {"xi": xi, "T_ref": _f64(T_ref), "exp_grad_ref": _f64(G_ref)}
+        out.update(jr_ref=_f64(Jr_ref), jr_inv_ref=_f64(Jri_ref))
         T_in = out["T_ref"].to(dtype)
         start = sim3.log(T_in.double())
         for T, s in zip(T_in.double().numpy(), start.numpy(), strict=True):
@@ -283,6 +287,24 @@ def test_jac_left_and_right_against_finite_differences(x):
     torch.testing.assert_close(
         sim3.jac_left(xi), sim3.adjoint(sim3.exp(xi)) @ sim3.jac_right(xi), rtol=0, atol=1e-13
     )
+
+
+@pytest.mark.slow
+def test_jacobians_over_the_grid(dtype):
+    """The closed forms of jac_left/right and their inverses at every angle and sigma of the
+    grid, against the 60-digit integral ``int_0^1 expm(-s ad) ds`` (``Jl(x) = Jr(-x)``):
+    within VALUE_ULP relative to the matrix norm, in the dtype of the input."""
+    r = references(dtype)
+    xi = r["xi"]
+    for out, ref in (
+        (sim3.jac_right(xi), r["jr_ref"]),
+        (sim3.jac_left(-xi), r["jr_ref"]),
+        (sim3.jac_right_inv(xi), r["jr_inv_ref"]),
+        (sim3.jac_left_inv(-xi), r["jr_inv_ref"]),
+    ):
+        assert out.dtype == dtype
+        err = _ulp(out, ref, 2, dtype)
+        assert float(err.max()) <= JAC_ULP, _where(err, xi)
 
 
 def test_jac_left_blocks():
@@ -491,6 +513,17 @@ def test_gradcheck_exp_log(x):
     # in tangent coordinates
     d = torch.zeros(7, dtype=F64, requires_grad=True)
     assert gradcheck(lambda d: sim3.log(sim3.compose(T.detach(), sim3.exp(d))), (d,))
+
+
+@pytest.mark.parametrize("x", [*GRAD_XI, [0.3, -1.0, 2.0, 0.1, -0.2, 0.3, 0.4]])
+def test_gradcheck_jacobians(x):
+    """First and second derivatives of the closed forms, inside the joint series (last point)
+    and on both sides of it."""
+    xi = torch.tensor(x, dtype=F64, requires_grad=True)
+    assert gradcheck(sim3.jac_left, (xi,))
+    assert gradcheck(sim3.jac_left_inv, (xi,))
+    if x[6] in (0.4, 0.7):  # second derivatives: inside the series and just outside
+        assert gradgradcheck(sim3.jac_left, (xi,))
 
 
 def test_gradcheck_group_ops():
