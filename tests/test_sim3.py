@@ -651,7 +651,7 @@ def test_vmap_and_forward_mode():
 def test_compile_fullgraph_matches_eager():
     xi = grid(F64)[:12]
     T = sim3.exp(xi)
-    for fn, args in ((sim3.exp, (xi,)), (sim3.log, (T,))):
+    for fn, args in ((sim3.exp, (xi,)), (sim3.log, (T,)), (sim3.jac_left, (xi,))):
         c = torch.compile(fn, fullgraph=True)
         torch.testing.assert_close(c(*args), fn(*args), rtol=1e-13, atol=1e-13)
 
