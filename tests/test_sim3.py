@@ -307,6 +307,25 @@ def test_jacobians_over_the_grid(dtype):
         assert float(err.max()) <= JAC_ULP, _where(err, xi)
 
 
+@pytest.mark.slow
+def test_jacobians_around_the_joint_series(dtype):
+    """Random points with ``|sigma + i theta|`` in ``[0, 1]``, across the border of the series
+    of the coupling coefficients, against the 60-digit integral (within JAC_ULP)."""
+    g = torch.Generator().manual_seed(11)
+    n = 32
+    r = torch.rand(n, generator=g, dtype=F64)
+    a = torch.rand(n, generator=g, dtype=F64) * PI
+    ax = torch.nn.functional.normalize(torch.randn(n, 3, generator=g, dtype=F64), dim=-1)
+    rho = torch.randn(n, 3, generator=g, dtype=F64)
+    xi = torch.cat((rho, (r * a.sin())[:, None] * ax, (r * a.cos())[:, None]), -1).to(dtype)
+    with mp.workdps(DPS):
+        jr = [_mp_jr(x) for x in xi.double().numpy()]
+        ref, ref_inv = _f64([j.tolist() for j in jr]), _f64([(j**-1).tolist() for j in jr])
+    for out, want in ((sim3.jac_right(xi), ref), (sim3.jac_right_inv(xi), ref_inv)):
+        err = _ulp(out, want, 2, dtype)
+        assert float(err.max()) <= JAC_ULP, _where(err, xi)
+
+
 def test_jac_left_blocks():
     """The rho block is V of exp, the phi block so3's Jl, sigma's column has 1 at the bottom."""
     xi = torch.tensor(JAC_POINTS[0], dtype=F64)
