@@ -15,8 +15,9 @@ so at ``sigma = 0`` the rotation and translation are those of :mod:`torchlie.se3
 (``V = so3.jac_left(phi)``).  :func:`log` returns a rotation angle in ``[0, pi]`` with so3's
 rule at pi.  The adjoint on tangents is ``Ad_T = [[s R, hat(t) R, -t], [0, R, 0], [0, 0, 1]]``
 and the small adjoint ``ad(xi) = [[hat(phi) + sigma I, hat(rho), -rho], [0, hat(phi), 0],
-[0, 0, 0]]``; ``jac_left(xi) = int_0^1 exp(s ad(xi)) ds``.  Jacobians of operations follow
-Sola et al. (as :mod:`torchlie.se3`): ``f(X Exp(d)) ~= f(X) Exp(J_Y_X d)``.
+[0, 0, 0]]``; ``jac_left(xi) = int_0^1 exp(s ad(xi)) ds``, in closed form by blocks.
+Jacobians of operations follow Sola et al. (as :mod:`torchlie.se3`):
+``f(X Exp(d)) ~= f(X) Exp(J_Y_X d)``.
 """
 
 from __future__ import annotations
