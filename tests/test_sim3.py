@@ -653,6 +653,11 @@ def test_nan_stays_in_its_element(dtype):
     assert bool(torch.isfinite(T[rows]).all()) and bool(torch.isfinite(g[rows]).all())
     L = sim3.log(sim3.exp(xi))
     assert bool(torch.isfinite(L[rows]).all()) and bool(torch.isnan(L[2]).any())
+    for fn in (sim3.jac_left, sim3.jac_left_inv):
+        J = fn(x)
+        (g,) = torch.autograd.grad(J.sum(), x)
+        assert bool(torch.isfinite(J[rows]).all()) and bool(torch.isfinite(g[rows]).all())
+        assert bool(torch.isnan(J[2]).any())
 
 
 @pytest.mark.parametrize(
