@@ -23,6 +23,7 @@ PI = math.pi
 ANGLES = [0.0, 1e-12, 1e-8, 1e-4, 1.0, 3.0, PI - 1e-8, PI]
 SIGMAS = [0.0, 1e-12, 1e-6, 0.5, -3.0, 20.0]
 VALUE_ULP, GRAD_ULP = 4.0, 8.0
+JAC_ULP = 6.0  # 7x7 Jacobians: at most 3.9 (float64) and 1.5 (float32) measured; 3x3 products
 DPS = 60  # digits of the references
 
 # ----------------------------------------------------------------------------------------------
@@ -130,15 +131,18 @@ def references(dtype: torch.dtype) -> dict[str, torch.Tensor]:
         return _CACHE[dtype]
     with mp.workdps(DPS):
         xi = grid(dtype)
-        T_ref, G_ref, T_in, log_ref, J_ref = [], [], [], [], []
+        T_ref, G_ref, T_in, log_ref, J_ref, Jr_ref, Jri_ref = [], [], [], [], [], [], []
         for x in xi.double().numpy():
             E = mp.expm(_mhat(x))
             Jr = _mp_jr(x)
             T_ref.append(E.tolist())
+            Jr_ref.append(Jr.tolist())
+            Jri_ref.append((Jr**-1).tolist())
             # d Exp(x) / d x_k = Exp(x) hat(Jr(x) e_k)
             cols = [E * _mhat([Jr[i, k] for i in range(7)]) for k in range(7)]
             G_ref.append([[[cols[k][i, j] for k in range(7)] for j in range(4)] for i in range(4)])
         out = {"xi": xi, "T_ref": _f64(T_ref), "exp_grad_ref": _f64(G_ref)}
+        out.update(jr_ref=_f64(Jr_ref), jr_inv_ref=_f64(Jri_ref))
         T_in = out["T_ref"].to(dtype)
         start = sim3.log(T_in.double())
         for T, s in zip(T_in.double().numpy(), start.numpy(), strict=True):
@@ -231,6 +235,36 @@ def test_coefficients_at_their_limits():
     torch.testing.assert_close(c, _f64(c_ref), rtol=2e-15, atol=0)
 
 
+def _mp_abc(s, t2) -> tuple:
+    """``(A, B, C)`` of V from ``E1(z)``, ``z = sigma + i theta`` (at nonzero arguments)."""
+    t = mp.sqrt(t2)
+    z = mp.mpc(s, t)
+    E = (mp.exp(z) - 1) / z
+    A = mp.expm1(s) / s
+    return A, E.imag / t, (A - E.real) / t2
+
+
+def test_coefficient_partials_against_mpmath():
+    """``_coeffs.sim3_v_partials``: exact limits at ``sigma = theta = 0`` and relative errors
+    below 1e-12 of the 60-digit derivatives of ``E1``'s coefficients (mp.diff) inside, at and
+    outside the border of the joint series (the closed forms of ``C_t`` lose up to about 10
+    bits just outside it, where they enter ``Jl`` multiplied by ``theta^3``)."""
+    z = torch.zeros((), dtype=F64)
+    got = [float(v) for v in _coeffs.sim3_v_partials(z, z)]
+    assert got == pytest.approx(
+        [1, 1 / 2, 1 / 6, 1 / 2, 1 / 3, 1 / 8, -1 / 24, -1 / 120], rel=1e-15
+    )
+    for s, th in ((0.3, 0.2), (0.49, 0.1), (0.51, 1e-4), (-0.6, 0.3), (1e-9, 1.0), (20.0, 1e-8)):
+        out = _coeffs.sim3_v_partials(torch.tensor(s, dtype=F64), torch.tensor(th * th, dtype=F64))
+        with mp.workdps(40):
+            sm, tm = mp.mpf(s), mp.mpf(th) ** 2
+            ref = [*_mp_abc(sm, tm)]
+            ref += [mp.diff(lambda x, k=k, tm=tm: _mp_abc(x, tm)[k], sm) for k in range(3)]
+            ref += [mp.diff(lambda x, k=k, sm=sm: _mp_abc(sm, x)[k], tm) for k in (1, 2)]
+        for o, r in zip(out, ref, strict=True):
+            assert float(o) == pytest.approx(float(r), rel=1e-12), (s, th)
+
+
 def test_sigma_zero_is_se3(dtype):
     xi = grid(dtype)[::7]
     T = sim3.exp(torch.cat((xi[:, :6], torch.zeros_like(xi[:, 6:])), -1))
@@ -283,6 +317,43 @@ def test_jac_left_and_right_against_finite_differences(x):
     torch.testing.assert_close(
         sim3.jac_left(xi), sim3.adjoint(sim3.exp(xi)) @ sim3.jac_right(xi), rtol=0, atol=1e-13
     )
+
+
+@pytest.mark.slow
+def test_jacobians_over_the_grid(dtype):
+    """The closed forms of jac_left/right and their inverses at every angle and sigma of the
+    grid, against the 60-digit integral ``int_0^1 expm(-s ad) ds`` (``Jl(x) = Jr(-x)``):
+    within VALUE_ULP relative to the matrix norm, in the dtype of the input."""
+    r = references(dtype)
+    xi = r["xi"]
+    for out, ref in (
+        (sim3.jac_right(xi), r["jr_ref"]),
+        (sim3.jac_left(-xi), r["jr_ref"]),
+        (sim3.jac_right_inv(xi), r["jr_inv_ref"]),
+        (sim3.jac_left_inv(-xi), r["jr_inv_ref"]),
+    ):
+        assert out.dtype == dtype
+        err = _ulp(out, ref, 2, dtype)
+        assert float(err.max()) <= JAC_ULP, _where(err, xi)
+
+
+@pytest.mark.slow
+def test_jacobians_around_the_joint_series(dtype):
+    """Random points with ``|sigma + i theta|`` in ``[0, 1]``, across the border of the series
+    of the coupling coefficients, against the 60-digit integral (within JAC_ULP)."""
+    g = torch.Generator().manual_seed(11)
+    n = 32
+    r = torch.rand(n, generator=g, dtype=F64)
+    a = torch.rand(n, generator=g, dtype=F64) * PI
+    ax = torch.nn.functional.normalize(torch.randn(n, 3, generator=g, dtype=F64), dim=-1)
+    rho = torch.randn(n, 3, generator=g, dtype=F64)
+    xi = torch.cat((rho, (r * a.sin())[:, None] * ax, (r * a.cos())[:, None]), -1).to(dtype)
+    with mp.workdps(DPS):
+        jr = [_mp_jr(x) for x in xi.double().numpy()]
+        ref, ref_inv = _f64([j.tolist() for j in jr]), _f64([(j**-1).tolist() for j in jr])
+    for out, want in ((sim3.jac_right(xi), ref), (sim3.jac_right_inv(xi), ref_inv)):
+        err = _ulp(out, want, 2, dtype)
+        assert float(err.max()) <= JAC_ULP, _where(err, xi)
 
 
 def test_jac_left_blocks():
@@ -493,6 +564,17 @@ def test_gradcheck_exp_log(x):
     assert gradcheck(lambda d: sim3.log(sim3.compose(T.detach(), sim3.exp(d))), (d,))
 
 
+@pytest.mark.parametrize("x", [*GRAD_XI, [0.3, -1.0, 2.0, 0.1, -0.2, 0.3, 0.4]])
+def test_gradcheck_jacobians(x):
+    """First and second derivatives of the closed forms, inside the joint series (last point)
+    and on both sides of it."""
+    xi = torch.tensor(x, dtype=F64, requires_grad=True)
+    assert gradcheck(sim3.jac_left, (xi,))
+    assert gradcheck(sim3.jac_left_inv, (xi,))
+    if x[6] in (0.4, 0.7):  # second derivatives: inside the series and just outside
+        assert gradgradcheck(sim3.jac_left, (xi,))
+
+
 def test_gradcheck_group_ops():
     g = torch.Generator().manual_seed(9)
     A, B = sim3.random(2, 2, generator=g, dtype=F64).requires_grad_(True)
@@ -571,6 +653,11 @@ def test_nan_stays_in_its_element(dtype):
     assert bool(torch.isfinite(T[rows]).all()) and bool(torch.isfinite(g[rows]).all())
     L = sim3.log(sim3.exp(xi))
     assert bool(torch.isfinite(L[rows]).all()) and bool(torch.isnan(L[2]).any())
+    for fn in (sim3.jac_left, sim3.jac_left_inv):
+        J = fn(x)
+        (g,) = torch.autograd.grad(J.sum(), x)
+        assert bool(torch.isfinite(J[rows]).all()) and bool(torch.isfinite(g[rows]).all())
+        assert bool(torch.isnan(J[2]).any())
 
 
 @pytest.mark.parametrize(
@@ -618,7 +705,7 @@ def test_vmap_and_forward_mode():
 def test_compile_fullgraph_matches_eager():
     xi = grid(F64)[:12]
     T = sim3.exp(xi)
-    for fn, args in ((sim3.exp, (xi,)), (sim3.log, (T,))):
+    for fn, args in ((sim3.exp, (xi,)), (sim3.log, (T,)), (sim3.jac_left, (xi,))):
         c = torch.compile(fn, fullgraph=True)
         torch.testing.assert_close(c(*args), fn(*args), rtol=1e-13, atol=1e-13)
 

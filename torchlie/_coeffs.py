@@ -794,3 +794,80 @@ def sim3_v_inv(
     D = A - t2 * C
     det = D * D + t2 * B * B
     return 1.0 / A, -B / det, (B * B - C * D) / (A * det)
+
+
+#: E1'(sigma) = sum_n (n + 1) sigma^n/(n + 2)!: the series below |sigma| = 1/2.
+_DE1 = [(n + 1) / math.factorial(n + 2) for n in range(20)]
+
+
+def expc_prime(sigma: Tensor) -> Tensor:
+    """d/dsigma of (exp(sigma) - 1)/sigma, ``(e^sigma (sigma - 1) + 1)/sigma^2``: its series
+    below ``|sigma| = 1/2`` (double where), where the closed form cancels."""
+    small = sigma.abs() < 0.5
+    ss = torch.where(small, sigma, 0.0)
+    s = torch.full_like(sigma, _DE1[-1])
+    for c in _DE1[-2::-1]:
+        s = fma(torch.full_like(sigma, c), s, ss)
+    sl = torch.where(small, 1.0, sigma)
+    return torch.where(small, s, (torch.exp(sl) * (sl - 1.0) + 1.0) / (sl * sl))
+
+
+def sim3_v_partials(
+    sigma: Tensor, t2: Tensor, dtype: torch.dtype = torch.float64
+) -> tuple[Tensor, ...]:
+    """``(A, B, C, A_s, B_s, C_s, B_t, C_t)``: the coefficients of :func:`sim3_v` and their
+    partial derivatives in ``sigma`` (``_s``) and ``t2`` (``_t``; ``A`` does not depend on
+    ``t2``), for the coupling blocks of the Sim(3) Jacobian.  With ``N_B = sigma e sinc +
+    e t2 cosc - (e - 1)``, ``N_C = A + sigma e cosc - e sinc`` (so ``B = N_B / (sigma^2 + t2)``,
+    ``C = N_C / (sigma^2 + t2)``, ``e = e^sigma``) and ``sinc' = (sinc3 - cosc)/2``,
+    ``cosc' = cosc4 - sinc3/2`` (derivatives in ``t2``)::
+
+        B_s = (e (sigma sinc + t2 (cosc - sinc3)) - 2 sigma B)/(sigma^2 + t2)
+        C_s = (A_s + e ((1 + sigma) cosc - sinc) - 2 sigma C)/(sigma^2 + t2)
+        B_t = (sigma e sinc' + e (cosc + t2 cosc') - B)/(sigma^2 + t2)
+        C_t = (e (sigma cosc' - sinc') - C)/(sigma^2 + t2)
+
+    and ``A_s`` of :func:`expc_prime`.  Near ``sigma = theta = 0`` (:data:`SIM3_SERIES`) the
+    derivatives of the joint series of :func:`sim3_v`, carried along its Horner recurrence;
+    double where, so neither branch produces Inf/NaN in forward or backward."""
+    r2max, terms = SIM3_SERIES[(dtype, True)]
+    small = sigma * sigma + t2 < r2max
+    ss = torch.where(small, sigma, 0.0)
+    ts = torch.where(small, t2, 0.0)
+    p = torch.full_like(t2, _E1[terms - 1])
+    q, r = torch.zeros_like(t2), torch.zeros_like(t2)
+    ps, qs, rs, pt, qt, rt = (torch.zeros_like(t2) for _ in range(6))
+    for c in _E1[terms - 2 :: -1]:
+        ps, qs, rs, pt, qt, rt = (
+            p + ss * ps - ts * qs,
+            ps + q + ss * qs,
+            qs + r + ss * rs,
+            ss * pt - q - ts * qt,
+            pt + ss * qt,
+            qt + ss * rt,
+        )
+        p, q, r = fma(ss * p, ts, q, value=-1.0) + c, fma(p, ss, q), fma(q, ss, r)
+    sl = torch.where(small, 1.0, sigma)
+    tl = torch.where(small, 1.0, t2)
+    e = torch.exp(sl)
+    A, As = expc(sigma), expc_prime(sigma)
+    sc, cc, s3, c4 = sinc(tl), cosc(tl), sinc3(tl), cosc4(tl)
+    dsc, dcc = 0.5 * (s3 - cc), c4 - 0.5 * s3
+    inv = 1.0 / (sl * sl + tl)
+    B = (sl * e * sc + e * tl * cc - torch.expm1(sl)) * inv
+    C = (A + e * (sl * cc - sc)) * inv
+    Bs = (e * (sl * sc + tl * (cc - s3)) - 2.0 * sl * B) * inv
+    Cs = (As + e * ((1.0 + sl) * cc - sc) - 2.0 * sl * C) * inv
+    Bt = (e * (sl * dsc + cc + tl * dcc) - B) * inv
+    Ct = (e * (sl * dcc - dsc) - C) * inv
+    w = torch.where
+    return (
+        A,
+        w(small, q, B),
+        w(small, r, C),
+        As,
+        w(small, qs, Bs),
+        w(small, rs, Cs),
+        w(small, qt, Bt),
+        w(small, rt, Ct),
+    )

@@ -15,8 +15,9 @@ so at ``sigma = 0`` the rotation and translation are those of :mod:`torchlie.se3
 (``V = so3.jac_left(phi)``).  :func:`log` returns a rotation angle in ``[0, pi]`` with so3's
 rule at pi.  The adjoint on tangents is ``Ad_T = [[s R, hat(t) R, -t], [0, R, 0], [0, 0, 1]]``
 and the small adjoint ``ad(xi) = [[hat(phi) + sigma I, hat(rho), -rho], [0, hat(phi), 0],
-[0, 0, 0]]``; ``jac_left(xi) = int_0^1 exp(s ad(xi)) ds``.  Jacobians of operations follow
-Sola et al. (as :mod:`torchlie.se3`): ``f(X Exp(d)) ~= f(X) Exp(J_Y_X d)``.
+[0, 0, 0]]``; ``jac_left(xi) = int_0^1 exp(s ad(xi)) ds``, in closed form by blocks.
+Jacobians of operations follow Sola et al. (as :mod:`torchlie.se3`):
+``f(X Exp(d)) ~= f(X) Exp(J_Y_X d)``.
 """
 
 from __future__ import annotations
@@ -200,15 +201,58 @@ def _ad(xi: Tensor) -> Tensor:
     )
 
 
-def _jl(xi: Tensor) -> Tensor:
-    """``Jl(xi) = int_0^1 exp(s ad(xi)) ds``: the top-right block of the exponential of
-    ``[[ad(xi), I], [0, 0]]`` (evaluated in float64 for float32 input)."""
-    x = _wide(xi)
-    a = _ad(x)
-    eye = torch.eye(7, dtype=x.dtype, device=x.device).expand(a.shape)
-    zero = torch.zeros_like(a)
-    J = torch.linalg.matrix_exp(_rows((a, eye), (zero, zero)))[..., :7, 7:]
-    return J.to(xi.dtype)
+def _mat(a: Tensor, b: Tensor, c: Tensor, P: Tensor) -> Tensor:
+    """``a I + b P + c P^2`` (coefficients of shape ``(...)``, ``P = hat(phi)``)."""
+    eye = torch.eye(3, dtype=P.dtype, device=P.device)
+    return a[..., None, None] * eye + b[..., None, None] * P + c[..., None, None] * (P @ P)
+
+
+def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
+    """``Jl(xi) = int_0^1 exp(s ad(xi)) ds`` (or its inverse) in closed form, by blocks::
+
+        Jl = [[V, Q, W], [0, so3 Jl(phi), 0], [0, 0, 1]]
+        Q = d(V rho)/dphi + hat(t) so3 Jl(phi),  W = d(V rho)/dsigma - t,  t = V rho
+
+    (``Exp(xi + d) = Exp(Jl d) Exp(xi)`` read on the translation), with ``V = A I + B P +
+    C P^2``, ``P = hat(phi)``, so ``d(V rho)/dphi = -B hat(rho) - C (hat(phi x rho) +
+    P hat(rho)) + 2 (B_t (phi x rho) + C_t (phi x (phi x rho))) phi^T`` and ``d(V rho)/dsigma -
+    t = (A_s - A) rho + (B_s - B) (phi x rho) + (C_s - C) (phi x (phi x rho))``: coefficients
+    of :func:`torchlie._coeffs.sim3_v_partials` (in float64 for float32 input).  The inverse is
+    block triangular: ``[[V^-1, -V^-1 Q Jl(phi)^-1, -V^-1 W], [0, Jl(phi)^-1, 0], [0, 0, 1]]``.
+    """
+    rho, phi, sigma = xi[..., :3], xi[..., 3:6], xi[..., 6]
+    w = _wide(sigma)
+    A, B, C, As, Bs, Cs, Bt, Ct = _coeffs.sim3_v_partials(w, _coeffs.theta2(_wide(phi)), w.dtype)
+    # differences in the wide dtype (they cancel at large sigma)
+    A, B, C, Aw, Bw, Cw, Bt, Ct = (
+        x.to(xi.dtype) for x in (A, B, C, As - A, Bs - B, Cs - C, Bt, Ct)
+    )
+    P, R = _components.hat(phi), _components.hat(rho)
+    pr = torch.linalg.cross(phi, rho)
+    ppr = torch.linalg.cross(phi, pr)
+    t = _poly(A, B, C, phi, rho)
+    outer = (2.0 * (Bt[..., None] * pr + Ct[..., None] * ppr)).unsqueeze(-1) * phi.unsqueeze(-2)
+    dphi = -B[..., None, None] * R - C[..., None, None] * (_components.hat(pr) + P @ R) + outer
+    W = Aw[..., None] * rho + Bw[..., None] * pr + Cw[..., None] * ppr
+    z31, z13 = torch.zeros_like(rho).unsqueeze(-1), torch.zeros_like(rho).unsqueeze(-2)
+    one = torch.ones_like(sigma)[..., None, None]
+    if not inverse:
+        Jp = _rodrigues.jac_matrix(phi, "left")
+        Q = dphi + _components.hat(t) @ Jp
+        return _rows(
+            (_mat(A, B, C, P), Q, W.unsqueeze(-1)),
+            (torch.zeros_like(P), Jp, z31),
+            (z13, z13, one),
+        )
+    Jpi = _rodrigues.jac_matrix(phi, "left_inv")
+    a, b, c = _coefficients(_coeffs.sim3_v_inv, sigma, phi)
+    Vi = _mat(a, b, c, P)
+    Qi = -(Vi @ (dphi @ Jpi + _components.hat(t)))
+    return _rows(
+        (Vi, Qi, -_components.mv(Vi, W).unsqueeze(-1)),
+        (torch.zeros_like(P), Jpi, z31),
+        (z13, z13, one),
+    )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -445,8 +489,7 @@ def ad(xi: Float[Tensor, "*b 7"]) -> Float[Tensor, "*b 7 7"]:
 
 def _jac(fn: str, xi: Tensor, inv: bool, sign: float) -> Tensor:
     x, dtype = _checks.tensor(xi, _NAME + fn, "xi", (7,))
-    J = _jl(x if sign > 0 else -x)
-    return _checks.out(torch.linalg.inv(_wide(J)).to(J.dtype) if inv else J, dtype)
+    return _checks.out(_jl(x if sign > 0 else -x, inv), dtype)
 
 
 @_checks.float32_exact
@@ -454,8 +497,9 @@ def jac_left(xi: Float[Tensor, "*b 7"]) -> Float[Tensor, "*b 7 7"]:
     """Left Jacobian ``Jl(xi) = int_0^1 exp(s ad(xi)) ds``: ``Exp(xi + d) ~= Exp(Jl(xi) d)
     Exp(xi)``.
 
-    Its blocks are ``V`` (of :func:`exp`) on ``rho``, ``so3.jac_left(phi)`` on ``phi`` and 1 on
-    ``sigma``; it is evaluated as a block of one matrix exponential of size 14.
+    In closed form by blocks: ``V`` (of :func:`exp`) on ``rho``, ``so3.jac_left(phi)`` on
+    ``phi``, 1 on ``sigma``, and the couplings of the translation to ``phi`` and ``sigma``
+    from the partial derivatives of ``V``'s coefficients (see the Lie page of the docs).
 
     Example:
         >>> torch.allclose(jac_left(torch.zeros(7)), torch.eye(7))
@@ -478,7 +522,8 @@ def jac_right(xi: Float[Tensor, "*b 7"]) -> Float[Tensor, "*b 7 7"]:
 
 @_checks.float32_exact
 def jac_left_inv(xi: Float[Tensor, "*b 7"]) -> Float[Tensor, "*b 7 7"]:
-    """``Jl(xi)^-1``, finite for rotation angles below ``2 pi``.
+    """``Jl(xi)^-1``, finite for rotation angles below ``2 pi``: the closed-form block
+    inverse (``V^-1`` and ``so3.jac_left_inv`` on the diagonal).
 
     Example:
         >>> xi = torch.tensor([1.0, 2.0, 3.0, 0.1, 0.2, 0.3, 0.5])
@@ -834,8 +879,8 @@ def jac_rminus(
     """
     a, b, dtype, _ = _checks.pair(_NAME + "jac_rminus", T1, T0, "T1", "T0", (4, 4), (4, 4))
     xi = _LogFn(_between(b, a))
-    J1 = torch.linalg.inv(_wide(_jl(-xi))).to(xi.dtype)
-    J0 = -torch.linalg.inv(_wide(_jl(xi))).to(xi.dtype)
+    J1 = _jl(-xi, True)
+    J0 = -_jl(xi, True)
     return _checks.out(J1, dtype), _checks.out(J0, dtype)
 
 
