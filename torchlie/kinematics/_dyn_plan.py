@@ -10,13 +10,12 @@ kinematics.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
-from ._joints import _Link
+from ._joints import _Link, quat_rows, rpy_rows
 from .urdf import RobotSpec
 
 #: Gravity in the root frame when none is given, m/s^2.
@@ -59,28 +58,6 @@ class _DynPlan:
 # The merge of the inertials is written on Python floats: the plan is then the same whether
 # it is built eagerly or while torch.compile traces a first call.
 _M3 = list[list[float]]
-
-
-def _rpy3(r: float, p: float, y: float) -> _M3:
-    """``Rz(y) Ry(p) Rx(r)`` (see :func:`~torchlie.kinematics.chain.rpy_matrix`)."""
-    cr, sr, cp, sp = math.cos(r), math.sin(r), math.cos(p), math.sin(p)
-    cy, sy = math.cos(y), math.sin(y)
-    return [
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ]
-
-
-def _quat3(q: tuple[float, ...]) -> _M3:
-    """Rotation of the quaternion ``(w, x, y, z)``, normalised (see ``_joints._quat_matrix``)."""
-    n = math.sqrt(sum(x * x for x in q))
-    w, x, y, z = (c / n for c in q)
-    return [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ]
 
 
 def _mul3(A: _M3, B: _M3) -> _M3:
@@ -133,7 +110,7 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
             j = lk.joint
             assert j is not None
             body_of[lk.index] = body_of[lk.parent]
-            origin = (_rpy3(*j.rpy) if j.quat is None else _quat3(j.quat), list(j.xyz))
+            origin = (rpy_rows(*j.rpy) if j.quat is None else quat_rows(j.quat), list(j.xyz))
             pose_in_body[lk.index] = _compose(pose_in_body[lk.parent], origin)
     # Merged inertials in the body frames.
     spec_in = dict(zip(spec.links, spec.inertials, strict=True)) if spec.inertials else {}
@@ -143,7 +120,7 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
         ins = spec_in.get(lk.name)
         if b < 0 or ins is None:
             continue
-        R, c = _compose(pose_in_body[lk.index], (_rpy3(*ins.rpy), list(ins.xyz)))
+        R, c = _compose(pose_in_body[lk.index], (rpy_rows(*ins.rpy), list(ins.xyz)))
         ixx, ixy, ixz, iyy, iyz, izz = ins.inertia
         I_f = [[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]]
         Rt = [list(r) for r in zip(*R, strict=True)]

@@ -71,31 +71,36 @@ def rpy_matrix(roll: float, pitch: float, yaw: float) -> Tensor:
                 [ 1.,  0.,  0.],
                 [ 0.,  0.,  1.]], dtype=torch.float64)
     """
+    return torch.tensor(rpy_rows(roll, pitch, yaw), dtype=torch.float64)
+
+
+def rpy_rows(roll: float, pitch: float, yaw: float) -> list[list[float]]:
+    """The rows of :func:`rpy_matrix` as Python floats (for plans built while compiling)."""
     cr, sr = math.cos(roll), math.sin(roll)
     cp, sp = math.cos(pitch), math.sin(pitch)
     cy, sy = math.cos(yaw), math.sin(yaw)
-    return torch.tensor(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ],
-        dtype=torch.float64,
-    )
+    return [
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ]
+
+
+def quat_rows(q: Sequence[float]) -> list[list[float]]:
+    """Rows of the rotation matrix of the quaternion ``(w, x, y, z)`` (normalised), as Python
+    floats."""
+    n = math.sqrt(sum(x * x for x in q))
+    w, x, y, z = (c / n for c in q)
+    return [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ]
 
 
 def _quat_matrix(q: Sequence[float]) -> Tensor:
     """Rotation matrix of the quaternion ``(w, x, y, z)`` (normalised) in float64."""
-    n = math.sqrt(sum(x * x for x in q))
-    w, x, y, z = (c / n for c in q)
-    return torch.tensor(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ],
-        dtype=torch.float64,
-    )
+    return torch.tensor(quat_rows(q), dtype=torch.float64)
 
 
 def _origin(j: JointSpec) -> Tensor:

@@ -41,6 +41,7 @@ from __future__ import annotations
 import os
 from typing import Any
 
+from ._joints import quat_rows
 from .urdf import InertialSpec, JointSpec, RobotSpec
 
 __all__ = ["MJCFError", "parse_mjcf"]
@@ -222,14 +223,7 @@ def _inertial(m: Any, i: int) -> InertialSpec:
     """Body ``i``'s compiled inertial (``body_mass``, ``body_ipos``, and the principal moments
     ``body_inertia`` along the axes of ``body_iquat``) as an :class:`InertialSpec` in the body's
     frame: the inertia tensor ``R diag(I) R^T`` about the centre of mass, ``rpy`` zero."""
-    w, x, y, z = (float(c) for c in m.body_iquat[i])
-    n = w * w + x * x + y * y + z * z
-    s = 2.0 / n if n > 0 else 0.0
-    R = [
-        [1 - s * (y * y + z * z), s * (x * y - w * z), s * (x * z + w * y)],
-        [s * (x * y + w * z), 1 - s * (x * x + z * z), s * (y * z - w * x)],
-        [s * (x * z - w * y), s * (y * z + w * x), 1 - s * (x * x + y * y)],
-    ]
+    R = quat_rows([float(c) for c in m.body_iquat[i]])  # MuJoCo's body_iquat is a unit quaternion
     d = [float(v) for v in m.body_inertia[i]]
     I = [[sum(R[r][k] * d[k] * R[c][k] for k in range(3)) for c in range(3)] for r in range(3)]
     return InertialSpec(

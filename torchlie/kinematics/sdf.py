@@ -44,6 +44,7 @@ import torch
 from torch import Tensor
 
 from .. import quaternion as _quaternion
+from ._joints import rpy_matrix
 from .urdf import JointSpec, RobotSpec, _local, _some
 
 __all__ = ["SDFError", "parse_sdf", "SDF_JOINT_TYPES"]
@@ -74,25 +75,6 @@ class SDFError(ValueError):
 class _Frame:
     relative_to: str
     pose: Tensor  # 4x4 float64
-
-
-def _rpy(r: float, p: float, y: float) -> Tensor:
-    cr, sr, cp, sp, cy, sy = (
-        math.cos(r),
-        math.sin(r),
-        math.cos(p),
-        math.sin(p),
-        math.cos(y),
-        math.sin(y),
-    )
-    return torch.tensor(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ],
-        dtype=torch.float64,
-    )
 
 
 class _Reader:
@@ -135,7 +117,7 @@ class _Reader:
             angles = v[3:]
             if el.get("degrees", "false").strip().lower() in ("true", "1"):
                 angles = [math.radians(a) for a in angles]
-            R = _rpy(*angles)
+            R = rpy_matrix(*angles)
         else:
             raise self.fail(where, f"unknown <pose rotation_format={fmt!r}>")
         T[:3, :3] = R
