@@ -129,3 +129,11 @@ def r_hat(R: Tensor, u: Sequence[Tensor]) -> Tensor:
 def blocks(A: Tensor, B: Tensor, C: Tensor, D: Tensor) -> Tensor:
     """The 6x6 matrix ``[[A, B], [C, D]]`` from four 3x3 blocks of one batch shape."""
     return torch.cat((torch.cat((A, B), dim=-1), torch.cat((C, D), dim=-1)), dim=-2)
+
+
+def homogeneous(M: Tensor, t: Tensor) -> Tensor:
+    """``[[M, t], [0, 1]]`` of ``n x n`` blocks ``M`` and ``n``-vectors ``t`` of one batch
+    shape (SE(2), SE(3), Sim(3) elements)."""
+    top = torch.cat((M, t.unsqueeze(-1)), dim=-1)
+    bottom = torch.cat((torch.zeros_like(t), torch.ones_like(t[..., :1])), dim=-1)
+    return torch.cat((top, bottom.unsqueeze(-2)), dim=-2)

@@ -25,7 +25,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, _layout, so2
+from . import _checks, _coeffs, _components, _layout, so2
 from ._autograd import CustomFunction, blocked
 from ._typing import Bool, Float
 
@@ -77,13 +77,6 @@ def _pose(c: Tensor, s: Tensor, tx: Tensor, ty: Tensor) -> Tensor:
     """``[[c, -s, tx], [s, c, ty], [0, 0, 1]]`` of planes."""
     z = torch.zeros_like(c)
     return torch.stack((c, -s, tx, s, c, ty, z, z, z + 1.0), dim=-1).unflatten(-1, (3, 3))
-
-
-def _assemble(R: Tensor, t: Tensor) -> Tensor:
-    """``[[R, t], [0, 1]]`` (``R`` and ``t`` share their batch shape)."""
-    top = torch.cat((R, t.unsqueeze(-1)), dim=-1)
-    bottom = torch.cat((torch.zeros_like(t), torch.ones_like(t[..., :1])), dim=-1)
-    return torch.cat((top, bottom.unsqueeze(-2)), dim=-2)
 
 
 def _coefficients(t: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
@@ -230,12 +223,12 @@ def _compose(A: Tensor, B: Tensor) -> Tensor:
     RA = A[..., :2, :2]
     R = RA @ B[..., :2, :2]
     t = (RA @ B[..., :2, 2:])[..., 0] + A[..., :2, 2]
-    return _assemble(R, t.expand(*R.shape[:-2], 2))
+    return _components.homogeneous(R, t.expand(*R.shape[:-2], 2))
 
 
 def _inverse(T: Tensor) -> Tensor:
     Rt = T[..., :2, :2].transpose(-1, -2)
-    return _assemble(Rt, -(Rt @ T[..., :2, 2:])[..., 0])
+    return _components.homogeneous(Rt, -(Rt @ T[..., :2, 2:])[..., 0])
 
 
 def _between(A: Tensor, B: Tensor) -> Tensor:
@@ -243,12 +236,12 @@ def _between(A: Tensor, B: Tensor) -> Tensor:
     Rt = A[..., :2, :2].transpose(-1, -2)
     R = Rt @ B[..., :2, :2]
     t = (Rt @ (B[..., :2, 2:] - A[..., :2, 2:]))[..., 0]
-    return _assemble(R, t.expand(*R.shape[:-2], 2))
+    return _components.homogeneous(R, t.expand(*R.shape[:-2], 2))
 
 
 def _adjoint(T: Tensor) -> Tensor:
     R, tx, ty = T[..., :2, :2], T[..., 0, 2], T[..., 1, 2]
-    return _assemble(R, torch.stack((ty, -tx), dim=-1))
+    return _components.homogeneous(R, torch.stack((ty, -tx), dim=-1))
 
 
 def _jac_left(xi: Tensor) -> Tensor:
@@ -504,7 +497,7 @@ def random(
     compute, dtype = _checks.factory(_NAME + "random", batch, dtype)
     R = so2.random(*batch, generator=generator, dtype=compute, device=device)
     t = torch.randn(*batch, 2, generator=generator, dtype=compute, device=device)
-    return _checks.out(_assemble(R, t), dtype)
+    return _checks.out(_components.homogeneous(R, t), dtype)
 
 
 @_checks.float32_exact
@@ -535,7 +528,7 @@ def from_rt(R: Float[Tensor, "*b1 2 2"], t: Float[Tensor, "*b2 2"]) -> Float[Ten
                 [0., 0., 1.]])
     """
     r, v, dtype, batch = _checks.pair(_NAME + "from_rt", R, t, "R", "t", (2, 2), (2,))
-    return _checks.out(_assemble(r.expand(*batch, 2, 2), v.expand(*batch, 2)), dtype)
+    return _checks.out(_components.homogeneous(r.expand(*batch, 2, 2), v.expand(*batch, 2)), dtype)
 
 
 @_checks.float32_exact

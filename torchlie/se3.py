@@ -94,13 +94,6 @@ def _trans(T: Tensor) -> Tensor:
     return T[..., :3, 3]
 
 
-def _assemble(R: Tensor, t: Tensor) -> Tensor:
-    """``[[R, t], [0, 1]]`` (``R`` and ``t`` share their batch shape)."""
-    top = torch.cat((R, t.unsqueeze(-1)), dim=-1)
-    bottom = torch.cat((torch.zeros_like(t), torch.ones_like(t[..., :1])), dim=-1)
-    return torch.cat((top, bottom.unsqueeze(-2)), dim=-2)
-
-
 def _broadcast_rt(R: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
     batch = _layout.broadcast(R.shape[:-2], t.shape[:-1])
     return R.expand(*batch, 3, 3), t.expand(*batch, 3)
@@ -127,7 +120,7 @@ def _between(A: Tensor, B: Tensor) -> Tensor:
     RA = _rot(A)
     R = RA.transpose(-1, -2) @ _rot(B)
     t = _components.mtv(RA, _trans(B) - _trans(A))
-    return _assemble(R, t.expand(*R.shape[:-2], 3))
+    return _components.homogeneous(R, t.expand(*R.shape[:-2], 3))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -389,7 +382,7 @@ def random(
     compute, dtype = _checks.factory(_NAME + "random", batch, dtype)
     R = so3.random(*batch, generator=generator, dtype=compute, device=device)
     t = torch.randn(*batch, 3, generator=generator, dtype=compute, device=device)
-    return _checks.out(_assemble(R, t), dtype)
+    return _checks.out(_components.homogeneous(R, t), dtype)
 
 
 @_checks.float32_exact
@@ -423,7 +416,7 @@ def from_rt(R: Float[Tensor, "*b1 3 3"], t: Float[Tensor, "*b2 3"]) -> Float[Ten
                 [0., 0., 0., 1.]])
     """
     r, v, dtype, _ = _checks.pair(_NAME + "from_rt", R, t, "R", "t", (3, 3), (3,))
-    return _checks.out(_assemble(*_broadcast_rt(r, v)), dtype)
+    return _checks.out(_components.homogeneous(*_broadcast_rt(r, v)), dtype)
 
 
 @_checks.float32_exact
@@ -458,7 +451,9 @@ def from_pos_quat(x: Float[Tensor, "*b 7"]) -> Float[Tensor, "*b 4 4"]:
                 [ 0.,  0.,  0.,  1.]])
     """
     v, dtype = _checks.tensor(x, _NAME + "from_pos_quat", "x", (7,))
-    return _checks.out(_assemble(_rotation_matrix.from_quaternion(v[..., 3:]), v[..., :3]), dtype)
+    return _checks.out(
+        _components.homogeneous(_rotation_matrix.from_quaternion(v[..., 3:]), v[..., :3]), dtype
+    )
 
 
 @_checks.float32_exact

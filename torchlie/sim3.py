@@ -81,13 +81,6 @@ def _trans(T: Tensor) -> Tensor:
     return T[..., :3, 3]
 
 
-def _assemble(M: Tensor, t: Tensor) -> Tensor:
-    """``[[M, t], [0, 1]]`` (``M`` and ``t`` share their batch shape)."""
-    top = torch.cat((M, t.unsqueeze(-1)), dim=-1)
-    bottom = torch.cat((torch.zeros_like(t), torch.ones_like(t[..., :1])), dim=-1)
-    return torch.cat((top, bottom.unsqueeze(-2)), dim=-2)
-
-
 def _wide(x: Tensor) -> Tensor:
     """The precision coefficients are evaluated in (float64 for float32, as ``_coeffs``)."""
     return x.double() if x.dtype == torch.float32 else x
@@ -151,14 +144,14 @@ _exp_blocked = blocked(_exp, (1,))
 def _inverse(T: Tensor) -> Tensor:
     """``[[M^-1, -M^-1 t], [0, 1]]`` with ``M^-1 = M^T / s^2``."""
     Mi = _lin(T).transpose(-1, -2) * torch.exp(-_log_scale2(_lin(T)))[..., None, None]
-    return _assemble(Mi, -_components.mv(Mi, _trans(T)))
+    return _components.homogeneous(Mi, -_components.mv(Mi, _trans(T)))
 
 
 def _compose(A: Tensor, B: Tensor) -> Tensor:
     M = _lin(A) @ _lin(B)
     t = _components.mv(_lin(A), _trans(B)) + _trans(A)
     batch = M.shape[:-2]
-    return _assemble(M, t.expand(*batch, 3))
+    return _components.homogeneous(M, t.expand(*batch, 3))
 
 
 def _between(A: Tensor, B: Tensor) -> Tensor:
@@ -583,7 +576,7 @@ def random(
     R = so3.random(*batch, generator=generator, dtype=compute, device=device)
     t = torch.randn(*batch, 3, generator=generator, dtype=compute, device=device)
     sigma = torch.randn((*batch, 1), generator=generator, dtype=compute, device=device)[..., 0]
-    return _checks.out(_assemble(torch.exp(sigma)[..., None, None] * R, t), dtype)
+    return _checks.out(_components.homogeneous(torch.exp(sigma)[..., None, None] * R, t), dtype)
 
 
 @_checks.float32_exact
@@ -626,7 +619,7 @@ def from_srt(
     _checks.same_dtype(fn, s=s, R=R)
     batch = _checks.batch_broadcast(fn, (k.shape, "s"), (r.shape[:-2], "R"), (v.shape[:-1], "t"))
     M = (k[..., None, None] * r).expand(*batch, 3, 3)
-    return _checks.out(_assemble(M, v.expand(*batch, 3)), dtype)
+    return _checks.out(_components.homogeneous(M, v.expand(*batch, 3)), dtype)
 
 
 @_checks.float32_exact
@@ -661,7 +654,7 @@ def from_se3(T: Float[Tensor, "*b1 4 4"], s: Float[Tensor, "*b2"]) -> Float[Tens
     _checks.same_dtype(fn, T=T, s=s)
     batch = _checks.batch_broadcast(fn, (x.shape[:-2], "T"), (k.shape, "s"))
     M = (k[..., None, None] * _lin(x)).expand(*batch, 3, 3)
-    return _checks.out(_assemble(M, _trans(x).expand(*batch, 3)), dtype)
+    return _checks.out(_components.homogeneous(M, _trans(x).expand(*batch, 3)), dtype)
 
 
 @_checks.float32_exact
