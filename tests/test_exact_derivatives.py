@@ -378,6 +378,23 @@ case(
     (ambient(2), _t([[1.0, 0.0], [0.0, 2.0], [1.0, 1.0], [-3.0, 0.0]])),
 )
 _group_cases(se2, (POSE2, POSES2), (ambient(3), TWISTS2), PT2_)
+_ROT2_SET = Kind(3, lambda R, d: R @ torch.linalg.matrix_exp(_hat2(d.reshape(*R.shape[:-2], 1))))
+_POSE2_SET = Kind(
+    9, lambda T, d: T @ torch.linalg.matrix_exp(_hat_se2(d.reshape(*T.shape[:-2], 3)))
+)
+for _method in ("geodesic", "chordal"):
+    case(
+        f"statistics.so2_mean[{_method}]",
+        partial(statistics.so2_mean, method=_method),
+        (_ROT2_SET, _sets(ROTS2, 3, 24)),
+        (ambient(3), WEIGHTS3),
+    )
+    case(
+        f"statistics.se2_mean[{_method}]",
+        partial(statistics.se2_mean, method=_method),
+        (_POSE2_SET, _sets(POSES2[::2], 3, 24)),
+        (ambient(3), WEIGHTS3),
+    )
 case("se2.vee", se2.vee, (ambient(3, 3), torch.cat((_hat_se2(TWISTS2), POSES2))))
 case("se2.from_rt", se2.from_rt, (ROT2, ROTS2), (ambient(2), POINTS2))
 case("se2.to_rt", se2.to_rt, (POSE2, POSES2))

@@ -41,3 +41,39 @@ def test_distance_and_trivial_jacobians():
     assert float(so2.distance(a, b)) == pytest.approx(2 * math.pi - 3.2, abs=1e-14)
     assert float(so2.distance(a, a)) == 0.0
     assert so2.adjoint(a).tolist() == [[1.0]] and so2.ad(torch.ones(1)).tolist() == [[0.0]]
+
+
+def test_so2_mean():
+    from scipy.stats import circmean
+
+    from torchlie import statistics
+
+    F = torch.float64
+    g = torch.Generator().manual_seed(5)
+    theta = torch.rand(4, 7, 1, generator=g, dtype=F) * 2.0 - 1.0 + 3.0  # around the half turn
+    R = so2.exp(theta)
+    w = torch.rand(4, 7, generator=g, dtype=F) + 0.1
+    # chordal: the circular mean (scipy's, unweighted)
+    mc = so2.log(statistics.so2_mean(R, method="chordal"))[..., 0]
+    ref = torch.tensor(circmean(theta[..., 0].numpy(), high=math.pi, low=-math.pi, axis=-1))
+    torch.testing.assert_close(
+        torch.remainder(mc - ref + math.pi, 2 * math.pi) - math.pi,
+        torch.zeros(4, dtype=F),
+        atol=1e-12,
+        rtol=0,
+    )
+    # geodesic: stationary, sum_i w_i Log(M^T R_i) = 0, and the weighted mean of the angles
+    M = statistics.so2_mean(R, w)
+    r = (w[..., None] * so2.rminus(R, M[:, None])).sum(-2)
+    assert float(r.abs().max()) < 1e-13
+    # equivariant
+    A = so2.random(4, generator=g, dtype=F)
+    torch.testing.assert_close(
+        statistics.so2_mean(so2.compose(A[:, None], R), w), so2.compose(A, M)
+    )
+    # no direction: two opposite rotations of equal weight give NaN for that set only
+    Rn = torch.stack((torch.stack((torch.eye(2, dtype=F), -torch.eye(2, dtype=F))), R[0, :2]))
+    out = statistics.so2_mean(Rn, method="chordal")
+    assert out[0].isnan().all() and out[1].isfinite().all()
+    with pytest.raises(ValueError, match=r"torchlie\.statistics\.so2_mean"):
+        statistics.so2_mean(R[0, 0])

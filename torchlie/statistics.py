@@ -1,4 +1,4 @@
-"""Statistics, interpolation, alignment and kinematics on SO(3), SE(3) and Sim(3).
+"""Statistics, interpolation, alignment and kinematics on SO(3), SE(3), Sim(3), SO(2) and SE(2).
 
 Functions are named ``so3_*`` / ``se3_*`` by group and take plain tensors in the conventions of
 :mod:`torchlie`: rotations ``(..., 3, 3)``, poses ``(..., 4, 4)``, rotation vectors ``(..., 3)``,
@@ -6,7 +6,8 @@ twists ``(rho, phi)`` ``(..., 6)``, right perturbations ``X Exp(eps)``.
 
 * :func:`so3_randn`, :func:`se3_randn`: Gaussian noise in the tangent space about a mean,
   ``X = M Exp(eps)``, ``eps ~ N(0, Sigma)``.
-* :func:`so3_mean`, :func:`se3_mean`, :func:`sim3_mean`: weighted means of a set
+* :func:`so3_mean`, :func:`se3_mean`, :func:`sim3_mean`, :func:`so2_mean`, :func:`se2_mean`:
+  weighted means of a set
   ``(..., N, n, n)`` (the last batch dimension is the set), ``"chordal"`` (closed form) or
   ``"geodesic"`` (Karcher iteration with a fixed iteration count, so nothing synchronises a
   device and the result is differentiable).
@@ -33,7 +34,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from . import _checks, se3, sim3, so3
+from . import _checks, se2, se3, sim3, so2, so3
 from ._typing import Float
 
 __all__ = [
@@ -42,6 +43,8 @@ __all__ = [
     "so3_mean",
     "se3_mean",
     "sim3_mean",
+    "so2_mean",
+    "se2_mean",
     "so3_interpolate_keyframes",
     "se3_interpolate_keyframes",
     "Alignment",
@@ -70,6 +73,8 @@ class _Group(NamedTuple):
 _SO3 = _Group("so3", so3, 3, 3)
 _SE3 = _Group("se3", se3, 4, 6)
 _SIM3 = _Group("sim3", sim3, 4, 7)
+_SO2 = _Group("so2", so2, 2, 1)
+_SE2 = _Group("se2", se2, 3, 3)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -239,6 +244,12 @@ def _chordal_so3(x: Tensor, w: Tensor) -> Tensor:
     return so3.project(_wsum(w, x, 2))
 
 
+def _chordal_so2(x: Tensor, w: Tensor) -> Tensor:
+    # sum_i w_i R_i is a multiple of a rotation (the sum of the unit complex numbers): its
+    # direction is the nearest rotation
+    return so2.from_complex(_wsum(w, x[..., :, 0], 1))
+
+
 def _karcher(g: _Group, M: Tensor, x: Tensor, w: Tensor, iterations: int) -> Tensor:
     # M <- M Exp(sum_i w_i Log(M^-1 X_i)): the Gauss-Newton step of sum_i w_i |Log(M^-1 X_i)|^2.
     for _ in range(iterations):
@@ -355,6 +366,68 @@ def sim3_mean(
     M = sim3.from_srt(torch.exp(_wsum(w, torch.log(s), 0)), _chordal_so3(R, w), _wsum(w, t, 1))
     if method == "geodesic":
         M = _karcher(_SIM3, M, x, w, iterations)
+    return _checks.out(M, dtype)
+
+
+@_checks.float32_exact
+def so2_mean(
+    R: Float[Tensor, "*b1 N 2 2"],
+    weights: Float[Tensor, "*b2 N"] | None = None,
+    *,
+    method: str = "geodesic",
+    iterations: int = 10,
+) -> Float[Tensor, "*b 2 2"]:
+    """Weighted mean of a set of planar rotations (the set is the last batch dimension).
+
+    ``method="chordal"``: the rotation nearest to ``sum_i w_i R_i``, the direction of the
+    weighted sum of the unit complex numbers (the circular mean); NaN where that sum is 0 (no
+    direction, e.g. two opposite rotations of equal weight; close to it the direction is
+    ill-conditioned).  ``method="geodesic"`` (default):
+    the Karcher mean, ``sum_i w_i Log(M^T R_i) = 0``, by ``iterations`` fixed steps from the
+    chordal mean (as :func:`so3_mean`; on SO(2) the angles add, so one step from a start within
+    the set's half circle already reaches it).  Both are equivariant: ``mean(A R_i) = A mean(R_i)``.
+
+    Example:
+        >>> R = so2.exp(torch.tensor([[0.2], [0.6]]))
+        >>> so2.log(so2_mean(R))
+        tensor([0.4000])
+    """
+    fn = _NAME + "so2_mean"
+    _check_method(fn, method, iterations)
+    x, w, dtype = _set(fn, _SO2, R, weights, "R")
+    M = _chordal_so2(x, w)
+    if method == "geodesic":
+        M = _karcher(_SO2, M, x, w, iterations)
+    return _checks.out(M, dtype)
+
+
+@_checks.float32_exact
+def se2_mean(
+    T: Float[Tensor, "*b1 N 3 3"],
+    weights: Float[Tensor, "*b2 N"] | None = None,
+    *,
+    method: str = "geodesic",
+    iterations: int = 10,
+) -> Float[Tensor, "*b 3 3"]:
+    """Weighted mean of a set of planar poses (the set is the last batch dimension).
+
+    ``method="chordal"``: rotation as :func:`so2_mean`'s chordal mean, translation the weighted
+    mean of the translations.  ``method="geodesic"`` (default): the exponential barycenter,
+    ``sum_i w_i Log(M^-1 T_i) = 0`` in SE(2)'s exponential coordinates, by ``iterations`` fixed
+    steps from the chordal mean (as :func:`se3_mean`); equivariant under left and right
+    multiplication.
+
+    Example:
+        >>> T = se2.from_xytheta(torch.tensor([[0.0, 0.0, 0.0], [2.0, 4.0, 0.0]]))
+        >>> se2.to_xytheta(se2_mean(T))
+        tensor([1., 2., 0.])
+    """
+    fn = _NAME + "se2_mean"
+    _check_method(fn, method, iterations)
+    x, w, dtype = _set(fn, _SE2, T, weights, "T")
+    M = se2.from_rt(_chordal_so2(x[..., :2, :2], w), _wsum(w, x[..., :2, 2], 1))
+    if method == "geodesic":
+        M = _karcher(_SE2, M, x, w, iterations)
     return _checks.out(M, dtype)
 
 
