@@ -28,6 +28,7 @@ and returned in the input dtype.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from types import ModuleType
 from typing import NamedTuple
 
@@ -250,6 +251,39 @@ def _chordal_so2(x: Tensor, w: Tensor) -> Tensor:
     return so2.from_complex(_wsum(w, x[..., :, 0], 1))
 
 
+def _chordal_se3(x: Tensor, w: Tensor) -> Tensor:
+    return se3.from_rt(_chordal_so3(x[..., :3, :3], w), _wsum(w, x[..., :3, 3], 1))
+
+
+def _chordal_sim3(x: Tensor, w: Tensor) -> Tensor:
+    s, R, t = sim3.to_srt(x)  # the weighted geometric mean of the scales
+    return sim3.from_srt(torch.exp(_wsum(w, torch.log(s), 0)), _chordal_so3(R, w), _wsum(w, t, 1))
+
+
+def _chordal_se2(x: Tensor, w: Tensor) -> Tensor:
+    return se2.from_rt(_chordal_so2(x[..., :2, :2], w), _wsum(w, x[..., :2, 2], 1))
+
+
+def _mean(
+    name: str,
+    g: _Group,
+    X: Tensor,
+    weights: object,
+    arg: str,
+    chordal: Callable[[Tensor, Tensor], Tensor],
+    method: str,
+    iterations: int,
+) -> Tensor:
+    """The chordal mean of a set, then (``method="geodesic"``) the Karcher steps from it."""
+    fn = _NAME + name
+    _check_method(fn, method, iterations)
+    x, w, dtype = _set(fn, g, X, weights, arg)
+    M = chordal(x, w)
+    if method == "geodesic":
+        M = _karcher(g, M, x, w, iterations)
+    return _checks.out(M, dtype)
+
+
 def _karcher(g: _Group, M: Tensor, x: Tensor, w: Tensor, iterations: int) -> Tensor:
     # M <- M Exp(sum_i w_i Log(M^-1 X_i)): the Gauss-Newton step of sum_i w_i |Log(M^-1 X_i)|^2.
     for _ in range(iterations):
@@ -292,13 +326,7 @@ def so3_mean(
         >>> so3.log(so3_mean(R, torch.tensor([3.0, 1.0])))
         tensor([0.0000, 0.0000, 0.3000])
     """
-    fn = _NAME + "so3_mean"
-    _check_method(fn, method, iterations)
-    x, w, dtype = _set(fn, _SO3, R, weights, "R")
-    M = _chordal_so3(x, w)
-    if method == "geodesic":
-        M = _karcher(_SO3, M, x, w, iterations)
-    return _checks.out(M, dtype)
+    return _mean("so3_mean", _SO3, R, weights, "R", _chordal_so3, method, iterations)
 
 
 @_checks.float32_exact
@@ -328,14 +356,7 @@ def se3_mean(
         >>> se3.to_rt(se3_mean(T))[1]
         tensor([1., 2., 3.])
     """
-    fn = _NAME + "se3_mean"
-    _check_method(fn, method, iterations)
-    x, w, dtype = _set(fn, _SE3, T, weights, "T")
-    R, t = x[..., :3, :3], x[..., :3, 3]
-    M = se3.from_rt(_chordal_so3(R, w), _wsum(w, t, 1))
-    if method == "geodesic":
-        M = _karcher(_SE3, M, x, w, iterations)
-    return _checks.out(M, dtype)
+    return _mean("se3_mean", _SE3, T, weights, "T", _chordal_se3, method, iterations)
 
 
 @_checks.float32_exact
@@ -359,14 +380,7 @@ def sim3_mean(
         >>> sim3.scale(sim3_mean(T))
         tensor(2.)
     """
-    fn = _NAME + "sim3_mean"
-    _check_method(fn, method, iterations)
-    x, w, dtype = _set(fn, _SIM3, T, weights, "T")
-    s, R, t = sim3.to_srt(x)
-    M = sim3.from_srt(torch.exp(_wsum(w, torch.log(s), 0)), _chordal_so3(R, w), _wsum(w, t, 1))
-    if method == "geodesic":
-        M = _karcher(_SIM3, M, x, w, iterations)
-    return _checks.out(M, dtype)
+    return _mean("sim3_mean", _SIM3, T, weights, "T", _chordal_sim3, method, iterations)
 
 
 @_checks.float32_exact
@@ -392,13 +406,7 @@ def so2_mean(
         >>> so2.log(so2_mean(R))
         tensor([0.4000])
     """
-    fn = _NAME + "so2_mean"
-    _check_method(fn, method, iterations)
-    x, w, dtype = _set(fn, _SO2, R, weights, "R")
-    M = _chordal_so2(x, w)
-    if method == "geodesic":
-        M = _karcher(_SO2, M, x, w, iterations)
-    return _checks.out(M, dtype)
+    return _mean("so2_mean", _SO2, R, weights, "R", _chordal_so2, method, iterations)
 
 
 @_checks.float32_exact
@@ -422,13 +430,7 @@ def se2_mean(
         >>> se2.to_xytheta(se2_mean(T))
         tensor([1., 2., 0.])
     """
-    fn = _NAME + "se2_mean"
-    _check_method(fn, method, iterations)
-    x, w, dtype = _set(fn, _SE2, T, weights, "T")
-    M = se2.from_rt(_chordal_so2(x[..., :2, :2], w), _wsum(w, x[..., :2, 2], 1))
-    if method == "geodesic":
-        M = _karcher(_SE2, M, x, w, iterations)
-    return _checks.out(M, dtype)
+    return _mean("se2_mean", _SE2, T, weights, "T", _chordal_se2, method, iterations)
 
 
 # ----------------------------------------------------------------------------------------------
