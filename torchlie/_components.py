@@ -46,6 +46,13 @@ def cross_planes(
     )
 
 
+def cross(a: Tensor, b: Tensor, dim: int = -1) -> Tensor:
+    """``a x b`` along ``dim`` (of size 3; the other dimensions broadcast) from components:
+    several times faster than ``torch.linalg.cross`` on CPU, whose kernel loops element by
+    element."""
+    return torch.stack(cross_planes(a.unbind(dim), b.unbind(dim)), dim)
+
+
 def mv(M: Tensor, v: Tensor) -> Tensor:
     """``M @ v`` for a batch of matrices and vectors (batch shapes broadcast), column by
     column: each element's result is summed alike whatever the batch around it.  A 3x4 block

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from .. import _components
 from .. import so3 as _so3
 from ._joints import _Link
 
@@ -128,7 +129,7 @@ def _link_columns(
     if origins:
         Ur = torch.cat(us) if len(us) > 1 else us[0]
         p = pose(target)[3, :3]
-        lin = torch.linalg.cross(Ur, p - torch.stack(origins), dim=1)
+        lin = _components.cross(Ur, p - torch.stack(origins), dim=1)
         cols.append(torch.cat((lin, Ur), dim=1))
     if jp.vs is not None and jp.n_rot_const < jp.vs.shape[0]:
         Ut = U[jp.n_rot_const :]
