@@ -154,6 +154,23 @@ def test_targets_bookkeeping() -> None:
     assert rows[-2] == "| met | 0/1 | 0/1 | 0/1 |"
 
 
+def test_readme_table() -> None:
+    from benchmarks import readme_table
+
+    def records(tl: float, peer: float) -> list[dict]:
+        return [
+            {"op": "so3.exp", "dtype": dt, "mode": mode, "n": 10, "impl": impl, "median_s": t}
+            for dt in ("float32", "float64")
+            for mode in ("fwd", "fwd+bwd")
+            for impl, t in (("floor", 1e-8), ("torchlie", tl), ("roma", peer))
+        ]
+
+    default = {"records": records(1e-7, 2e-7)}
+    reuse = {"records": records(2e-7, 3e-7)}
+    row = "| so3.exp | 10.0 (2.00 roma) | 10.0 (2.00 roma) | 1.00 / 1.00 | 20.0 (1.50) |"
+    assert readme_table.table(default, reuse, n=10).splitlines()[2].startswith(row)
+
+
 def _run(tmp_path: Path, *extra: str) -> dict:
     cmd = [sys.executable, str(ROOT / "benchmarks" / "run.py"), "--quick", "--out", str(tmp_path),
            "--no-plot", *extra]  # fmt: skip
