@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from ._joints import _Link, quat_rows, rpy_rows
+from ._joints import _Link, _unit, quat_rows, rpy_rows
 from .urdf import RobotSpec
 
 #: Gravity in the root frame when none is given, m/s^2.
@@ -35,7 +35,11 @@ class _DynPlan:
     n_rot: int  # columns: n_rot constant rotations, then 3 per floating joint, then translations
     col_anchor: Tensor | None  # (n_rot, 3, 1) rotation columns' pivots in their bodies' frames
     col_v: Tensor  # (n_const, 1, 3) directions of the constant columns in their parent frames
-    col_parent: Tensor  # (n_const,) position in targets of each constant column's parent link
+    col_parent: Tensor  # (n_const,) position in targets of each constant column's frame link
+    col_parent_pos: tuple[int, ...]  # the same as Python numbers
+    frames_are_bodies: bool  # col_parent_pos == (0, 1, ..., n_const - 1): the bodies' own frames
+    rot_bodies_run: bool  # col_body[:n_rot] == (0, 1, ..., n_rot - 1)
+    sub_cols: Tensor  # (K, n_bodies): row col_body[k] of sub (the composite of column k's body)
     col_body: Tensor  # (K,) body moved by each column
     col_frame: Tensor  # (K,) body whose velocity carries the column (n_bodies: the world)
     col_dof: Tensor  # (K,) the DoF of each column
@@ -140,21 +144,34 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
             p = parent_body[p]
         anc_sets.append(s)
 
-    # Columns: constant rotations, floating rotations, translations.  A rotation column's
-    # direction is fixed in its parent's frame ("rot") or in its own link's ("crot": the
-    # angular velocities of ball and free joints); it turns about the link's anchor.
-    rot: list[tuple[int, tuple[float, ...], int, int, float]] = []  # parent, v, body, d, w
+    # Columns: constant rotations, floating rotations, translations.  A column's direction is
+    # fixed in a link's frame: the link's own for rotations about its joint's axis ("rot":
+    # the rotation about the axis leaves it fixed), for prismatic joints and for ball and free
+    # joints' angular velocities ("crot"); its parent's for the translations of planar,
+    # floating and free joints (the link turns under them).  Own frames need no parent pose,
+    # and where they are the bodies in order, no gather at all.  Rotations turn about the
+    # link's anchor.
+    rot: list[tuple[int, tuple[float, ...], int, int, float]] = []  # frame, v, body, d, w
     tr: list[tuple[int, tuple[float, ...], int, int, float]] = []
     anchors: list[tuple[float, float, float]] = []  # per rotation column, in its body's frame
     floats_raw: list[tuple[int, int, int, Tensor]] = []
     for i in moving:
         lk = links[i]
         b = body_ix[i]
+        own = lk.kind in ("rot", "prism")
         for kind, v, d, w in lk.cols:
             if kind == "tr":
-                tr.append((lk.parent, v, b, d, w))
+                if own:  # the axis in the child's frame
+                    assert lk.joint is not None
+                    tr.append((lk.index, tuple(float(x) for x in _unit(lk.joint.axis)), b, d, w))
+                else:
+                    tr.append((lk.parent, v, b, d, w))
                 continue
-            rot.append((lk.index if kind == "crot" else lk.parent, v, b, d, w))
+            if kind == "rot":  # revolute, continuous, planar: the axis in the child's frame
+                assert lk.joint is not None
+                rot.append((lk.index, tuple(float(x) for x in _unit(lk.joint.axis)), b, d, w))
+            else:
+                rot.append((lk.index, v, b, d, w))
             anchors.append(lk.anchor or (0.0, 0.0, 0.0))
         if lk.float_rot is not None:
             d0, O_R = lk.float_rot
@@ -163,6 +180,7 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
     parents = sorted({p for p, *_ in const} | {p for p, *_ in floats_raw})
     targets = tuple(moving) + tuple(p for p in parents if p not in body_ix)
     pos = {t: k for k, t in enumerate(targets)}
+    col_parent_pos = tuple(pos[p] for p, *_ in const)
     col_body = [b for _, _, b, _, _ in rot]
     col_body += [b for _, b, _, _ in floats_raw for _ in range(3)]
     col_body += [b for _, _, b, _, _ in tr]
@@ -216,7 +234,11 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
             else None
         ),
         col_v=torch.tensor([list(v) for _, v, *_ in const], dtype=torch.float64).reshape(-1, 1, 3),
-        col_parent=torch.tensor([pos[p] for p, *_ in const], dtype=torch.long),
+        col_parent=torch.tensor(col_parent_pos, dtype=torch.long),
+        col_parent_pos=col_parent_pos,
+        frames_are_bodies=len(const) <= nb and col_parent_pos == tuple(range(len(const))),
+        rot_bodies_run=col_body[: len(rot)] == list(range(len(rot))),
+        sub_cols=sub[torch.tensor(col_body, dtype=torch.long)].reshape(K, nb),
         col_body=torch.tensor(col_body, dtype=torch.long),
         col_frame=torch.tensor(col_frame, dtype=torch.long),
         col_dof=torch.tensor(col_dof, dtype=torch.long),
@@ -263,6 +285,10 @@ def _convert(plan: _DynPlan, dtype: torch.dtype, device: torch.device) -> _DynPl
         col_anchor=None if plan.col_anchor is None else f(plan.col_anchor),
         col_v=f(plan.col_v),
         col_parent=i(plan.col_parent),
+        col_parent_pos=plan.col_parent_pos,
+        frames_are_bodies=plan.frames_are_bodies,
+        rot_bodies_run=plan.rot_bodies_run,
+        sub_cols=f(plan.sub_cols),
         col_body=i(plan.col_body),
         col_frame=i(plan.col_frame),
         col_dof=i(plan.col_dof),

@@ -156,8 +156,13 @@ class _Geometry:
     Sa: Tensor  # (K, 3, B) angular part
     p: Tensor  # (nb, 3, B) body origins
     RT: Tensor  # (nb, 3, 3, B) body rotations, transposed: RT[c, r] = R[r, c]
-    poses: Tensor  # (n_targets, 4, 4, B) internal poses (T^T) of the targets
+    poses: list[Tensor]  # (4, 4, B) internal poses (T^T) of the targets
     floats: list[tuple[Tensor, Tensor, Tensor]]  # per floating joint: R_parent O_R, r, p
+
+
+def _cat(parts: list[Tensor]) -> Tensor:
+    """``torch.cat(parts)`` without the copy of a single part."""
+    return parts[0] if len(parts) == 1 else torch.cat(parts)
 
 
 def _geometry(chain, plan: _DynPlan, q2: Tensor, extra: tuple[int, ...]) -> _Geometry:
@@ -167,37 +172,46 @@ def _geometry(chain, plan: _DynPlan, q2: Tensor, extra: tuple[int, ...]) -> _Geo
     targets = plan.targets + extra
     fk = chain._plan(targets)
     out = chain._run(fk, q2)
-    P = torch.stack([chain._pose(fk, out, i, B, q2) for i in targets])  # (n, c, r, B)
+    poses = [chain._pose(fk, out, i, B, q2) for i in targets]  # (c, r, B) each
     nb = len(plan.bodies)
-    p = P[:nb, 3, :3]  # (nb, 3, B)
-    RT = P[:nb, :3, :3]  # (nb, c, r, B)
+    RT = torch.stack([P[:3, :3] for P in poses[:nb]])  # (nb, c, r, B)
+    p = torch.stack([P[3, :3] for P in poses[:nb]])  # (nb, 3, B)
     parts_u: list[Tensor] = []
     parts_p: list[Tensor] = []
     n_const = plan.col_v.shape[0]
     U = None
     if n_const:
-        Rp = P[:, :3, :3].index_select(0, plan.col_parent)  # (n, c, r, B)
-        U = torch.matmul(plan.col_v, Rp.reshape(n_const, 3, 3 * B)).view(n_const, 3, B)
+        if plan.frames_are_bodies:  # each column's direction is fixed in its own body
+            Rf = RT[:n_const]
+        else:
+            Rf = torch.stack([poses[k][:3, :3] for k in plan.col_parent_pos])
+        U = torch.matmul(plan.col_v, Rf.reshape(n_const, 3, 3 * B)).view(n_const, 3, B)
         parts_u.append(U[: plan.n_rot])
-        piv = p.index_select(0, plan.col_body[: plan.n_rot])
+        if plan.rot_bodies_run:
+            piv = p[: plan.n_rot]
+        else:
+            piv = p.index_select(0, plan.col_body[: plan.n_rot])
         if plan.col_anchor is not None:  # the joint turns about a point of its body
             piv = piv + _rot(RT.index_select(0, plan.col_body[: plan.n_rot]), plan.col_anchor)
         parts_p.append(piv)
     floats = []
     for ppos, b, d0, O_R in plan.floats:
-        Rp = P[ppos, :3, :3]  # (c, r, B)
+        Rp = poses[ppos][:3, :3]  # (c, r, B)
         RO = torch.einsum("crb,ck->rkb", Rp, O_R)  # R_parent O_R, (3, 3, B)
         r = q2[:, d0 : d0 + 3]
         Jl = _so3.jac_left(r).permute(1, 2, 0)  # (3, 3, B)
         parts_u.append(torch.einsum("rkb,kjb->jrb", RO, Jl))  # column j: RO Jl e_j
         parts_p.append(p[b].unsqueeze(0).expand(3, 3, B))
         floats.append((RO, r, p[b]))
-    Ur = torch.cat(parts_u) if parts_u else q2.new_zeros(0, 3, B)
-    Pr = torch.cat(parts_p) if parts_p else q2.new_zeros(0, 3, B)
-    Ut = U[plan.n_rot :] if U is not None else q2.new_zeros(0, 3, B)
-    Sl = torch.cat((_cross(Pr, Ur), Ut))
+    Ur = _cat(parts_u) if parts_u else q2.new_zeros(0, 3, B)
+    Pr = _cat(parts_p) if parts_p else q2.new_zeros(0, 3, B)
+    Slr = _cross(Pr, Ur)
+    if U is None or U.shape[0] == plan.n_rot:  # no translation column
+        return _Geometry(Slr, Ur, p, RT, poses, floats)
+    Ut = U[plan.n_rot :]
+    Sl = torch.cat((Slr, Ut))
     Sa = torch.cat((Ur, torch.zeros_like(Ut)))
-    return _Geometry(Sl, Sa, p, RT, P, floats)
+    return _Geometry(Sl, Sa, p, RT, poses, floats)
 
 
 def _batch_last(x: Tensor, batch: tuple[int, ...], trailing: int) -> Tensor:
@@ -261,7 +275,7 @@ def _float_bias(geo: _Geometry, qd2: Tensor, plan: _DynPlan) -> tuple[Tensor, Te
 
 def _mm(M: Tensor, x: Tensor) -> Tensor:
     """``M (r, n)`` times ``x (n, 3, B)`` over the first dimension: ``(r, 3, B)``."""
-    return torch.mm(M, x.reshape(x.shape[0], -1)).view(M.shape[0], *x.shape[1:])
+    return torch.mm(M, x.reshape(x.shape[0], math.prod(x.shape[1:]))).view(M.shape[0], *x.shape[1:])
 
 
 def _rnea(
@@ -315,29 +329,49 @@ def _rnea(
     return tau_c if plan.W_is_identity else torch.mm(plan.W, tau_c)
 
 
+def _const_times(M: Tensor, X: Tensor) -> Tensor:
+    """``M X`` for ``M (n, r, c, B|1)`` and ``X (n, c, ..., B)`` (contraction over dim 1):
+    one batched matrix product where ``M`` has no batch, else multiply-adds."""
+    n, r = M.shape[:2]
+    if M.shape[-1] == 1:
+        rest = math.prod(X.shape[2:])
+        return torch.bmm(M.squeeze(-1), X.reshape(n, X.shape[1], rest)).view(n, r, *X.shape[2:])
+    tail = (1,) * (X.dim() - 3)
+    cols = M.unbind(2)  # (n, r, B) each
+    rows = X.unbind(1)  # (n, ..., B) each
+    b = M.shape[-1]
+    out = cols[0].reshape(n, r, *tail, b) * rows[0].unsqueeze(1)
+    for m, x in zip(cols[1:], rows[1:], strict=True):
+        out = fma(out, m.reshape(n, r, *tail, b), x.unsqueeze(1))
+    return out
+
+
 def _crba(plan: _DynPlan, geo: _Geometry, ins: Inertials, batch: tuple[int, ...]) -> Tensor:
     """Mass matrix ``(B, n_dof, n_dof)``."""
     Sl, Sa = geo.Sl, geo.Sa
     K, _, B = Sl.shape
     nb = len(plan.bodies)
     m, cw, Ic = _body_inertia(geo, ins, batch)
-    # Composite inertias in the 10-parameter form about the world origin: mass, first moment
-    # h = m c, rotational inertia I_O = R Ic R^T + m (|c|^2 1 - c c^T).
-    mB = m.expand(nb, 1, B)
+    # Composite inertias about the world origin in the form mass, first moment h = m c and
+    # second moment J = sum m r r^T (the rotational inertia is tr(J) 1 - J): per body
+    # J = R Jc R^T + m c c^T with Jc = tr(Ic) / 2 1 - Ic about the centre of mass, summed over
+    # subtrees by one product with the subtree matrix (its rows taken per column).
+    eye = torch.eye(3, dtype=Sl.dtype, device=Sl.device).unsqueeze(-1)
+    tr = (Ic[:, 0, 0] + Ic[:, 1, 1] + Ic[:, 2, 2]).view(nb, 1, 1, Ic.shape[-1])
+    Jc = fma(-Ic, tr, eye, 0.5)  # (nb, 3, 3, B|1)
     RT = geo.RT
-    # R Ic R^T column by column: column r' is R Ic (row r' of R); symmetric, so the result
-    # (r', nb, r, B) is read as (nb, r, r', B).
-    Iw = _rot(RT, _mat(Ic, RT.permute(2, 0, 1, 3))).transpose(0, 1)
-    eye = torch.eye(3, dtype=Sl.dtype, device=Sl.device).view(1, 3, 3, 1)
-    IO = Iw + mB.unsqueeze(1) * (
-        (cw * cw).sum(1, keepdim=True).unsqueeze(1) * eye - cw.unsqueeze(2) * cw.unsqueeze(1)
-    )
-    params = torch.cat((mB, mB * cw, IO.reshape(nb, 9, B)), dim=1)  # (nb, 13, B)
-    comp = torch.mm(plan.sub, params.reshape(nb, 13 * B)).view(nb, 13, B)
-    cb = comp.index_select(0, plan.col_body)  # (K, 13, B)
-    mc, hc, Icb = cb[:, :1], cb[:, 1:4], cb[:, 4:].view(K, 3, 3, B)
+    Y = _const_times(Jc, RT)  # Jc R^T: (nb, a, r, B)
+    h = m * cw
+    Rt, Yt = RT.unbind(1), Y.unbind(1)
+    J = h.unsqueeze(2) * cw.unsqueeze(1)
+    for i in range(3):
+        J = fma(J, Rt[i].unsqueeze(2), Yt[i].unsqueeze(1))
+    mc = _mm(plan.sub_cols, m)  # (K, 1, B|1)
+    hc = _mm(plan.sub_cols, h)  # (K, 3, B)
+    Jk = _mm(plan.sub_cols, J.view(nb, 9, B)).view(K, 3, 3, B)
+    trJ = (Jk[:, 0, 0] + Jk[:, 1, 1] + Jk[:, 2, 2]).unsqueeze(1)  # (K, 1, B)
     Fl = mc * Sl - _cross(hc, Sa)
-    Fa = _mat(Icb, Sa) + _cross(hc, Sl)
+    Fa = trJ * Sa - _mat(Jk, Sa) + _cross(hc, Sl)
     # Q[k, l] = S_k . Ic_l S_l, summed component by component over (K, K, B), into the rows
     # of one buffer whose last row is 0.  Where autograd records nothing (eager, no transform),
     # the sum accumulates in place (out=): fresh (K, K, B) temporaries per term cost a page
@@ -478,7 +512,7 @@ def _fext(
                 f"{_NAME}{fn}: f_ext[{name!r}] of shape {tuple(w.shape)} does not broadcast "
                 f"to q's batch shape {batch}"
             ) from None
-        p = geo.poses[len(plan.targets) + k, 3, :3]  # the link's origin, (3, B)
+        p = geo.poses[len(plan.targets) + k][3, :3]  # the link's origin, (3, B)
         f, n = wb[:3], wb[3:]
         parts.append(torch.cat((f, n + torch.linalg.cross(p, f, dim=0)), dim=0))
         idx.append(b)
