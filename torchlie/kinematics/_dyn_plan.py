@@ -51,6 +51,7 @@ class _DynPlan:
     float_cols: Tensor  # (n_float,) the first rotation column of each floating joint
     sub: Tensor  # (n_bodies, n_bodies): 1 where the second is in the first's subtree
     m_gather: Tensor  # (K * K,) where each entry of the mass matrix is read (see _crba)
+    m_zero: bool  # some entries are 0 (columns on different branches): read from row K * K
     W: Tensor  # (n_dof, K) folding of columns onto DoFs
     W_is_identity: bool  # column k is DoF k with weight 1 (no mimic joint, DoF order)
     inertials64: tuple[Tensor, Tensor, Tensor]  # merged (mass, com, inertia), float64 CPU
@@ -203,6 +204,11 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
     def anc(k: int, j: int) -> bool:  # column k's body is an ancestor-or-self of column j's
         return col_body[k] in anc_sets[col_body[j]]
 
+    m_gather = [
+        k * K + j if anc(k, j) else (j * K + k if anc(j, k) else K * K)
+        for k in range(K)
+        for j in range(K)
+    ]
     W = torch.zeros(n_dof, K, dtype=torch.float64)
     for k in range(K):
         W[col_dof[k], k] += col_w[k]
@@ -251,14 +257,8 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
             [len(rot) + 3 * k for k in range(len(floats_raw))], dtype=torch.long
         ),
         sub=sub,
-        m_gather=torch.tensor(
-            [
-                k * K + j if anc(k, j) else (j * K + k if anc(j, k) else K * K)
-                for k in range(K)
-                for j in range(K)
-            ],
-            dtype=torch.long,
-        ),
+        m_gather=torch.tensor(m_gather, dtype=torch.long),
+        m_zero=K * K in m_gather,
         W=W,
         W_is_identity=col_dof == list(range(n_dof)) and all(w == 1.0 for w in col_w),
         inertials64=(mass, com, inertia),
@@ -300,6 +300,7 @@ def _convert(plan: _DynPlan, dtype: torch.dtype, device: torch.device) -> _DynPl
         float_cols=i(plan.float_cols),
         sub=f(plan.sub),
         m_gather=i(plan.m_gather),
+        m_zero=plan.m_zero,
         W=f(plan.W),
         W_is_identity=plan.W_is_identity,
         inertials64=plan.inertials64,

@@ -54,7 +54,7 @@ from torch import Tensor
 
 from .. import _checks, _coeffs
 from .. import so3 as _so3
-from .._autograd import fma, needs_graph, transforms_active
+from .._autograd import fma, transforms_active
 from .._typing import Float
 from ._dyn_plan import DEFAULT_GRAVITY, _build, _convert, _DynPlan
 from .urdf import _some
@@ -116,15 +116,17 @@ def _inertials(chain) -> Inertials:
 # ----------------------------------------------------------------------------------------------
 
 
+def _cross_parts(a: Tensor, b: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """The components of the cross product along dim -2."""
+    a0, a1, a2 = a.unbind(-2)
+    b0, b1, b2 = b.unbind(-2)
+    return fma(a1 * b2, a2, b1, -1.0), fma(a2 * b0, a0, b2, -1.0), fma(a0 * b1, a1, b0, -1.0)
+
+
 def _cross(a: Tensor, b: Tensor) -> Tensor:
     """Cross product along dim -2 (component by component: several times faster than
     ``torch.linalg.cross`` on these layouts)."""
-    a0, a1, a2 = a.unbind(-2)
-    b0, b1, b2 = b.unbind(-2)
-    return torch.stack(
-        (fma(a1 * b2, a2, b1, -1.0), fma(a2 * b0, a0, b2, -1.0), fma(a0 * b1, a1, b0, -1.0)),
-        dim=-2,
-    )
+    return torch.stack(_cross_parts(a, b), dim=-2)
 
 
 def _columns_times(cols: Tensor, x: Tensor) -> Tensor:
@@ -152,12 +154,19 @@ def _mat(M: Tensor, x: Tensor) -> Tensor:
 
 @dataclass
 class _Geometry:
-    Sl: Tensor  # (K, 3, B) joint columns, linear part (world Plücker coordinates)
-    Sa: Tensor  # (K, 3, B) angular part
+    S: Tensor  # (K, 2, 3, B) joint columns (linear; angular), world Plücker coordinates
     p: Tensor  # (nb, 3, B) body origins
     RT: Tensor  # (nb, 3, 3, B) body rotations, transposed: RT[c, r] = R[r, c]
-    poses: list[Tensor]  # (4, 4, B) internal poses (T^T) of the targets
+    origins: list[Tensor]  # (3, B) origins of the extra links asked for
     floats: list[tuple[Tensor, Tensor, Tensor]]  # per floating joint: R_parent O_R, r, p
+
+    @property
+    def Sl(self) -> Tensor:
+        return self.S[:, 0]
+
+    @property
+    def Sa(self) -> Tensor:
+        return self.S[:, 1]
 
 
 def _cat(parts: list[Tensor]) -> Tensor:
@@ -166,8 +175,8 @@ def _cat(parts: list[Tensor]) -> Tensor:
 
 
 def _geometry(chain, plan: _DynPlan, q2: Tensor, extra: tuple[int, ...]) -> _Geometry:
-    """Poses and joint columns for ``q2 (B, n_dof)``; ``extra``: more links whose poses are
-    wanted (after the plan's targets in ``poses``)."""
+    """Poses and joint columns for ``q2 (B, n_dof)``; ``extra``: more links whose origins are
+    wanted."""
     B = q2.shape[0]
     targets = plan.targets + extra
     fk = chain._plan(targets)
@@ -203,15 +212,17 @@ def _geometry(chain, plan: _DynPlan, q2: Tensor, extra: tuple[int, ...]) -> _Geo
         parts_u.append(torch.einsum("rkb,kjb->jrb", RO, Jl))  # column j: RO Jl e_j
         parts_p.append(p[b].unsqueeze(0).expand(3, 3, B))
         floats.append((RO, r, p[b]))
-    Ur = _cat(parts_u) if parts_u else q2.new_zeros(0, 3, B)
-    Pr = _cat(parts_p) if parts_p else q2.new_zeros(0, 3, B)
-    Slr = _cross(Pr, Ur)
-    if U is None or U.shape[0] == plan.n_rot:  # no translation column
-        return _Geometry(Slr, Ur, p, RT, poses, floats)
-    Ut = U[plan.n_rot :]
-    Sl = torch.cat((Slr, Ut))
-    Sa = torch.cat((Ur, torch.zeros_like(Ut)))
-    return _Geometry(Sl, Sa, p, RT, poses, floats)
+    origins = [P[3, :3] for P in poses[len(plan.targets) :]]
+    parts_s = []
+    if parts_u:  # rotation columns: (p x u; u), stacked at once
+        Ur = _cat(parts_u)
+        S6 = torch.stack((*_cross_parts(_cat(parts_p), Ur), *Ur.unbind(1)), dim=1)
+        parts_s.append(S6.view(Ur.shape[0], 2, 3, B))
+    if U is not None and U.shape[0] > plan.n_rot:  # translation columns: (u; 0)
+        Ut = U[plan.n_rot :]
+        parts_s.append(torch.stack((Ut, torch.zeros_like(Ut)), dim=1))
+    S = _cat(parts_s) if parts_s else q2.new_zeros(0, 2, 3, B)
+    return _Geometry(S, p, RT, origins, floats)
 
 
 def _batch_last(x: Tensor, batch: tuple[int, ...], trailing: int) -> Tensor:
@@ -230,16 +241,25 @@ def _body_inertia(geo: _Geometry, ins: Inertials, batch: tuple[int, ...]):
     m = _batch_last(ins.mass, batch, 1).unsqueeze(1)
     c = _batch_last(ins.com, batch, 2)
     Ic = _batch_last(ins.inertia, batch, 3)
-    return m, geo.p + _rot(geo.RT, c), Ic
+    nb = c.shape[0]
+    return m, geo.p + _const_times(c.unsqueeze(1), geo.RT).view(nb, 3, geo.RT.shape[-1]), Ic
 
 
 def _inertia_apply(
     m: Tensor, cw: Tensor, Ic: Tensor, RT: Tensor, sl: Tensor, sa: Tensor
 ) -> tuple[Tensor, Tensor]:
-    """Spatial momentum (about the world origin) of bodies moving with ``(sl, sa)``:
-    ``m (sl + sa x c)`` and ``c x that + R Ic R^T sa``."""
+    """Spatial momentum (about the world origin) of bodies moving with ``(sl, sa)``
+    ``(..., nb, 3, B)``: ``m (sl + sa x c)`` and ``c x that + R Ic R^T sa``."""
     fl = m * (sl + _cross(sa, cw))
-    return fl, _cross(cw, fl) + _rot(RT, _mat(Ic, _rot_t(RT, sa)))
+    return fl, _cross(cw, fl) + _rot(RT, _const_mat(Ic, _rot_t(RT, sa)))
+
+
+def _const_mat(M: Tensor, x: Tensor) -> Tensor:
+    """``M x`` for ``M (n, 3, 3, B|1)`` and ``x (..., n, 3, B)``: one batched matrix product
+    where ``M`` has no batch."""
+    if M.shape[-1] == 1:
+        return torch.matmul(M.squeeze(-1), x)
+    return _mat(M, x)
 
 
 def _gather_cols(x: Tensor, plan: _DynPlan) -> Tensor:
@@ -247,10 +267,10 @@ def _gather_cols(x: Tensor, plan: _DynPlan) -> Tensor:
     return (x.mT.index_select(0, plan.col_dof) * plan.col_w).unsqueeze(1)
 
 
-def _float_bias(geo: _Geometry, qd2: Tensor, plan: _DynPlan) -> tuple[Tensor, Tensor] | None:
+def _float_bias(geo: _Geometry, qd2: Tensor, plan: _DynPlan) -> Tensor | None:
     """The acceleration terms ``(p x u; u)``, ``u = R_parent O_R (dJl/dt) rd``, of the floating
-    joints' rotation columns (their axes turn with the rotation vector), ``(n_float, 3, B)``
-    each."""
+    joints' rotation columns (their axes turn with the rotation vector), ``(n_float, 2, 3,
+    B)``."""
     if not plan.floats:
         return None
     lin, ang = [], []
@@ -270,12 +290,40 @@ def _float_bias(geo: _Geometry, qd2: Tensor, plan: _DynPlan) -> tuple[Tensor, Te
         uw = (RO * u.mT.unsqueeze(0)).sum(1)  # (3, B)
         lin.append(_cross(p, uw))
         ang.append(uw)
-    return torch.stack(lin), torch.stack(ang)
+    return torch.stack((torch.stack(lin), torch.stack(ang)), dim=1)
 
 
 def _mm(M: Tensor, x: Tensor) -> Tensor:
     """``M (r, n)`` times ``x (n, 3, B)`` over the first dimension: ``(r, 3, B)``."""
     return torch.mm(M, x.reshape(x.shape[0], math.prod(x.shape[1:]))).view(M.shape[0], *x.shape[1:])
+
+
+def _motion(
+    plan: _DynPlan, geo: _Geometry, qd2: Tensor | None, qdd2: Tensor | None
+) -> Tensor | None:
+    """Body accelerations and (with ``qd2``) velocities ``(P, nb, 2, 3, B)``, both by one
+    product with the ancestor matrix (the column terms die here, before the forces)."""
+    S = geo.S
+    K, _, _, B = S.shape
+    acc = V = None
+    if qd2 is not None:
+        V = S * _gather_cols(qd2, plan).unsqueeze(1)  # (K, 2, 3, B)
+        Vl, Va = V.unbind(1)
+        # Each column's axis moves with its frame body: its rate of change is that body's
+        # velocity cross the column.
+        fl_, fa_ = _mm(plan.Af, V).unbind(1)
+        acc = torch.stack((_cross(fa_, Vl) + _cross(fl_, Va), _cross(fa_, Va)), dim=1)
+        fb = _float_bias(geo, qd2, plan)
+        if fb is not None:
+            acc = acc.index_add(0, plan.float_cols, fb)
+    if qdd2 is not None:
+        qddc = _gather_cols(qdd2, plan).unsqueeze(1)
+        acc = S * qddc if acc is None else fma(acc, S, qddc)
+    if acc is None:
+        return None
+    Y = acc.unsqueeze(0) if V is None else torch.stack((acc, V))  # (P, K, 2, 3, B)
+    P = Y.shape[0]
+    return torch.matmul(plan.A, Y.view(P, K, 6 * B)).view(P, len(plan.bodies), 2, 3, B)
 
 
 def _rnea(
@@ -286,47 +334,44 @@ def _rnea(
     qd2: Tensor | None,
     qdd2: Tensor | None,
     g: Tensor,
-    fext: tuple[Tensor, Tensor] | None,
+    fext: Tensor | None,
 ) -> Tensor:
     """Generalised forces ``(n_dof, B)``; ``qd2``/``qdd2`` ``(B, n_dof)`` or None for zero,
-    ``g (3, B|1)`` gravity, ``fext`` world-origin wrenches per body ``(nb, 3, B)`` x 2."""
-    Sl, Sa = geo.Sl, geo.Sa
-    B = Sl.shape[-1]
+    ``g (3, B|1)`` gravity, ``fext`` world-origin wrenches per body ``(nb, 2, 3, B)``.
+
+    Spatial vectors are ``(..., 2, 3, B)`` (linear; angular).  The body accelerations and
+    velocities are one product with the ancestor matrix, and their momenta one evaluation
+    over a leading dimension (acceleration, velocity)."""
+    S = geo.S
+    B = S.shape[-1]
     nb = len(plan.bodies)
     m, cw, Ic = _body_inertia(geo, ins, batch)
-    acl = aca = None
+    X = _motion(plan, geo, qd2, qdd2)
+    if X is None:
+        X = S.new_zeros(1, nb, 2, 3, 1)
+    # Gravity as an acceleration of the base: -g added to every body's linear acceleration.
+    G = torch.cat((g.unsqueeze(0), g.new_zeros(X.shape[0] - 1, *g.shape))).unsqueeze(1)
+    hl, ha = _inertia_apply(m, cw, Ic, geo.RT, X[:, :, 0] - G, X[:, :, 1])  # (P, nb, 3, B)
+    fl, fa = hl[0], ha[0]
     if qd2 is not None:
-        qdc = _gather_cols(qd2, plan)
-        Vl, Va = Sl * qdc, Sa * qdc
-        vl, va = _mm(plan.A, Vl), _mm(plan.A, Va)
-        # Each column's axis moves with its frame body: its rate of change is that body's
-        # velocity cross the column.
-        fl_, fa_ = _mm(plan.Af, Vl), _mm(plan.Af, Va)
-        acl = _cross(fa_, Vl) + _cross(fl_, Va)
-        aca = _cross(fa_, Va)
-        fb = _float_bias(geo, qd2, plan)
-        if fb is not None:
-            acl = acl.index_add(0, plan.float_cols, fb[0])
-            aca = aca.index_add(0, plan.float_cols, fb[1])
-    if qdd2 is not None:
-        qddc = _gather_cols(qdd2, plan)
-        acl = Sl * qddc if acl is None else fma(acl, Sl, qddc)
-        aca = Sa * qddc if aca is None else fma(aca, Sa, qddc)
-    if acl is not None and aca is not None:
-        al, aa = _mm(plan.A, acl) - g, _mm(plan.A, aca)
-    else:
-        al, aa = (-g).expand(nb, 3, B), Sl.new_zeros(nb, 3, B)
-    fl, fa = _inertia_apply(m, cw, Ic, geo.RT, al, aa)
-    if qd2 is not None:
-        hl, ha = _inertia_apply(m, cw, Ic, geo.RT, vl, va)
-        fl = fl + _cross(va, hl)
-        fa = fa + _cross(va, ha) + _cross(vl, hl)
+        vl, va = X[1, :, 0], X[1, :, 1]
+        fl = fl + _cross(va, hl[1])
+        fa = fa + _cross(va, ha[1]) + _cross(vl, hl[1])
+    f = torch.stack((fl, fa), dim=1).expand(nb, 2, 3, B)  # (nb, 2, 3, B)
     if fext is not None:
-        fl, fa = fl - fext[0], fa - fext[1]
-    Fl, Fa = _mm(plan.At, fl), _mm(plan.At, fa)
-    t0, t1, t2 = fma(Sl * Fl, Sa, Fa).unbind(1)
-    tau_c = t0 + t1 + t2  # (K, B)
+        f = f - fext
+    tau_c = (S * _mm(plan.At, f)).sum((1, 2))  # (K, B)
     return tau_c if plan.W_is_identity else torch.mm(plan.W, tau_c)
+
+
+def _acc(x: Tensor, t1: Tensor, t2: Tensor) -> Tensor:
+    """``x + t1 * t2``, accumulated in place into ``x`` (a fresh result of the caller's
+    formula, which no other operation saved) in eager mode: autograd records the in-place
+    operation, and large batches need no new buffer per term.  Out of place under the
+    ``torch.func`` transforms (which have no batching rule for it) and while compiling."""
+    if torch.compiler.is_compiling() or transforms_active():
+        return fma(x, t1, t2)
+    return x.addcmul_(t1, t2)
 
 
 def _const_times(M: Tensor, X: Tensor) -> Tensor:
@@ -346,17 +391,16 @@ def _const_times(M: Tensor, X: Tensor) -> Tensor:
     return out
 
 
-def _crba(plan: _DynPlan, geo: _Geometry, ins: Inertials, batch: tuple[int, ...]) -> Tensor:
-    """Mass matrix ``(B, n_dof, n_dof)``."""
-    Sl, Sa = geo.Sl, geo.Sa
-    K, _, B = Sl.shape
-    nb = len(plan.bodies)
-    m, cw, Ic = _body_inertia(geo, ins, batch)
-    # Composite inertias about the world origin in the form mass, first moment h = m c and
-    # second moment J = sum m r r^T (the rotational inertia is tr(J) 1 - J): per body
-    # J = R Jc R^T + m c c^T with Jc = tr(Ic) / 2 1 - Ic about the centre of mass, summed over
-    # subtrees by one product with the subtree matrix (its rows taken per column).
-    eye = torch.eye(3, dtype=Sl.dtype, device=Sl.device).unsqueeze(-1)
+def _composite(plan: _DynPlan, geo: _Geometry, m: Tensor, cw: Tensor, Ic: Tensor):
+    """Composite inertias per column (of the column's body subtree) about the world origin:
+    mass ``(K, 1, B|1)``, first moment ``h = m c`` ``(K, 3, B)`` and second moment
+    ``J = sum m r r^T`` ``(K, 3, 3, B)`` (the rotational inertia is ``tr(J) 1 - J``).
+
+    Per body ``J = R Jc R^T + m c c^T`` with ``Jc = tr(Ic) / 2 1 - Ic`` about the centre of
+    mass; the sums over subtrees are one product with the subtree matrix (its rows taken per
+    column)."""
+    nb, K, B = cw.shape[0], geo.S.shape[0], cw.shape[-1]
+    eye = torch.eye(3, dtype=cw.dtype, device=cw.device).unsqueeze(-1)
     tr = (Ic[:, 0, 0] + Ic[:, 1, 1] + Ic[:, 2, 2]).view(nb, 1, 1, Ic.shape[-1])
     Jc = fma(-Ic, tr, eye, 0.5)  # (nb, 3, 3, B|1)
     RT = geo.RT
@@ -365,33 +409,27 @@ def _crba(plan: _DynPlan, geo: _Geometry, ins: Inertials, batch: tuple[int, ...]
     Rt, Yt = RT.unbind(1), Y.unbind(1)
     J = h.unsqueeze(2) * cw.unsqueeze(1)
     for i in range(3):
-        J = fma(J, Rt[i].unsqueeze(2), Yt[i].unsqueeze(1))
-    mc = _mm(plan.sub_cols, m)  # (K, 1, B|1)
-    hc = _mm(plan.sub_cols, h)  # (K, 3, B)
-    Jk = _mm(plan.sub_cols, J.view(nb, 9, B)).view(K, 3, 3, B)
+        J = _acc(J, Rt[i].unsqueeze(2), Yt[i].unsqueeze(1))
+    mc = _mm(plan.sub_cols, m)
+    hc = _mm(plan.sub_cols, h)
+    return mc, hc, _mm(plan.sub_cols, J.view(nb, 9, B)).view(K, 3, 3, B)
+
+
+def _crba(plan: _DynPlan, geo: _Geometry, ins: Inertials, batch: tuple[int, ...]) -> Tensor:
+    """Mass matrix ``(B, n_dof, n_dof)``."""
+    Sl, Sa = geo.Sl, geo.Sa
+    K, _, B = Sl.shape
+    mc, hc, Jk = _composite(plan, geo, *_body_inertia(geo, ins, batch))
     trJ = (Jk[:, 0, 0] + Jk[:, 1, 1] + Jk[:, 2, 2]).unsqueeze(1)  # (K, 1, B)
-    Fl = mc * Sl - _cross(hc, Sa)
-    Fa = trJ * Sa - _mat(Jk, Sa) + _cross(hc, Sl)
-    # Q[k, l] = S_k . Ic_l S_l, summed component by component over (K, K, B), into the rows
-    # of one buffer whose last row is 0.  Where autograd records nothing (eager, no transform),
-    # the sum accumulates in place (out=): fresh (K, K, B) temporaries per term cost a page
-    # fault per 4 KiB on large batches, where the allocator hands their memory back.
-    if torch.compiler.is_compiling() or transforms_active() or needs_graph((Sl, Sa, Fl, Fa)):
-        Q = Sl[:, None, 0] * Fl[None, :, 0]
-        for i in (1, 2):
-            Q = fma(Q, Sl[:, None, i], Fl[None, :, i])
-        for i in range(3):
-            Q = fma(Q, Sa[:, None, i], Fa[None, :, i])
-        Qz = torch.cat((Q.view(K * K, B), Q.new_zeros(1, B)))
-    else:
-        Qz = Sl.new_empty(K * K + 1, B)
-        Qz[K * K].zero_()
-        Q = Qz[: K * K].view(K, K, B)
-        torch.mul(Sl[:, None, 0], Fl[None, :, 0], out=Q)
-        for i in (1, 2):
-            fma(Q, Sl[:, None, i], Fl[None, :, i], out=Q)
-        for i in range(3):
-            fma(Q, Sa[:, None, i], Fa[None, :, i], out=Q)
+    F = torch.stack((mc * Sl - _cross(hc, Sa), trJ * Sa - _mat(Jk, Sa) + _cross(hc, Sl)), dim=1)
+    # Q[k, l] = S_k . Ic_l S_l, summed component by component over (K, K, B).
+    S6, F6 = geo.S.view(K, 6, B), F.view(K, 6, B)
+    Q = S6[:, None, 0] * F6[None, :, 0]
+    for i in range(1, 6):
+        Q = _acc(Q, S6[:, None, i], F6[None, :, i])
+    Qz = Q.view(K * K, B)
+    if plan.m_zero:  # entries between branches read a row of zeros
+        Qz = torch.cat((Qz, Qz.new_zeros(1, B)))
     # M[k, l] = Q[k, l] where column k's body is an ancestor of column l's, Q[l, k] where it is
     # the other way round, 0 between branches: one gather of whole rows (batch last), then one
     # transposing copy into the (B, K, K) layout (a gather reading B apart is several times
@@ -492,11 +530,11 @@ def _fext(
     f_ext: Mapping[str, Tensor],
     fn: str,
     batch: tuple[int, ...],
-) -> tuple[Tensor, Tensor] | None:
-    """The wrenches of ``f_ext`` summed per body, about the world origin, ``(nb, 3, B)`` for
-    the forces and for the torques."""
+) -> Tensor | None:
+    """The wrenches of ``f_ext`` summed per body, about the world origin, ``(nb, 2, 3, B)``
+    (forces; torques)."""
     nb = len(plan.bodies)
-    B = geo.Sl.shape[-1]
+    B = geo.S.shape[-1]
     parts: list[Tensor] = []
     idx: list[int] = []
     for k, (name, w) in enumerate(f_ext.items()):
@@ -512,15 +550,15 @@ def _fext(
                 f"{_NAME}{fn}: f_ext[{name!r}] of shape {tuple(w.shape)} does not broadcast "
                 f"to q's batch shape {batch}"
             ) from None
-        p = geo.poses[len(plan.targets) + k][3, :3]  # the link's origin, (3, B)
+        p = geo.origins[k]  # the link's origin, (3, B)
         f, n = wb[:3], wb[3:]
         parts.append(torch.cat((f, n + torch.linalg.cross(p, f, dim=0)), dim=0))
         idx.append(b)
     if not parts:
         return None
-    out = geo.Sl.new_zeros(nb, 6, B)
+    out = geo.S.new_zeros(nb, 6, B)
     out = out.index_add(0, torch.tensor(idx, device=out.device), torch.stack(parts))
-    return out[:, :3], out[:, 3:]
+    return out.view(nb, 2, 3, B)
 
 
 def _prepare(chain, q: Tensor, fn: str):
