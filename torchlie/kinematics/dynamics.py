@@ -129,6 +129,28 @@ def _cross(a: Tensor, b: Tensor) -> Tensor:
     return torch.stack(_cross_parts(a, b), dim=-2)
 
 
+def _cross_sum(x: Tensor | None, *terms: tuple[Tensor, Tensor]) -> tuple[Tensor, Tensor, Tensor]:
+    """The components of ``x + sum a x b`` over ``terms`` (vectors along dim -2; ``x`` None:
+    0), each summed by multiply-adds before anything is stacked."""
+    if x is None:
+        out = list(_cross_parts(*terms[0]))
+        terms = terms[1:]
+    else:
+        out = list(x.unbind(-2))
+    for a, b in terms:
+        a0, a1, a2 = a.unbind(-2)
+        b0, b1, b2 = b.unbind(-2)
+        for i, (p, q, r, t) in enumerate(((a1, b2, a2, b1), (a2, b0, a0, b2), (a0, b1, a1, b0))):
+            out[i] = fma(fma(out[i], p, q), r, t, -1.0)
+    return out[0], out[1], out[2]
+
+
+def _stack6(lin: tuple[Tensor, ...], ang: tuple[Tensor, ...]) -> Tensor:
+    """Spatial vectors ``(..., 2, 3, B)`` from the components of their two parts."""
+    v = torch.stack((*lin, *ang), dim=-2)
+    return v.view(*v.shape[:-2], 2, 3, v.shape[-1])
+
+
 def _columns_times(cols: Tensor, x: Tensor) -> Tensor:
     """``sum_k cols[..., k, :, :] * x[..., k, :]``: a 3x3 matrix given by its columns
     ``(..., k, 3, B)`` times ``x (..., 3, B)``, as three multiply-adds."""
@@ -250,8 +272,8 @@ def _inertia_apply(
 ) -> tuple[Tensor, Tensor]:
     """Spatial momentum (about the world origin) of bodies moving with ``(sl, sa)``
     ``(..., nb, 3, B)``: ``m (sl + sa x c)`` and ``c x that + R Ic R^T sa``."""
-    fl = m * (sl + _cross(sa, cw))
-    return fl, _cross(cw, fl) + _rot(RT, _const_mat(Ic, _rot_t(RT, sa)))
+    fl = m * torch.stack(_cross_sum(sl, (sa, cw)), dim=-2)
+    return fl, torch.stack(_cross_sum(_rot(RT, _const_mat(Ic, _rot_t(RT, sa))), (cw, fl)), dim=-2)
 
 
 def _const_mat(M: Tensor, x: Tensor) -> Tensor:
@@ -312,7 +334,7 @@ def _motion(
         # Each column's axis moves with its frame body: its rate of change is that body's
         # velocity cross the column.
         fl_, fa_ = _mm(plan.Af, V).unbind(1)
-        acc = torch.stack((_cross(fa_, Vl) + _cross(fl_, Va), _cross(fa_, Va)), dim=1)
+        acc = _stack6(_cross_sum(None, (fa_, Vl), (fl_, Va)), _cross_parts(fa_, Va))
         fb = _float_bias(geo, qd2, plan)
         if fb is not None:
             acc = acc.index_add(0, plan.float_cols, fb)
@@ -352,12 +374,11 @@ def _rnea(
     # Gravity as an acceleration of the base: -g added to every body's linear acceleration.
     G = torch.cat((g.unsqueeze(0), g.new_zeros(X.shape[0] - 1, *g.shape))).unsqueeze(1)
     hl, ha = _inertia_apply(m, cw, Ic, geo.RT, X[:, :, 0] - G, X[:, :, 1])  # (P, nb, 3, B)
-    fl, fa = hl[0], ha[0]
     if qd2 is not None:
         vl, va = X[1, :, 0], X[1, :, 1]
-        fl = fl + _cross(va, hl[1])
-        fa = fa + _cross(va, ha[1]) + _cross(vl, hl[1])
-    f = torch.stack((fl, fa), dim=1).expand(nb, 2, 3, B)  # (nb, 2, 3, B)
+        f = _stack6(_cross_sum(hl[0], (va, hl[1])), _cross_sum(ha[0], (va, ha[1]), (vl, hl[1])))
+    else:
+        f = torch.stack((hl[0], ha[0]), dim=1).expand(nb, 2, 3, B)  # (nb, 2, 3, B)
     if fext is not None:
         f = f - fext
     tau_c = (S * _mm(plan.At, f)).sum((1, 2))  # (K, B)
@@ -421,7 +442,7 @@ def _crba(plan: _DynPlan, geo: _Geometry, ins: Inertials, batch: tuple[int, ...]
     K, _, B = Sl.shape
     mc, hc, Jk = _composite(plan, geo, *_body_inertia(geo, ins, batch))
     trJ = (Jk[:, 0, 0] + Jk[:, 1, 1] + Jk[:, 2, 2]).unsqueeze(1)  # (K, 1, B)
-    F = torch.stack((mc * Sl - _cross(hc, Sa), trJ * Sa - _mat(Jk, Sa) + _cross(hc, Sl)), dim=1)
+    F = _stack6(_cross_sum(mc * Sl, (Sa, hc)), _cross_sum(trJ * Sa - _mat(Jk, Sa), (hc, Sl)))
     # Q[k, l] = S_k . Ic_l S_l, summed component by component over (K, K, B).
     S6, F6 = geo.S.view(K, 6, B), F.view(K, 6, B)
     Q = S6[:, None, 0] * F6[None, :, 0]
