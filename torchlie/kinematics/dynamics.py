@@ -54,7 +54,7 @@ from torch import Tensor
 
 from .. import _checks, _coeffs
 from .. import so3 as _so3
-from .._autograd import fma, transforms_active
+from .._autograd import evaluate, fma, needs_graph, transforms_active
 from .._typing import Float
 from ._dyn_plan import DEFAULT_GRAVITY, _build, _convert, _DynPlan
 from .urdf import _some
@@ -587,9 +587,22 @@ def _prepare(chain, q: Tensor, fn: str):
     return q2, out_dtype, batch, _plan(chain)
 
 
-def _result(x: Tensor, batch: tuple[int, ...], n: int, out_dtype: torch.dtype) -> Tensor:
-    """``(n, B)`` -> ``(*batch, n)``."""
-    return _checks.out(x.mT.reshape(*batch, n), out_dtype)
+def _run(fn, plan: _DynPlan, inputs: list[Tensor | None], others: tuple[Tensor, ...], whole: bool):
+    """``fn(*inputs)`` for batch-first ``inputs`` (None: absent), through the shared driver
+    :func:`~torchlie._autograd.evaluate` over blocks of the batch (their width: the number of
+    joint columns) when nothing else (``others``: gravity, inertials) has a batch or may
+    record a graph and ``whole`` (external wrenches) does not ask for the whole batch."""
+    given = [x for x in inputs if x is not None]
+
+    def call(*xs: Tensor):
+        it = iter(xs)
+        return fn(*(None if x is None else next(it) for x in inputs))
+
+    if whole or any(t.shape[-1] != 1 for t in others[:1]) or needs_graph(others):
+        return call(*given)
+    if any(t.dim() > d for t, d in zip(others[1:], (1, 2, 3), strict=True)):
+        return call(*given)
+    return evaluate(call, given, [1] * len(given), width=plan.col_dof.shape[0])
 
 
 def _inverse_dynamics(
@@ -612,10 +625,14 @@ def _inverse_dynamics(
     extra = _fext_links(chain, f_ext, _fn)
     if not plan.bodies:  # no degree of freedom
         return _checks.out(q2.new_zeros(*batch, 0), out_dtype)
-    geo = _geometry(chain, plan, q2, extra)
-    fx = None if f_ext is None else _fext(chain, plan, geo, f_ext, _fn, batch)
-    tau = _rnea(plan, geo, ins, batch, qd2, qdd2, g, fx)
-    return _result(tau, batch, chain.n_v, out_dtype)
+
+    def run(q2: Tensor, qd2: Tensor | None, qdd2: Tensor | None) -> Tensor:
+        geo = _geometry(chain, plan, q2, extra)
+        fx = None if f_ext is None else _fext(chain, plan, geo, f_ext, _fn, batch)
+        return _rnea(plan, geo, ins, batch, qd2, qdd2, g, fx).mT
+
+    tau = _run(run, plan, [q2, qd2, qdd2], (g, *ins), f_ext is not None)
+    return _checks.out(tau.reshape(*batch, chain.n_v), out_dtype)
 
 
 def _mass_matrix(
@@ -627,8 +644,11 @@ def _mass_matrix(
     ins = _check_inertials(chain, inertials, fn, batch)
     if not plan.bodies:  # no degree of freedom
         return _checks.out(q2.new_zeros(*batch, chain.n_v, chain.n_v), out_dtype)
-    geo = _geometry(chain, plan, q2, ())
-    M = _crba(plan, geo, ins, batch)
+
+    def run(q2: Tensor) -> Tensor:
+        return _crba(plan, _geometry(chain, plan, q2, ()), ins, batch)
+
+    M = _run(run, plan, [q2], (plan.gravity, *ins), False)
     return _checks.out(M.reshape(*batch, chain.n_v, chain.n_v), out_dtype)
 
 
@@ -658,10 +678,14 @@ def _forward_dynamics(
     extra = _fext_links(chain, f_ext, fn)
     if not plan.bodies:  # no degree of freedom
         return _checks.out(q2.new_zeros(*batch, 0), out_dtype)
-    geo = _geometry(chain, plan, q2, extra)
-    fx = None if f_ext is None else _fext(chain, plan, geo, f_ext, fn, batch)
-    h = _rnea(plan, geo, ins, batch, qd2, None, g, fx)  # (n, B)
-    M = _crba(plan, geo, ins, batch)  # (B, n, n)
-    L, _ = torch.linalg.cholesky_ex(M)
-    qdd = torch.cholesky_solve((tau2 - h.mT).unsqueeze(-1), L).squeeze(-1)  # (B, n)
+
+    def run(q2: Tensor, qd2: Tensor, tau2: Tensor) -> Tensor:
+        geo = _geometry(chain, plan, q2, extra)
+        fx = None if f_ext is None else _fext(chain, plan, geo, f_ext, fn, batch)
+        h = _rnea(plan, geo, ins, batch, qd2, None, g, fx)  # (n, B)
+        M = _crba(plan, geo, ins, batch)  # (B, n, n)
+        L, _ = torch.linalg.cholesky_ex(M)
+        return torch.cholesky_solve((tau2 - h.mT).unsqueeze(-1), L).squeeze(-1)  # (B, n)
+
+    qdd = _run(run, plan, [q2, qd2, tau2], (g, *ins), f_ext is not None)
     return _checks.out(qdd.reshape(*batch, chain.n_v), out_dtype)
