@@ -36,10 +36,13 @@ origin (Plücker coordinates).  In that frame every recursion of the Newton-Eule
 a sum along the tree: body velocities and accelerations are sums of their joints' motions over
 the ancestors, and joint forces sums of body forces over the subtree, so each is one product
 with a constant 0/1 ancestor matrix, batch innermost, instead of a loop over links.  The mass
-matrix follows from composite inertias (one product with the subtree matrix) and the joint
-axes; forward dynamics solves ``M qdd = tau - h`` by a batched Cholesky factorisation (the
-articulated-body algorithm would be a Python loop over the tree's depth; for the tens of
-degrees of freedom of a robot the Cholesky solve is as exact and costs fewer torch calls).
+matrix follows from composite inertias (mass, first and second moment about the world origin,
+summed over subtrees by one product with the subtree matrix) and the joint axes; forward
+dynamics solves ``M qdd = tau - h`` by a batched Cholesky factorisation (the articulated-body
+algorithm would be a Python loop over the tree's depth; for the tens of degrees of freedom of
+a robot the Cholesky solve is as exact and costs fewer torch calls).  Large eager CPU batches
+run block by block through the shared driver (:func:`torchlie._autograd.evaluate`, blocks of
+fewer rows the more joint columns), so that the temporaries of a call stay bounded.
 """
 
 from __future__ import annotations
@@ -267,13 +270,32 @@ def _body_inertia(geo: _Geometry, ins: Inertials, batch: tuple[int, ...]):
     return m, geo.p + _const_times(c.unsqueeze(1), geo.RT).view(nb, 3, geo.RT.shape[-1]), Ic
 
 
-def _inertia_apply(
-    m: Tensor, cw: Tensor, Ic: Tensor, RT: Tensor, sl: Tensor, sa: Tensor
-) -> tuple[Tensor, Tensor]:
-    """Spatial momentum (about the world origin) of bodies moving with ``(sl, sa)``
-    ``(..., nb, 3, B)``: ``m (sl + sa x c)`` and ``c x that + R Ic R^T sa``."""
-    fl = m * torch.stack(_cross_sum(sl, (sa, cw)), dim=-2)
-    return fl, torch.stack(_cross_sum(_rot(RT, _const_mat(Ic, _rot_t(RT, sa))), (cw, fl)), dim=-2)
+def _forces(
+    m: Tensor,
+    cw: Tensor,
+    Ic: Tensor,
+    RT: Tensor,
+    al: Tensor,
+    aa: Tensor | None,
+    vl: Tensor | None,
+    va: Tensor | None,
+) -> Tensor:
+    """Per body the force about the world origin ``I a + v x* I v`` ``(nb, 2, 3, B)`` for
+    accelerations ``(al; aa)`` and velocities ``(vl; va)`` ``(nb, 3, B)`` (None: 0), in the
+    form ``fl = m (al + aa x c + va x vc)``, ``fa = c x fl + Iw aa + va x Iw va`` (``vc`` the
+    centre of mass's velocity, ``Iw = R Ic R^T``; the bias terms ``v x* (m vc; c x m vc +
+    Iw va)`` folded in by the Jacobi identity)."""
+
+    def Iw(x: Tensor) -> Tensor:
+        return _rot(RT, _const_mat(Ic, _rot_t(RT, x)))
+
+    terms = [] if aa is None else [(aa, cw)]
+    if va is not None and vl is not None:
+        terms.append((va, torch.stack(_cross_sum(vl, (va, cw)), dim=-2)))
+    fl = m * (torch.stack(_cross_sum(al, *terms), dim=-2) if terms else al)
+    terms = [(cw, fl)] if va is None else [(cw, fl), (va, Iw(va))]
+    fa = _cross_sum(None if aa is None else Iw(aa), *terms)
+    return _stack6(fl.unbind(-2), fa)
 
 
 def _const_mat(M: Tensor, x: Tensor) -> Tensor:
@@ -320,34 +342,6 @@ def _mm(M: Tensor, x: Tensor) -> Tensor:
     return torch.mm(M, x.reshape(x.shape[0], math.prod(x.shape[1:]))).view(M.shape[0], *x.shape[1:])
 
 
-def _motion(
-    plan: _DynPlan, geo: _Geometry, qd2: Tensor | None, qdd2: Tensor | None
-) -> Tensor | None:
-    """Body accelerations and (with ``qd2``) velocities ``(P, nb, 2, 3, B)``, both by one
-    product with the ancestor matrix (the column terms die here, before the forces)."""
-    S = geo.S
-    K, _, _, B = S.shape
-    acc = V = None
-    if qd2 is not None:
-        V = S * _gather_cols(qd2, plan).unsqueeze(1)  # (K, 2, 3, B)
-        Vl, Va = V.unbind(1)
-        # Each column's axis moves with its frame body: its rate of change is that body's
-        # velocity cross the column.
-        fl_, fa_ = _mm(plan.Af, V).unbind(1)
-        acc = _stack6(_cross_sum(None, (fa_, Vl), (fl_, Va)), _cross_parts(fa_, Va))
-        fb = _float_bias(geo, qd2, plan)
-        if fb is not None:
-            acc = acc.index_add(0, plan.float_cols, fb)
-    if qdd2 is not None:
-        qddc = _gather_cols(qdd2, plan).unsqueeze(1)
-        acc = S * qddc if acc is None else fma(acc, S, qddc)
-    if acc is None:
-        return None
-    Y = acc.unsqueeze(0) if V is None else torch.stack((acc, V))  # (P, K, 2, 3, B)
-    P = Y.shape[0]
-    return torch.matmul(plan.A, Y.view(P, K, 6 * B)).view(P, len(plan.bodies), 2, 3, B)
-
-
 def _rnea(
     plan: _DynPlan,
     geo: _Geometry,
@@ -360,25 +354,33 @@ def _rnea(
 ) -> Tensor:
     """Generalised forces ``(n_dof, B)``; ``qd2``/``qdd2`` ``(B, n_dof)`` or None for zero,
     ``g (3, B|1)`` gravity, ``fext`` world-origin wrenches per body ``(nb, 2, 3, B)``.
-
-    Spatial vectors are ``(..., 2, 3, B)`` (linear; angular).  The body accelerations and
-    velocities are one product with the ancestor matrix, and their momenta one evaluation
-    over a leading dimension (acceleration, velocity)."""
+    Spatial vectors are ``(..., 2, 3, B)`` (linear; angular)."""
     S = geo.S
     B = S.shape[-1]
     nb = len(plan.bodies)
     m, cw, Ic = _body_inertia(geo, ins, batch)
-    X = _motion(plan, geo, qd2, qdd2)
-    if X is None:
-        X = S.new_zeros(1, nb, 2, 3, 1)
-    # Gravity as an acceleration of the base: -g added to every body's linear acceleration.
-    G = torch.cat((g.unsqueeze(0), g.new_zeros(X.shape[0] - 1, *g.shape))).unsqueeze(1)
-    hl, ha = _inertia_apply(m, cw, Ic, geo.RT, X[:, :, 0] - G, X[:, :, 1])  # (P, nb, 3, B)
+    acc = vl = va = None
     if qd2 is not None:
-        vl, va = X[1, :, 0], X[1, :, 1]
-        f = _stack6(_cross_sum(hl[0], (va, hl[1])), _cross_sum(ha[0], (va, ha[1]), (vl, hl[1])))
+        V = S * _gather_cols(qd2, plan).unsqueeze(1)  # (K, 2, 3, B)
+        Vl, Va = V.unbind(1)
+        # Each column's axis moves with its frame body: its rate of change is that body's
+        # velocity cross the column.
+        fl_, fa_ = _mm(plan.Af, V).unbind(1)
+        acc = _stack6(_cross_sum(None, (fa_, Vl), (fl_, Va)), _cross_parts(fa_, Va))
+        fb = _float_bias(geo, qd2, plan)
+        if fb is not None:
+            acc = acc.index_add(0, plan.float_cols, fb)
+        vl, va = _mm(plan.A, V).unbind(1)
+    if qdd2 is not None:
+        qddc = _gather_cols(qdd2, plan).unsqueeze(1)
+        acc = S * qddc if acc is None else fma(acc, S, qddc)
+    # Gravity as an acceleration of the base: -g added to every body's linear acceleration.
+    if acc is None:
+        al, aa = (-g).expand(nb, 3, B), None
     else:
-        f = torch.stack((hl[0], ha[0]), dim=1).expand(nb, 2, 3, B)  # (nb, 2, 3, B)
+        a = _mm(plan.A, acc)
+        al, aa = a[:, 0] - g, a[:, 1]
+    f = _forces(m, cw, Ic, geo.RT, al, aa, vl, va).expand(nb, 2, 3, B)
     if fext is not None:
         f = f - fext
     tau_c = (S * _mm(plan.At, f)).sum((1, 2))  # (K, B)
