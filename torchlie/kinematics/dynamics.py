@@ -426,16 +426,21 @@ def _composite(plan: _DynPlan, geo: _Geometry, m: Tensor, cw: Tensor, Ic: Tensor
     eye = torch.eye(3, dtype=cw.dtype, device=cw.device).unsqueeze(-1)
     tr = (Ic[:, 0, 0] + Ic[:, 1, 1] + Ic[:, 2, 2]).view(nb, 1, 1, Ic.shape[-1])
     Jc = fma(-Ic, tr, eye, 0.5)  # (nb, 3, 3, B|1)
-    RT = geo.RT
-    Y = _const_times(Jc, RT)  # Jc R^T: (nb, a, r, B)
     h = m * cw
+    J = _second_moment(Jc, geo.RT, h, cw)
+    mc = _mm(plan.sub_cols, m)
+    hc = _mm(plan.sub_cols, h)
+    return mc, hc, _mm(plan.sub_cols, J.view(nb, 9, B)).view(K, 3, 3, B)
+
+
+def _second_moment(Jc: Tensor, RT: Tensor, h: Tensor, cw: Tensor) -> Tensor:
+    """``R Jc R^T + h c^T`` ``(nb, 3, 3, B)`` (its temporaries die here)."""
+    Y = _const_times(Jc, RT)  # Jc R^T: (nb, a, r, B)
     Rt, Yt = RT.unbind(1), Y.unbind(1)
     J = h.unsqueeze(2) * cw.unsqueeze(1)
     for i in range(3):
         J = _acc(J, Rt[i].unsqueeze(2), Yt[i].unsqueeze(1))
-    mc = _mm(plan.sub_cols, m)
-    hc = _mm(plan.sub_cols, h)
-    return mc, hc, _mm(plan.sub_cols, J.view(nb, 9, B)).view(K, 3, 3, B)
+    return J
 
 
 def _crba(plan: _DynPlan, geo: _Geometry, ins: Inertials, batch: tuple[int, ...]) -> Tensor:
