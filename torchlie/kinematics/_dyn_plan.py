@@ -42,6 +42,7 @@ class _DynPlan:
     sub_cols: Tensor  # (K, n_bodies): row col_body[k] of sub (the composite of column k's body)
     col_body: Tensor  # (K,) body moved by each column
     col_frame: Tensor  # (K,) body whose velocity carries the column (n_bodies: the world)
+    frames_are_own: bool  # col_frame == (0, 1, ..., K - 1) == the bodies: Af = A
     col_dof: Tensor  # (K,) the DoF of each column
     col_w: Tensor  # (K, 1) its weight (mimic multipliers)
     floats: list[tuple[int, int, int, Tensor]]  # parent pos in targets, body, rotvec DoF, O_R
@@ -247,6 +248,7 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
         sub_cols=sub[torch.tensor(col_body, dtype=torch.long)].reshape(K, nb),
         col_body=torch.tensor(col_body, dtype=torch.long),
         col_frame=torch.tensor(col_frame, dtype=torch.long),
+        frames_are_own=K == nb and col_frame == list(range(K)),
         col_dof=torch.tensor(col_dof, dtype=torch.long),
         col_w=torch.tensor(col_w, dtype=torch.float64).reshape(K, 1),
         floats=[(pos[p], b, d0, O_R) for p, b, d0, O_R in floats_raw],
@@ -291,6 +293,7 @@ def _convert(plan: _DynPlan, dtype: torch.dtype, device: torch.device) -> _DynPl
         sub_cols=f(plan.sub_cols),
         col_body=i(plan.col_body),
         col_frame=i(plan.col_frame),
+        frames_are_own=plan.frames_are_own,
         col_dof=i(plan.col_dof),
         col_w=f(plan.col_w),
         floats=[(p, b, d0, f(O)) for p, b, d0, O in plan.floats],

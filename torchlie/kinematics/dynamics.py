@@ -363,14 +363,16 @@ def _rnea(
     if qd2 is not None:
         V = S * _gather_cols(qd2, plan).unsqueeze(1)  # (K, 2, 3, B)
         Vl, Va = V.unbind(1)
+        v = _mm(plan.A, V)
+        vl, va = v.unbind(1)
         # Each column's axis moves with its frame body: its rate of change is that body's
-        # velocity cross the column.
-        fl_, fa_ = _mm(plan.Af, V).unbind(1)
+        # velocity cross the column (where every column's frame is its own body, in order,
+        # those are the body velocities).
+        fl_, fa_ = (v if plan.frames_are_own else _mm(plan.Af, V)).unbind(1)
         acc = _stack6(_cross_sum(None, (fa_, Vl), (fl_, Va)), _cross_parts(fa_, Va))
         fb = _float_bias(geo, qd2, plan)
         if fb is not None:
             acc = acc.index_add(0, plan.float_cols, fb)
-        vl, va = _mm(plan.A, V).unbind(1)
     if qdd2 is not None:
         qddc = _gather_cols(qdd2, plan).unsqueeze(1)
         acc = S * qddc if acc is None else fma(acc, S, qddc)
