@@ -342,23 +342,14 @@ def _mm(M: Tensor, x: Tensor) -> Tensor:
     return torch.mm(M, x.reshape(x.shape[0], math.prod(x.shape[1:]))).view(M.shape[0], *x.shape[1:])
 
 
-def _rnea(
-    plan: _DynPlan,
-    geo: _Geometry,
-    ins: Inertials,
-    batch: tuple[int, ...],
-    qd2: Tensor | None,
-    qdd2: Tensor | None,
-    g: Tensor,
-    fext: Tensor | None,
-) -> Tensor:
-    """Generalised forces ``(n_dof, B)``; ``qd2``/``qdd2`` ``(B, n_dof)`` or None for zero,
-    ``g (3, B|1)`` gravity, ``fext`` world-origin wrenches per body ``(nb, 2, 3, B)``.
-    Spatial vectors are ``(..., 2, 3, B)`` (linear; angular)."""
+def _body_motion(
+    plan: _DynPlan, geo: _Geometry, qd2: Tensor | None, qdd2: Tensor | None, g: Tensor
+) -> tuple[Tensor, Tensor | None, Tensor | None, Tensor | None]:
+    """Body accelerations (gravity as an acceleration ``-g`` of the base) and velocities,
+    ``(al, aa, vl, va)`` ``(nb, 3, B)`` (None: 0); the column terms die here."""
     S = geo.S
     B = S.shape[-1]
     nb = len(plan.bodies)
-    m, cw, Ic = _body_inertia(geo, ins, batch)
     acc = vl = va = None
     if qd2 is not None:
         V = S * _gather_cols(qd2, plan).unsqueeze(1)  # (K, 2, 3, B)
@@ -376,13 +367,30 @@ def _rnea(
     if qdd2 is not None:
         qddc = _gather_cols(qdd2, plan).unsqueeze(1)
         acc = S * qddc if acc is None else fma(acc, S, qddc)
-    # Gravity as an acceleration of the base: -g added to every body's linear acceleration.
     if acc is None:
-        al, aa = (-g).expand(nb, 3, B), None
-    else:
-        a = _mm(plan.A, acc)
-        al, aa = a[:, 0] - g, a[:, 1]
-    f = _forces(m, cw, Ic, geo.RT, al, aa, vl, va).expand(nb, 2, 3, B)
+        return (-g).expand(nb, 3, B), None, vl, va
+    a = _mm(plan.A, acc)
+    return a[:, 0] - g, a[:, 1], vl, va
+
+
+def _rnea(
+    plan: _DynPlan,
+    geo: _Geometry,
+    ins: Inertials,
+    batch: tuple[int, ...],
+    qd2: Tensor | None,
+    qdd2: Tensor | None,
+    g: Tensor,
+    fext: Tensor | None,
+) -> Tensor:
+    """Generalised forces ``(n_dof, B)``; ``qd2``/``qdd2`` ``(B, n_dof)`` or None for zero,
+    ``g (3, B|1)`` gravity, ``fext`` world-origin wrenches per body ``(nb, 2, 3, B)``.
+    Spatial vectors are ``(..., 2, 3, B)`` (linear; angular)."""
+    S = geo.S
+    B = S.shape[-1]
+    nb = len(plan.bodies)
+    m, cw, Ic = _body_inertia(geo, ins, batch)
+    f = _forces(m, cw, Ic, geo.RT, *_body_motion(plan, geo, qd2, qdd2, g)).expand(nb, 2, 3, B)
     if fext is not None:
         f = f - fext
     tau_c = (S * _mm(plan.At, f)).sum((1, 2))  # (K, B)
@@ -445,15 +453,28 @@ def _second_moment(Jc: Tensor, RT: Tensor, h: Tensor, cw: Tensor) -> Tensor:
     return J
 
 
-def _crba(plan: _DynPlan, geo: _Geometry, ins: Inertials, batch: tuple[int, ...]) -> Tensor:
-    """Mass matrix ``(B, n_dof, n_dof)``."""
+def _column_forces(plan: _DynPlan, geo: _Geometry, ins: Inertials, batch: tuple[int, ...]):
+    """``F_k = Ic S_k`` ``(K, 2, 3, B)``, the composite inertia of column ``k``'s subtree
+    applied to the column (the composite inertias die here)."""
     Sl, Sa = geo.Sl, geo.Sa
-    K, _, B = Sl.shape
     mc, hc, Jk = _composite(plan, geo, *_body_inertia(geo, ins, batch))
     trJ = (Jk[:, 0, 0] + Jk[:, 1, 1] + Jk[:, 2, 2]).unsqueeze(1)  # (K, 1, B)
-    F = _stack6(_cross_sum(mc * Sl, (Sa, hc)), _cross_sum(trJ * Sa - _mat(Jk, Sa), (hc, Sl)))
+    return _stack6(_cross_sum(mc * Sl, (Sa, hc)), _cross_sum(trJ * Sa - _mat(Jk, Sa), (hc, Sl)))
+
+
+def _columns_and_forces(
+    plan: _DynPlan, geo: _Geometry, ins: Inertials, batch: tuple[int, ...]
+) -> tuple[Tensor, Tensor]:
+    """``(S, F)`` for :func:`_crba` (the rest of the geometry dies here)."""
+    return geo.S, _column_forces(plan, geo, ins, batch)
+
+
+def _crba(plan: _DynPlan, S: Tensor, F: Tensor) -> Tensor:
+    """Mass matrix ``(B, n_dof, n_dof)`` from the joint columns ``S`` and their forces ``F``
+    (:func:`_column_forces`)."""
+    K, _, _, B = S.shape
     # Q[k, l] = S_k . Ic_l S_l, summed component by component over (K, K, B).
-    S6, F6 = geo.S.view(K, 6, B), F.view(K, 6, B)
+    S6, F6 = S.view(K, 6, B), F.view(K, 6, B)
     Q = S6[:, None, 0] * F6[None, :, 0]
     for i in range(1, 6):
         Q = _acc(Q, S6[:, None, i], F6[None, :, i])
@@ -655,7 +676,7 @@ def _mass_matrix(
         return _checks.out(q2.new_zeros(*batch, chain.n_v, chain.n_v), out_dtype)
 
     def run(q2: Tensor) -> Tensor:
-        return _crba(plan, _geometry(chain, plan, q2, ()), ins, batch)
+        return _crba(plan, *_columns_and_forces(plan, _geometry(chain, plan, q2, ()), ins, batch))
 
     M = _run(run, plan, [q2], (plan.gravity, *ins), False)
     return _checks.out(M.reshape(*batch, chain.n_v, chain.n_v), out_dtype)
@@ -692,7 +713,7 @@ def _forward_dynamics(
         geo = _geometry(chain, plan, q2, extra)
         fx = None if f_ext is None else _fext(chain, plan, geo, f_ext, fn, batch)
         h = _rnea(plan, geo, ins, batch, qd2, None, g, fx)  # (n, B)
-        M = _crba(plan, geo, ins, batch)  # (B, n, n)
+        M = _crba(plan, *_columns_and_forces(plan, geo, ins, batch))  # (B, n, n)
         L, _ = torch.linalg.cholesky_ex(M)
         return torch.cholesky_solve((tau2 - h.mT).unsqueeze(-1), L).squeeze(-1)  # (B, n)
 
