@@ -617,7 +617,9 @@ def _prepare(chain, q: Tensor, fn: str):
     return q2, out_dtype, batch, _plan(chain)
 
 
-def _run(fn, plan: _DynPlan, inputs: list[Tensor | None], others: tuple[Tensor, ...], whole: bool):
+def _over_blocks(
+    fn, plan: _DynPlan, inputs: list[Tensor | None], others: tuple[Tensor, ...], whole: bool
+):
     """``fn(*inputs)`` for batch-first ``inputs`` (None: absent), through the shared driver
     :func:`~torchlie._autograd.evaluate` over blocks of the batch (their width: the number of
     joint columns) when nothing else (``others``: gravity, inertials) has a batch or may
@@ -628,9 +630,9 @@ def _run(fn, plan: _DynPlan, inputs: list[Tensor | None], others: tuple[Tensor, 
         it = iter(xs)
         return fn(*(None if x is None else next(it) for x in inputs))
 
-    if whole or any(t.shape[-1] != 1 for t in others[:1]) or needs_graph(others):
-        return call(*given)
-    if any(t.dim() > d for t, d in zip(others[1:], (1, 2, 3), strict=True)):
+    g, *ins = others
+    batched = g.shape[-1] != 1 or any(t.dim() > d for t, d in zip(ins, (1, 2, 3), strict=True))
+    if whole or batched or needs_graph(others):
         return call(*given)
     return evaluate(call, given, [1] * len(given), width=plan.col_dof.shape[0])
 
@@ -661,7 +663,7 @@ def _inverse_dynamics(
         fx = None if f_ext is None else _fext(chain, plan, geo, f_ext, _fn, batch)
         return _rnea(plan, geo, ins, batch, qd2, qdd2, g, fx).mT
 
-    tau = _run(run, plan, [q2, qd2, qdd2], (g, *ins), f_ext is not None)
+    tau = _over_blocks(run, plan, [q2, qd2, qdd2], (g, *ins), f_ext is not None)
     return _checks.out(tau.reshape(*batch, chain.n_v), out_dtype)
 
 
@@ -678,7 +680,7 @@ def _mass_matrix(
     def run(q2: Tensor) -> Tensor:
         return _crba(plan, *_columns_and_forces(plan, _geometry(chain, plan, q2, ()), ins, batch))
 
-    M = _run(run, plan, [q2], (plan.gravity, *ins), False)
+    M = _over_blocks(run, plan, [q2], (plan.gravity, *ins), False)
     return _checks.out(M.reshape(*batch, chain.n_v, chain.n_v), out_dtype)
 
 
@@ -717,5 +719,5 @@ def _forward_dynamics(
         L, _ = torch.linalg.cholesky_ex(M)
         return torch.cholesky_solve((tau2 - h.mT).unsqueeze(-1), L).squeeze(-1)  # (B, n)
 
-    qdd = _run(run, plan, [q2, qd2, tau2], (g, *ins), f_ext is not None)
+    qdd = _over_blocks(run, plan, [q2, qd2, tau2], (g, *ins), f_ext is not None)
     return _checks.out(qdd.reshape(*batch, chain.n_v), out_dtype)
