@@ -35,8 +35,7 @@ class _DynPlan:
     n_rot: int  # columns: n_rot constant rotations, then 3 per floating joint, then translations
     col_anchor: Tensor | None  # (n_rot, 3, 1) rotation columns' pivots in their bodies' frames
     col_v: Tensor  # (n_const, 1, 3) directions of the constant columns in their parent frames
-    col_parent: Tensor  # (n_const,) position in targets of each constant column's frame link
-    col_parent_pos: tuple[int, ...]  # the same as Python numbers
+    col_parent_pos: tuple[int, ...]  # position in targets of each constant column's frame link
     frames_are_bodies: bool  # col_parent_pos == (0, 1, ..., n_const - 1): the bodies' own frames
     rot_bodies_run: bool  # col_body[:n_rot] == (0, 1, ..., n_rot - 1)
     sub_cols: Tensor  # (K, n_bodies): row col_body[k] of sub (the composite of column k's body)
@@ -241,7 +240,6 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
             else None
         ),
         col_v=torch.tensor([list(v) for _, v, *_ in const], dtype=torch.float64).reshape(-1, 1, 3),
-        col_parent=torch.tensor(col_parent_pos, dtype=torch.long),
         col_parent_pos=col_parent_pos,
         frames_are_bodies=len(const) <= nb and col_parent_pos == tuple(range(len(const))),
         rot_bodies_run=col_body[: len(rot)] == list(range(len(rot))),
@@ -286,7 +284,6 @@ def _convert(plan: _DynPlan, dtype: torch.dtype, device: torch.device) -> _DynPl
         n_rot=plan.n_rot,
         col_anchor=None if plan.col_anchor is None else f(plan.col_anchor),
         col_v=f(plan.col_v),
-        col_parent=i(plan.col_parent),
         col_parent_pos=plan.col_parent_pos,
         frames_are_bodies=plan.frames_are_bodies,
         rot_bodies_run=plan.rot_bodies_run,
