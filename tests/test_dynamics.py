@@ -314,6 +314,37 @@ def test_empty_batch(arm):
     assert arm.forward_dynamics(q, q, q).shape == (0, 7)
 
 
+@pytest.mark.parametrize("robot", ["arm7", "tree"])
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_large_batch_over_blocks_agrees(robot, dtype):
+    """A batch large enough for the shared driver to run the dynamics over blocks of it
+    gives, row by row, what the rows give alone and what the unblocked call (a graph being
+    recorded) gives."""
+    from torchlie._autograd import BLOCK
+
+    chain = Chain.from_urdf(sample_robot(robot), dtype=dtype)
+    n = chain.n_dof
+    B = 2 * BLOCK * torch.get_num_threads() // n + 5  # two blocks and a part even in float32
+    q, qd, qdd = _state(chain, B, seed=11)
+    tol = {"rtol": 1e-12, "atol": 1e-12} if dtype == F64 else {"rtol": 2e-5, "atol": 2e-5}
+    tau = chain.inverse_dynamics(q, qd, qdd)
+    M = chain.mass_matrix(q)
+    qdd2 = chain.forward_dynamics(q, qd, tau)
+    rows = torch.tensor([0, 1, B // 2, B - 6, B - 1])  # in the first, a middle and the last block
+    torch.testing.assert_close(
+        tau[rows], chain.inverse_dynamics(q[rows], qd[rows], qdd[rows]), **tol
+    )
+    torch.testing.assert_close(M[rows], chain.mass_matrix(q[rows]), **tol)
+    # Accelerations: through a Cholesky solve, which amplifies round-off by M's condition.
+    ref = chain.forward_dynamics(q[rows], qd[rows], tau[rows])
+    assert _rel(qdd2[rows], ref.to(F64)) <= (1e-9 if dtype == F64 else 1e-3)
+    qg = q.clone().requires_grad_()
+    tau_g = chain.inverse_dynamics(qg, qd, qdd)
+    torch.testing.assert_close(tau_g.detach(), tau, **tol)
+    (grad,) = torch.autograd.grad(tau_g[:, 0].sum(), qg)
+    assert bool(grad.isfinite().all())
+
+
 def test_inertials_replace_and_differentiate(arm):
     q, qd, qdd = _state(arm, 8, seed=6)
     ins = arm.inertials

@@ -112,13 +112,21 @@ def needs_graph(inputs: Sequence[Tensor]) -> bool:
     return forward_ad_active() or _records(inputs)
 
 
-def evaluate(fn: Callable[..., _Out], inputs: Sequence[Tensor], event_dims: Sequence[int]) -> _Out:
+def evaluate(
+    fn: Callable[..., _Out],
+    inputs: Sequence[Tensor],
+    event_dims: Sequence[int],
+    width: int = 1,
+) -> _Out:
     """``fn(*inputs)``, over blocks of the flattened batch where that pays.
 
     ``event_dims[i]`` trailing dimensions of input ``i`` are not batch.  Blocks are taken for
     eager CPU tensors of one common batch shape of at least two blocks, outside transforms and
     without a graph being recorded; ``fn`` returns a tensor or a tuple of tensors (or None) with
     the batch shape first, and a block's result is the same whatever block it is in (row by row).
+    ``width``: how many planes per row the formula's temporaries hold, relative to an
+    element-wise op's one (a formula over the joint columns of a robot: their number); blocks
+    hold proportionally fewer rows, so that their temporaries take the same memory.
     """
     first = inputs[0]
     if (
@@ -130,7 +138,7 @@ def evaluate(fn: Callable[..., _Out], inputs: Sequence[Tensor], event_dims: Sequ
     ):
         return fn(*inputs)
     batch = first.shape[: first.dim() - event_dims[0]]
-    rows = BLOCK * 4 // first.element_size() * torch.get_num_threads()
+    rows = max(1, BLOCK * 4 // first.element_size() * torch.get_num_threads() // width)
     n = batch.numel()
     if n < 2 * rows or any(
         x.shape[: x.dim() - k] != batch for x, k in zip(inputs, event_dims, strict=True)

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from ._joints import _Link, quat_rows, rpy_rows
+from ._joints import _Link, _unit, quat_rows, rpy_rows
 from .urdf import RobotSpec
 
 #: Gravity in the root frame when none is given, m/s^2.
@@ -35,9 +35,13 @@ class _DynPlan:
     n_rot: int  # columns: n_rot constant rotations, then 3 per floating joint, then translations
     col_anchor: Tensor | None  # (n_rot, 3, 1) rotation columns' pivots in their bodies' frames
     col_v: Tensor  # (n_const, 1, 3) directions of the constant columns in their parent frames
-    col_parent: Tensor  # (n_const,) position in targets of each constant column's parent link
+    col_parent_pos: tuple[int, ...]  # position in targets of each constant column's frame link
+    frames_are_bodies: bool  # col_parent_pos == (0, 1, ..., n_const - 1): the bodies' own frames
+    rot_bodies_run: bool  # col_body[:n_rot] == (0, 1, ..., n_rot - 1)
+    sub_cols: Tensor  # (K, n_bodies): row col_body[k] of sub (the composite of column k's body)
     col_body: Tensor  # (K,) body moved by each column
     col_frame: Tensor  # (K,) body whose velocity carries the column (n_bodies: the world)
+    frames_are_own: bool  # col_frame == (0, 1, ..., K - 1) == the bodies: Af = A
     col_dof: Tensor  # (K,) the DoF of each column
     col_w: Tensor  # (K, 1) its weight (mimic multipliers)
     floats: list[tuple[int, int, int, Tensor]]  # parent pos in targets, body, rotvec DoF, O_R
@@ -47,6 +51,7 @@ class _DynPlan:
     float_cols: Tensor  # (n_float,) the first rotation column of each floating joint
     sub: Tensor  # (n_bodies, n_bodies): 1 where the second is in the first's subtree
     m_gather: Tensor  # (K * K,) where each entry of the mass matrix is read (see _crba)
+    m_zero: bool  # some entries are 0 (columns on different branches): read from row K * K
     W: Tensor  # (n_dof, K) folding of columns onto DoFs
     W_is_identity: bool  # column k is DoF k with weight 1 (no mimic joint, DoF order)
     inertials64: tuple[Tensor, Tensor, Tensor]  # merged (mass, com, inertia), float64 CPU
@@ -140,21 +145,34 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
             p = parent_body[p]
         anc_sets.append(s)
 
-    # Columns: constant rotations, floating rotations, translations.  A rotation column's
-    # direction is fixed in its parent's frame ("rot") or in its own link's ("crot": the
-    # angular velocities of ball and free joints); it turns about the link's anchor.
-    rot: list[tuple[int, tuple[float, ...], int, int, float]] = []  # parent, v, body, d, w
+    # Columns: constant rotations, floating rotations, translations.  A column's direction is
+    # fixed in a link's frame: the link's own for rotations about its joint's axis ("rot":
+    # the rotation about the axis leaves it fixed), for prismatic joints and for ball and free
+    # joints' angular velocities ("crot"); its parent's for the translations of planar,
+    # floating and free joints (the link turns under them).  Own frames need no parent pose,
+    # and where they are the bodies in order, no gather at all.  Rotations turn about the
+    # link's anchor.
+    rot: list[tuple[int, tuple[float, ...], int, int, float]] = []  # frame, v, body, d, w
     tr: list[tuple[int, tuple[float, ...], int, int, float]] = []
     anchors: list[tuple[float, float, float]] = []  # per rotation column, in its body's frame
     floats_raw: list[tuple[int, int, int, Tensor]] = []
     for i in moving:
         lk = links[i]
         b = body_ix[i]
+        own = lk.kind in ("rot", "prism")
         for kind, v, d, w in lk.cols:
             if kind == "tr":
-                tr.append((lk.parent, v, b, d, w))
+                if own:  # the axis in the child's frame
+                    assert lk.joint is not None
+                    tr.append((lk.index, tuple(float(x) for x in _unit(lk.joint.axis)), b, d, w))
+                else:
+                    tr.append((lk.parent, v, b, d, w))
                 continue
-            rot.append((lk.index if kind == "crot" else lk.parent, v, b, d, w))
+            if kind == "rot":  # revolute, continuous, planar: the axis in the child's frame
+                assert lk.joint is not None
+                rot.append((lk.index, tuple(float(x) for x in _unit(lk.joint.axis)), b, d, w))
+            else:
+                rot.append((lk.index, v, b, d, w))
             anchors.append(lk.anchor or (0.0, 0.0, 0.0))
         if lk.float_rot is not None:
             d0, O_R = lk.float_rot
@@ -163,6 +181,7 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
     parents = sorted({p for p, *_ in const} | {p for p, *_ in floats_raw})
     targets = tuple(moving) + tuple(p for p in parents if p not in body_ix)
     pos = {t: k for k, t in enumerate(targets)}
+    col_parent_pos = tuple(pos[p] for p, *_ in const)
     col_body = [b for _, _, b, _, _ in rot]
     col_body += [b for _, b, _, _ in floats_raw for _ in range(3)]
     col_body += [b for _, _, b, _, _ in tr]
@@ -185,6 +204,11 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
     def anc(k: int, j: int) -> bool:  # column k's body is an ancestor-or-self of column j's
         return col_body[k] in anc_sets[col_body[j]]
 
+    m_gather = [
+        k * K + j if anc(k, j) else (j * K + k if anc(j, k) else K * K)
+        for k in range(K)
+        for j in range(K)
+    ]
     W = torch.zeros(n_dof, K, dtype=torch.float64)
     for k in range(K):
         W[col_dof[k], k] += col_w[k]
@@ -216,9 +240,13 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
             else None
         ),
         col_v=torch.tensor([list(v) for _, v, *_ in const], dtype=torch.float64).reshape(-1, 1, 3),
-        col_parent=torch.tensor([pos[p] for p, *_ in const], dtype=torch.long),
+        col_parent_pos=col_parent_pos,
+        frames_are_bodies=len(const) <= nb and col_parent_pos == tuple(range(len(const))),
+        rot_bodies_run=col_body[: len(rot)] == list(range(len(rot))),
+        sub_cols=sub[torch.tensor(col_body, dtype=torch.long)].reshape(K, nb),
         col_body=torch.tensor(col_body, dtype=torch.long),
         col_frame=torch.tensor(col_frame, dtype=torch.long),
+        frames_are_own=K == nb and col_frame == list(range(K)),
         col_dof=torch.tensor(col_dof, dtype=torch.long),
         col_w=torch.tensor(col_w, dtype=torch.float64).reshape(K, 1),
         floats=[(pos[p], b, d0, O_R) for p, b, d0, O_R in floats_raw],
@@ -229,14 +257,8 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
             [len(rot) + 3 * k for k in range(len(floats_raw))], dtype=torch.long
         ),
         sub=sub,
-        m_gather=torch.tensor(
-            [
-                k * K + j if anc(k, j) else (j * K + k if anc(j, k) else K * K)
-                for k in range(K)
-                for j in range(K)
-            ],
-            dtype=torch.long,
-        ),
+        m_gather=torch.tensor(m_gather, dtype=torch.long),
+        m_zero=K * K in m_gather,
         W=W,
         W_is_identity=col_dof == list(range(n_dof)) and all(w == 1.0 for w in col_w),
         inertials64=(mass, com, inertia),
@@ -262,9 +284,13 @@ def _convert(plan: _DynPlan, dtype: torch.dtype, device: torch.device) -> _DynPl
         n_rot=plan.n_rot,
         col_anchor=None if plan.col_anchor is None else f(plan.col_anchor),
         col_v=f(plan.col_v),
-        col_parent=i(plan.col_parent),
+        col_parent_pos=plan.col_parent_pos,
+        frames_are_bodies=plan.frames_are_bodies,
+        rot_bodies_run=plan.rot_bodies_run,
+        sub_cols=f(plan.sub_cols),
         col_body=i(plan.col_body),
         col_frame=i(plan.col_frame),
+        frames_are_own=plan.frames_are_own,
         col_dof=i(plan.col_dof),
         col_w=f(plan.col_w),
         floats=[(p, b, d0, f(O)) for p, b, d0, O in plan.floats],
@@ -274,6 +300,7 @@ def _convert(plan: _DynPlan, dtype: torch.dtype, device: torch.device) -> _DynPl
         float_cols=i(plan.float_cols),
         sub=f(plan.sub),
         m_gather=i(plan.m_gather),
+        m_zero=plan.m_zero,
         W=f(plan.W),
         W_is_identity=plan.W_is_identity,
         inertials64=plan.inertials64,

@@ -19,6 +19,7 @@ from torch import Tensor
 
 from .. import quaternion as _quaternion
 from .. import so3 as _so3
+from .._autograd import transforms_active
 from ._joints import _Link
 
 # Internal kinds in the order their groups are computed at each depth (one GEMM per kind).
@@ -194,6 +195,9 @@ def _run(plan: _Plan, v: Tensor) -> list[list[Tensor]]:
         R = _quaternion.to_matrix(x)  # (n, B, 3, 3), of the normalised quaternion
         banks["Q"] = R.permute(0, 2, 3, 1).reshape(nq * 9, 1, 1, B)
 
+    # Eager, outside the torch.func transforms (which have no batching rule for in-place
+    # multiply-adds), each pose accumulates its feature terms in place (autograd records that).
+    inplace = not torch.compiler.is_compiling() and not transforms_active()
     out: list[list[Tensor]] = []
     for groups in plan.levels:
         res: list[Tensor] = []
@@ -213,7 +217,10 @@ def _run(plan: _Plan, v: Tensor) -> list[list[Tensor]]:
                 continue
             T = Y[0]
             for f, (b, sel) in enumerate(g.feats):
-                T = torch.addcmul(T, _take(banks[b], sel), Y[f + 1])
+                if f and inplace:  # T is this loop's own result: accumulate into it
+                    T = T.addcmul_(_take(banks[b], sel), Y[f + 1])
+                else:
+                    T = torch.addcmul(T, _take(banks[b], sel), Y[f + 1])
             res.append(T)
         out.append(res)
     return out

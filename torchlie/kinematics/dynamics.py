@@ -36,10 +36,13 @@ origin (Plücker coordinates).  In that frame every recursion of the Newton-Eule
 a sum along the tree: body velocities and accelerations are sums of their joints' motions over
 the ancestors, and joint forces sums of body forces over the subtree, so each is one product
 with a constant 0/1 ancestor matrix, batch innermost, instead of a loop over links.  The mass
-matrix follows from composite inertias (one product with the subtree matrix) and the joint
-axes; forward dynamics solves ``M qdd = tau - h`` by a batched Cholesky factorisation (the
-articulated-body algorithm would be a Python loop over the tree's depth; for the tens of
-degrees of freedom of a robot the Cholesky solve is as exact and costs fewer torch calls).
+matrix follows from composite inertias (mass, first and second moment about the world origin,
+summed over subtrees by one product with the subtree matrix) and the joint axes; forward
+dynamics solves ``M qdd = tau - h`` by a batched Cholesky factorisation (the articulated-body
+algorithm would be a Python loop over the tree's depth; for the tens of degrees of freedom of
+a robot the Cholesky solve is as exact and costs fewer torch calls).  Large eager CPU batches
+run block by block through the shared driver (:func:`torchlie._autograd.evaluate`, blocks of
+fewer rows the more joint columns), so that the temporaries of a call stay bounded.
 """
 
 from __future__ import annotations
@@ -54,7 +57,7 @@ from torch import Tensor
 
 from .. import _checks, _coeffs
 from .. import so3 as _so3
-from .._autograd import fma, needs_graph, transforms_active
+from .._autograd import evaluate, fma, needs_graph, transforms_active
 from .._typing import Float
 from ._dyn_plan import DEFAULT_GRAVITY, _build, _convert, _DynPlan
 from .urdf import _some
@@ -116,15 +119,39 @@ def _inertials(chain) -> Inertials:
 # ----------------------------------------------------------------------------------------------
 
 
+def _cross_parts(a: Tensor, b: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """The components of the cross product along dim -2."""
+    a0, a1, a2 = a.unbind(-2)
+    b0, b1, b2 = b.unbind(-2)
+    return fma(a1 * b2, a2, b1, -1.0), fma(a2 * b0, a0, b2, -1.0), fma(a0 * b1, a1, b0, -1.0)
+
+
 def _cross(a: Tensor, b: Tensor) -> Tensor:
     """Cross product along dim -2 (component by component: several times faster than
     ``torch.linalg.cross`` on these layouts)."""
-    a0, a1, a2 = a.unbind(-2)
-    b0, b1, b2 = b.unbind(-2)
-    return torch.stack(
-        (fma(a1 * b2, a2, b1, -1.0), fma(a2 * b0, a0, b2, -1.0), fma(a0 * b1, a1, b0, -1.0)),
-        dim=-2,
-    )
+    return torch.stack(_cross_parts(a, b), dim=-2)
+
+
+def _cross_sum(x: Tensor | None, *terms: tuple[Tensor, Tensor]) -> tuple[Tensor, Tensor, Tensor]:
+    """The components of ``x + sum a x b`` over ``terms`` (vectors along dim -2; ``x`` None:
+    0), each summed by multiply-adds before anything is stacked."""
+    if x is None:
+        out = list(_cross_parts(*terms[0]))
+        terms = terms[1:]
+    else:
+        out = list(x.unbind(-2))
+    for a, b in terms:
+        a0, a1, a2 = a.unbind(-2)
+        b0, b1, b2 = b.unbind(-2)
+        for i, (p, q, r, t) in enumerate(((a1, b2, a2, b1), (a2, b0, a0, b2), (a0, b1, a1, b0))):
+            out[i] = fma(fma(out[i], p, q), r, t, -1.0)
+    return out[0], out[1], out[2]
+
+
+def _stack6(lin: tuple[Tensor, ...], ang: tuple[Tensor, ...]) -> Tensor:
+    """Spatial vectors ``(..., 2, 3, B)`` from the components of their two parts."""
+    v = torch.stack((*lin, *ang), dim=-2)
+    return v.view(*v.shape[:-2], 2, 3, v.shape[-1])
 
 
 def _columns_times(cols: Tensor, x: Tensor) -> Tensor:
@@ -152,52 +179,75 @@ def _mat(M: Tensor, x: Tensor) -> Tensor:
 
 @dataclass
 class _Geometry:
-    Sl: Tensor  # (K, 3, B) joint columns, linear part (world Plücker coordinates)
-    Sa: Tensor  # (K, 3, B) angular part
+    S: Tensor  # (K, 2, 3, B) joint columns (linear; angular), world Plücker coordinates
     p: Tensor  # (nb, 3, B) body origins
     RT: Tensor  # (nb, 3, 3, B) body rotations, transposed: RT[c, r] = R[r, c]
-    poses: Tensor  # (n_targets, 4, 4, B) internal poses (T^T) of the targets
+    origins: list[Tensor]  # (3, B) origins of the extra links asked for
     floats: list[tuple[Tensor, Tensor, Tensor]]  # per floating joint: R_parent O_R, r, p
+
+    @property
+    def Sl(self) -> Tensor:
+        return self.S[:, 0]
+
+    @property
+    def Sa(self) -> Tensor:
+        return self.S[:, 1]
+
+
+def _cat(parts: list[Tensor]) -> Tensor:
+    """``torch.cat(parts)`` without the copy of a single part."""
+    return parts[0] if len(parts) == 1 else torch.cat(parts)
 
 
 def _geometry(chain, plan: _DynPlan, q2: Tensor, extra: tuple[int, ...]) -> _Geometry:
-    """Poses and joint columns for ``q2 (B, n_dof)``; ``extra``: more links whose poses are
-    wanted (after the plan's targets in ``poses``)."""
+    """Poses and joint columns for ``q2 (B, n_dof)``; ``extra``: more links whose origins are
+    wanted."""
     B = q2.shape[0]
     targets = plan.targets + extra
     fk = chain._plan(targets)
     out = chain._run(fk, q2)
-    P = torch.stack([chain._pose(fk, out, i, B, q2) for i in targets])  # (n, c, r, B)
+    poses = [chain._pose(fk, out, i, B, q2) for i in targets]  # (c, r, B) each
     nb = len(plan.bodies)
-    p = P[:nb, 3, :3]  # (nb, 3, B)
-    RT = P[:nb, :3, :3]  # (nb, c, r, B)
+    RT = torch.stack([P[:3, :3] for P in poses[:nb]])  # (nb, c, r, B)
+    p = torch.stack([P[3, :3] for P in poses[:nb]])  # (nb, 3, B)
     parts_u: list[Tensor] = []
     parts_p: list[Tensor] = []
     n_const = plan.col_v.shape[0]
     U = None
     if n_const:
-        Rp = P[:, :3, :3].index_select(0, plan.col_parent)  # (n, c, r, B)
-        U = torch.matmul(plan.col_v, Rp.reshape(n_const, 3, 3 * B)).view(n_const, 3, B)
+        if plan.frames_are_bodies:  # each column's direction is fixed in its own body
+            Rf = RT[:n_const]
+        else:
+            Rf = torch.stack([poses[k][:3, :3] for k in plan.col_parent_pos])
+        U = torch.matmul(plan.col_v, Rf.reshape(n_const, 3, 3 * B)).view(n_const, 3, B)
         parts_u.append(U[: plan.n_rot])
-        piv = p.index_select(0, plan.col_body[: plan.n_rot])
+        if plan.rot_bodies_run:
+            piv = p[: plan.n_rot]
+        else:
+            piv = p.index_select(0, plan.col_body[: plan.n_rot])
         if plan.col_anchor is not None:  # the joint turns about a point of its body
             piv = piv + _rot(RT.index_select(0, plan.col_body[: plan.n_rot]), plan.col_anchor)
         parts_p.append(piv)
     floats = []
     for ppos, b, d0, O_R in plan.floats:
-        Rp = P[ppos, :3, :3]  # (c, r, B)
+        Rp = poses[ppos][:3, :3]  # (c, r, B)
         RO = torch.einsum("crb,ck->rkb", Rp, O_R)  # R_parent O_R, (3, 3, B)
         r = q2[:, d0 : d0 + 3]
         Jl = _so3.jac_left(r).permute(1, 2, 0)  # (3, 3, B)
         parts_u.append(torch.einsum("rkb,kjb->jrb", RO, Jl))  # column j: RO Jl e_j
         parts_p.append(p[b].unsqueeze(0).expand(3, 3, B))
         floats.append((RO, r, p[b]))
-    Ur = torch.cat(parts_u) if parts_u else q2.new_zeros(0, 3, B)
-    Pr = torch.cat(parts_p) if parts_p else q2.new_zeros(0, 3, B)
-    Ut = U[plan.n_rot :] if U is not None else q2.new_zeros(0, 3, B)
-    Sl = torch.cat((_cross(Pr, Ur), Ut))
-    Sa = torch.cat((Ur, torch.zeros_like(Ut)))
-    return _Geometry(Sl, Sa, p, RT, P, floats)
+    origins = [P[3, :3] for P in poses[len(plan.targets) :]]
+    parts_s = []
+    if parts_u:  # rotation columns: (p x u; u), stacked at once
+        Ur = _cat(parts_u)
+        S6 = torch.stack((*_cross_parts(_cat(parts_p), Ur), *Ur.unbind(1)), dim=1)
+        parts_s.append(S6.view(Ur.shape[0], 2, 3, B))
+    if U is not None and U.shape[0] > plan.n_rot:  # translation columns: (u; 0)
+        Ut = U[plan.n_rot :]
+        parts_s.append(torch.stack((Ut, torch.zeros_like(Ut)), dim=1))
+    S = _cat(parts_s) if parts_s else q2.new_zeros(0, 2, 3, B)
+    return _Geometry(S, p, RT, origins, floats)
 
 
 def _batch_last(x: Tensor, batch: tuple[int, ...], trailing: int) -> Tensor:
@@ -216,16 +266,44 @@ def _body_inertia(geo: _Geometry, ins: Inertials, batch: tuple[int, ...]):
     m = _batch_last(ins.mass, batch, 1).unsqueeze(1)
     c = _batch_last(ins.com, batch, 2)
     Ic = _batch_last(ins.inertia, batch, 3)
-    return m, geo.p + _rot(geo.RT, c), Ic
+    nb = c.shape[0]
+    return m, geo.p + _const_times(c.unsqueeze(1), geo.RT).view(nb, 3, geo.RT.shape[-1]), Ic
 
 
-def _inertia_apply(
-    m: Tensor, cw: Tensor, Ic: Tensor, RT: Tensor, sl: Tensor, sa: Tensor
-) -> tuple[Tensor, Tensor]:
-    """Spatial momentum (about the world origin) of bodies moving with ``(sl, sa)``:
-    ``m (sl + sa x c)`` and ``c x that + R Ic R^T sa``."""
-    fl = m * (sl + _cross(sa, cw))
-    return fl, _cross(cw, fl) + _rot(RT, _mat(Ic, _rot_t(RT, sa)))
+def _forces(
+    m: Tensor,
+    cw: Tensor,
+    Ic: Tensor,
+    RT: Tensor,
+    al: Tensor,
+    aa: Tensor | None,
+    vl: Tensor | None,
+    va: Tensor | None,
+) -> Tensor:
+    """Per body the force about the world origin ``I a + v x* I v`` ``(nb, 2, 3, B)`` for
+    accelerations ``(al; aa)`` and velocities ``(vl; va)`` ``(nb, 3, B)`` (None: 0), in the
+    form ``fl = m (al + aa x c + va x vc)``, ``fa = c x fl + Iw aa + va x Iw va`` (``vc`` the
+    centre of mass's velocity, ``Iw = R Ic R^T``; the bias terms ``v x* (m vc; c x m vc +
+    Iw va)`` folded in by the Jacobi identity)."""
+
+    def Iw(x: Tensor) -> Tensor:
+        return _rot(RT, _const_mat(Ic, _rot_t(RT, x)))
+
+    terms = [] if aa is None else [(aa, cw)]
+    if va is not None and vl is not None:
+        terms.append((va, torch.stack(_cross_sum(vl, (va, cw)), dim=-2)))
+    fl = m * (torch.stack(_cross_sum(al, *terms), dim=-2) if terms else al)
+    terms = [(cw, fl)] if va is None else [(cw, fl), (va, Iw(va))]
+    fa = _cross_sum(None if aa is None else Iw(aa), *terms)
+    return _stack6(fl.unbind(-2), fa)
+
+
+def _const_mat(M: Tensor, x: Tensor) -> Tensor:
+    """``M x`` for ``M (n, 3, 3, B|1)`` and ``x (..., n, 3, B)``: one batched matrix product
+    where ``M`` has no batch."""
+    if M.shape[-1] == 1:
+        return torch.matmul(M.squeeze(-1), x)
+    return _mat(M, x)
 
 
 def _gather_cols(x: Tensor, plan: _DynPlan) -> Tensor:
@@ -233,10 +311,10 @@ def _gather_cols(x: Tensor, plan: _DynPlan) -> Tensor:
     return (x.mT.index_select(0, plan.col_dof) * plan.col_w).unsqueeze(1)
 
 
-def _float_bias(geo: _Geometry, qd2: Tensor, plan: _DynPlan) -> tuple[Tensor, Tensor] | None:
+def _float_bias(geo: _Geometry, qd2: Tensor, plan: _DynPlan) -> Tensor | None:
     """The acceleration terms ``(p x u; u)``, ``u = R_parent O_R (dJl/dt) rd``, of the floating
-    joints' rotation columns (their axes turn with the rotation vector), ``(n_float, 3, B)``
-    each."""
+    joints' rotation columns (their axes turn with the rotation vector), ``(n_float, 2, 3,
+    B)``."""
     if not plan.floats:
         return None
     lin, ang = [], []
@@ -256,12 +334,43 @@ def _float_bias(geo: _Geometry, qd2: Tensor, plan: _DynPlan) -> tuple[Tensor, Te
         uw = (RO * u.mT.unsqueeze(0)).sum(1)  # (3, B)
         lin.append(_cross(p, uw))
         ang.append(uw)
-    return torch.stack(lin), torch.stack(ang)
+    return torch.stack((torch.stack(lin), torch.stack(ang)), dim=1)
 
 
 def _mm(M: Tensor, x: Tensor) -> Tensor:
     """``M (r, n)`` times ``x (n, 3, B)`` over the first dimension: ``(r, 3, B)``."""
-    return torch.mm(M, x.reshape(x.shape[0], -1)).view(M.shape[0], *x.shape[1:])
+    return torch.mm(M, x.reshape(x.shape[0], math.prod(x.shape[1:]))).view(M.shape[0], *x.shape[1:])
+
+
+def _body_motion(
+    plan: _DynPlan, geo: _Geometry, qd2: Tensor | None, qdd2: Tensor | None, g: Tensor
+) -> tuple[Tensor, Tensor | None, Tensor | None, Tensor | None]:
+    """Body accelerations (gravity as an acceleration ``-g`` of the base) and velocities,
+    ``(al, aa, vl, va)`` ``(nb, 3, B)`` (None: 0); the column terms die here."""
+    S = geo.S
+    B = S.shape[-1]
+    nb = len(plan.bodies)
+    acc = vl = va = None
+    if qd2 is not None:
+        V = S * _gather_cols(qd2, plan).unsqueeze(1)  # (K, 2, 3, B)
+        Vl, Va = V.unbind(1)
+        v = _mm(plan.A, V)
+        vl, va = v.unbind(1)
+        # Each column's axis moves with its frame body: its rate of change is that body's
+        # velocity cross the column (where every column's frame is its own body, in order,
+        # those are the body velocities).
+        fl_, fa_ = (v if plan.frames_are_own else _mm(plan.Af, V)).unbind(1)
+        acc = _stack6(_cross_sum(None, (fa_, Vl), (fl_, Va)), _cross_parts(fa_, Va))
+        fb = _float_bias(geo, qd2, plan)
+        if fb is not None:
+            acc = acc.index_add(0, plan.float_cols, fb)
+    if qdd2 is not None:
+        qddc = _gather_cols(qdd2, plan).unsqueeze(1)
+        acc = S * qddc if acc is None else fma(acc, S, qddc)
+    if acc is None:
+        return (-g).expand(nb, 3, B), None, vl, va
+    a = _mm(plan.A, acc)
+    return a[:, 0] - g, a[:, 1], vl, va
 
 
 def _rnea(
@@ -272,92 +381,106 @@ def _rnea(
     qd2: Tensor | None,
     qdd2: Tensor | None,
     g: Tensor,
-    fext: tuple[Tensor, Tensor] | None,
+    fext: Tensor | None,
 ) -> Tensor:
     """Generalised forces ``(n_dof, B)``; ``qd2``/``qdd2`` ``(B, n_dof)`` or None for zero,
-    ``g (3, B|1)`` gravity, ``fext`` world-origin wrenches per body ``(nb, 3, B)`` x 2."""
-    Sl, Sa = geo.Sl, geo.Sa
-    B = Sl.shape[-1]
+    ``g (3, B|1)`` gravity, ``fext`` world-origin wrenches per body ``(nb, 2, 3, B)``.
+    Spatial vectors are ``(..., 2, 3, B)`` (linear; angular)."""
+    S = geo.S
+    B = S.shape[-1]
     nb = len(plan.bodies)
     m, cw, Ic = _body_inertia(geo, ins, batch)
-    acl = aca = None
-    if qd2 is not None:
-        qdc = _gather_cols(qd2, plan)
-        Vl, Va = Sl * qdc, Sa * qdc
-        vl, va = _mm(plan.A, Vl), _mm(plan.A, Va)
-        # Each column's axis moves with its frame body: its rate of change is that body's
-        # velocity cross the column.
-        fl_, fa_ = _mm(plan.Af, Vl), _mm(plan.Af, Va)
-        acl = _cross(fa_, Vl) + _cross(fl_, Va)
-        aca = _cross(fa_, Va)
-        fb = _float_bias(geo, qd2, plan)
-        if fb is not None:
-            acl = acl.index_add(0, plan.float_cols, fb[0])
-            aca = aca.index_add(0, plan.float_cols, fb[1])
-    if qdd2 is not None:
-        qddc = _gather_cols(qdd2, plan)
-        acl = Sl * qddc if acl is None else fma(acl, Sl, qddc)
-        aca = Sa * qddc if aca is None else fma(aca, Sa, qddc)
-    if acl is not None and aca is not None:
-        al, aa = _mm(plan.A, acl) - g, _mm(plan.A, aca)
-    else:
-        al, aa = (-g).expand(nb, 3, B), Sl.new_zeros(nb, 3, B)
-    fl, fa = _inertia_apply(m, cw, Ic, geo.RT, al, aa)
-    if qd2 is not None:
-        hl, ha = _inertia_apply(m, cw, Ic, geo.RT, vl, va)
-        fl = fl + _cross(va, hl)
-        fa = fa + _cross(va, ha) + _cross(vl, hl)
+    f = _forces(m, cw, Ic, geo.RT, *_body_motion(plan, geo, qd2, qdd2, g)).expand(nb, 2, 3, B)
     if fext is not None:
-        fl, fa = fl - fext[0], fa - fext[1]
-    Fl, Fa = _mm(plan.At, fl), _mm(plan.At, fa)
-    t0, t1, t2 = fma(Sl * Fl, Sa, Fa).unbind(1)
-    tau_c = t0 + t1 + t2  # (K, B)
+        f = f - fext
+    tau_c = (S * _mm(plan.At, f)).sum((1, 2))  # (K, B)
     return tau_c if plan.W_is_identity else torch.mm(plan.W, tau_c)
 
 
-def _crba(plan: _DynPlan, geo: _Geometry, ins: Inertials, batch: tuple[int, ...]) -> Tensor:
-    """Mass matrix ``(B, n_dof, n_dof)``."""
+def _acc(x: Tensor, t1: Tensor, t2: Tensor) -> Tensor:
+    """``x + t1 * t2``, accumulated in place into ``x`` (a fresh result of the caller's
+    formula, which no other operation saved) in eager mode: autograd records the in-place
+    operation, and large batches need no new buffer per term.  Out of place under the
+    ``torch.func`` transforms (which have no batching rule for it) and while compiling."""
+    if torch.compiler.is_compiling() or transforms_active():
+        return fma(x, t1, t2)
+    return x.addcmul_(t1, t2)
+
+
+def _const_times(M: Tensor, X: Tensor) -> Tensor:
+    """``M X`` for ``M (n, r, c, B|1)`` and ``X (n, c, ..., B)`` (contraction over dim 1):
+    one batched matrix product where ``M`` has no batch, else multiply-adds."""
+    n, r = M.shape[:2]
+    if M.shape[-1] == 1:
+        rest = math.prod(X.shape[2:])
+        return torch.bmm(M.squeeze(-1), X.reshape(n, X.shape[1], rest)).view(n, r, *X.shape[2:])
+    tail = (1,) * (X.dim() - 3)
+    cols = M.unbind(2)  # (n, r, B) each
+    rows = X.unbind(1)  # (n, ..., B) each
+    b = M.shape[-1]
+    out = cols[0].reshape(n, r, *tail, b) * rows[0].unsqueeze(1)
+    for m, x in zip(cols[1:], rows[1:], strict=True):
+        out = fma(out, m.reshape(n, r, *tail, b), x.unsqueeze(1))
+    return out
+
+
+def _composite(plan: _DynPlan, geo: _Geometry, m: Tensor, cw: Tensor, Ic: Tensor):
+    """Composite inertias per column (of the column's body subtree) about the world origin:
+    mass ``(K, 1, B|1)``, first moment ``h = m c`` ``(K, 3, B)`` and second moment
+    ``J = sum m r r^T`` ``(K, 3, 3, B)`` (the rotational inertia is ``tr(J) 1 - J``).
+
+    Per body ``J = R Jc R^T + m c c^T`` with ``Jc = tr(Ic) / 2 1 - Ic`` about the centre of
+    mass; the sums over subtrees are one product with the subtree matrix (its rows taken per
+    column)."""
+    nb, K, B = cw.shape[0], geo.S.shape[0], cw.shape[-1]
+    eye = torch.eye(3, dtype=cw.dtype, device=cw.device).unsqueeze(-1)
+    tr = (Ic[:, 0, 0] + Ic[:, 1, 1] + Ic[:, 2, 2]).view(nb, 1, 1, Ic.shape[-1])
+    Jc = fma(-Ic, tr, eye, 0.5)  # (nb, 3, 3, B|1)
+    h = m * cw
+    J = _second_moment(Jc, geo.RT, h, cw)
+    mc = _mm(plan.sub_cols, m)
+    hc = _mm(plan.sub_cols, h)
+    return mc, hc, _mm(plan.sub_cols, J.view(nb, 9, B)).view(K, 3, 3, B)
+
+
+def _second_moment(Jc: Tensor, RT: Tensor, h: Tensor, cw: Tensor) -> Tensor:
+    """``R Jc R^T + h c^T`` ``(nb, 3, 3, B)`` (its temporaries die here)."""
+    Y = _const_times(Jc, RT)  # Jc R^T: (nb, a, r, B)
+    Rt, Yt = RT.unbind(1), Y.unbind(1)
+    J = h.unsqueeze(2) * cw.unsqueeze(1)
+    for i in range(3):
+        J = _acc(J, Rt[i].unsqueeze(2), Yt[i].unsqueeze(1))
+    return J
+
+
+def _column_forces(plan: _DynPlan, geo: _Geometry, ins: Inertials, batch: tuple[int, ...]):
+    """``F_k = Ic S_k`` ``(K, 2, 3, B)``, the composite inertia of column ``k``'s subtree
+    applied to the column (the composite inertias die here)."""
     Sl, Sa = geo.Sl, geo.Sa
-    K, _, B = Sl.shape
-    nb = len(plan.bodies)
-    m, cw, Ic = _body_inertia(geo, ins, batch)
-    # Composite inertias in the 10-parameter form about the world origin: mass, first moment
-    # h = m c, rotational inertia I_O = R Ic R^T + m (|c|^2 1 - c c^T).
-    mB = m.expand(nb, 1, B)
-    RT = geo.RT
-    # R Ic R^T column by column: column r' is R Ic (row r' of R); symmetric, so the result
-    # (r', nb, r, B) is read as (nb, r, r', B).
-    Iw = _rot(RT, _mat(Ic, RT.permute(2, 0, 1, 3))).transpose(0, 1)
-    eye = torch.eye(3, dtype=Sl.dtype, device=Sl.device).view(1, 3, 3, 1)
-    IO = Iw + mB.unsqueeze(1) * (
-        (cw * cw).sum(1, keepdim=True).unsqueeze(1) * eye - cw.unsqueeze(2) * cw.unsqueeze(1)
-    )
-    params = torch.cat((mB, mB * cw, IO.reshape(nb, 9, B)), dim=1)  # (nb, 13, B)
-    comp = torch.mm(plan.sub, params.reshape(nb, 13 * B)).view(nb, 13, B)
-    cb = comp.index_select(0, plan.col_body)  # (K, 13, B)
-    mc, hc, Icb = cb[:, :1], cb[:, 1:4], cb[:, 4:].view(K, 3, 3, B)
-    Fl = mc * Sl - _cross(hc, Sa)
-    Fa = _mat(Icb, Sa) + _cross(hc, Sl)
-    # Q[k, l] = S_k . Ic_l S_l, summed component by component over (K, K, B), into the rows
-    # of one buffer whose last row is 0.  Where autograd records nothing (eager, no transform),
-    # the sum accumulates in place (out=): fresh (K, K, B) temporaries per term cost a page
-    # fault per 4 KiB on large batches, where the allocator hands their memory back.
-    if torch.compiler.is_compiling() or transforms_active() or needs_graph((Sl, Sa, Fl, Fa)):
-        Q = Sl[:, None, 0] * Fl[None, :, 0]
-        for i in (1, 2):
-            Q = fma(Q, Sl[:, None, i], Fl[None, :, i])
-        for i in range(3):
-            Q = fma(Q, Sa[:, None, i], Fa[None, :, i])
-        Qz = torch.cat((Q.view(K * K, B), Q.new_zeros(1, B)))
-    else:
-        Qz = Sl.new_empty(K * K + 1, B)
-        Qz[K * K].zero_()
-        Q = Qz[: K * K].view(K, K, B)
-        torch.mul(Sl[:, None, 0], Fl[None, :, 0], out=Q)
-        for i in (1, 2):
-            fma(Q, Sl[:, None, i], Fl[None, :, i], out=Q)
-        for i in range(3):
-            fma(Q, Sa[:, None, i], Fa[None, :, i], out=Q)
+    mc, hc, Jk = _composite(plan, geo, *_body_inertia(geo, ins, batch))
+    trJ = (Jk[:, 0, 0] + Jk[:, 1, 1] + Jk[:, 2, 2]).unsqueeze(1)  # (K, 1, B)
+    return _stack6(_cross_sum(mc * Sl, (Sa, hc)), _cross_sum(trJ * Sa - _mat(Jk, Sa), (hc, Sl)))
+
+
+def _columns_and_forces(
+    plan: _DynPlan, geo: _Geometry, ins: Inertials, batch: tuple[int, ...]
+) -> tuple[Tensor, Tensor]:
+    """``(S, F)`` for :func:`_crba` (the rest of the geometry dies here)."""
+    return geo.S, _column_forces(plan, geo, ins, batch)
+
+
+def _crba(plan: _DynPlan, S: Tensor, F: Tensor) -> Tensor:
+    """Mass matrix ``(B, n_dof, n_dof)`` from the joint columns ``S`` and their forces ``F``
+    (:func:`_column_forces`)."""
+    K, _, _, B = S.shape
+    # Q[k, l] = S_k . Ic_l S_l, summed component by component over (K, K, B).
+    S6, F6 = S.view(K, 6, B), F.view(K, 6, B)
+    Q = S6[:, None, 0] * F6[None, :, 0]
+    for i in range(1, 6):
+        Q = _acc(Q, S6[:, None, i], F6[None, :, i])
+    Qz = Q.view(K * K, B)
+    if plan.m_zero:  # entries between branches read a row of zeros
+        Qz = torch.cat((Qz, Qz.new_zeros(1, B)))
     # M[k, l] = Q[k, l] where column k's body is an ancestor of column l's, Q[l, k] where it is
     # the other way round, 0 between branches: one gather of whole rows (batch last), then one
     # transposing copy into the (B, K, K) layout (a gather reading B apart is several times
@@ -458,11 +581,11 @@ def _fext(
     f_ext: Mapping[str, Tensor],
     fn: str,
     batch: tuple[int, ...],
-) -> tuple[Tensor, Tensor] | None:
-    """The wrenches of ``f_ext`` summed per body, about the world origin, ``(nb, 3, B)`` for
-    the forces and for the torques."""
+) -> Tensor | None:
+    """The wrenches of ``f_ext`` summed per body, about the world origin, ``(nb, 2, 3, B)``
+    (forces; torques)."""
     nb = len(plan.bodies)
-    B = geo.Sl.shape[-1]
+    B = geo.S.shape[-1]
     parts: list[Tensor] = []
     idx: list[int] = []
     for k, (name, w) in enumerate(f_ext.items()):
@@ -478,15 +601,15 @@ def _fext(
                 f"{_NAME}{fn}: f_ext[{name!r}] of shape {tuple(w.shape)} does not broadcast "
                 f"to q's batch shape {batch}"
             ) from None
-        p = geo.poses[len(plan.targets) + k, 3, :3]  # the link's origin, (3, B)
+        p = geo.origins[k]  # the link's origin, (3, B)
         f, n = wb[:3], wb[3:]
         parts.append(torch.cat((f, n + torch.linalg.cross(p, f, dim=0)), dim=0))
         idx.append(b)
     if not parts:
         return None
-    out = geo.Sl.new_zeros(nb, 6, B)
+    out = geo.S.new_zeros(nb, 6, B)
     out = out.index_add(0, torch.tensor(idx, device=out.device), torch.stack(parts))
-    return out[:, :3], out[:, 3:]
+    return out.view(nb, 2, 3, B)
 
 
 def _prepare(chain, q: Tensor, fn: str):
@@ -494,9 +617,24 @@ def _prepare(chain, q: Tensor, fn: str):
     return q2, out_dtype, batch, _plan(chain)
 
 
-def _result(x: Tensor, batch: tuple[int, ...], n: int, out_dtype: torch.dtype) -> Tensor:
-    """``(n, B)`` -> ``(*batch, n)``."""
-    return _checks.out(x.mT.reshape(*batch, n), out_dtype)
+def _over_blocks(
+    fn, plan: _DynPlan, inputs: list[Tensor | None], others: tuple[Tensor, ...], whole: bool
+):
+    """``fn(*inputs)`` for batch-first ``inputs`` (None: absent), through the shared driver
+    :func:`~torchlie._autograd.evaluate` over blocks of the batch (their width: the number of
+    joint columns) when nothing else (``others``: gravity, inertials) has a batch or may
+    record a graph and ``whole`` (external wrenches) does not ask for the whole batch."""
+    given = [x for x in inputs if x is not None]
+
+    def call(*xs: Tensor):
+        it = iter(xs)
+        return fn(*(None if x is None else next(it) for x in inputs))
+
+    g, *ins = others
+    batched = g.shape[-1] != 1 or any(t.dim() > d for t, d in zip(ins, (1, 2, 3), strict=True))
+    if whole or batched or needs_graph(others):
+        return call(*given)
+    return evaluate(call, given, [1] * len(given), width=plan.col_dof.shape[0])
 
 
 def _inverse_dynamics(
@@ -519,10 +657,14 @@ def _inverse_dynamics(
     extra = _fext_links(chain, f_ext, _fn)
     if not plan.bodies:  # no degree of freedom
         return _checks.out(q2.new_zeros(*batch, 0), out_dtype)
-    geo = _geometry(chain, plan, q2, extra)
-    fx = None if f_ext is None else _fext(chain, plan, geo, f_ext, _fn, batch)
-    tau = _rnea(plan, geo, ins, batch, qd2, qdd2, g, fx)
-    return _result(tau, batch, chain.n_v, out_dtype)
+
+    def run(q2: Tensor, qd2: Tensor | None, qdd2: Tensor | None) -> Tensor:
+        geo = _geometry(chain, plan, q2, extra)
+        fx = None if f_ext is None else _fext(chain, plan, geo, f_ext, _fn, batch)
+        return _rnea(plan, geo, ins, batch, qd2, qdd2, g, fx).mT
+
+    tau = _over_blocks(run, plan, [q2, qd2, qdd2], (g, *ins), f_ext is not None)
+    return _checks.out(tau.reshape(*batch, chain.n_v), out_dtype)
 
 
 def _mass_matrix(
@@ -534,8 +676,11 @@ def _mass_matrix(
     ins = _check_inertials(chain, inertials, fn, batch)
     if not plan.bodies:  # no degree of freedom
         return _checks.out(q2.new_zeros(*batch, chain.n_v, chain.n_v), out_dtype)
-    geo = _geometry(chain, plan, q2, ())
-    M = _crba(plan, geo, ins, batch)
+
+    def run(q2: Tensor) -> Tensor:
+        return _crba(plan, *_columns_and_forces(plan, _geometry(chain, plan, q2, ()), ins, batch))
+
+    M = _over_blocks(run, plan, [q2], (plan.gravity, *ins), False)
     return _checks.out(M.reshape(*batch, chain.n_v, chain.n_v), out_dtype)
 
 
@@ -565,10 +710,14 @@ def _forward_dynamics(
     extra = _fext_links(chain, f_ext, fn)
     if not plan.bodies:  # no degree of freedom
         return _checks.out(q2.new_zeros(*batch, 0), out_dtype)
-    geo = _geometry(chain, plan, q2, extra)
-    fx = None if f_ext is None else _fext(chain, plan, geo, f_ext, fn, batch)
-    h = _rnea(plan, geo, ins, batch, qd2, None, g, fx)  # (n, B)
-    M = _crba(plan, geo, ins, batch)  # (B, n, n)
-    L, _ = torch.linalg.cholesky_ex(M)
-    qdd = torch.cholesky_solve((tau2 - h.mT).unsqueeze(-1), L).squeeze(-1)  # (B, n)
+
+    def run(q2: Tensor, qd2: Tensor, tau2: Tensor) -> Tensor:
+        geo = _geometry(chain, plan, q2, extra)
+        fx = None if f_ext is None else _fext(chain, plan, geo, f_ext, fn, batch)
+        h = _rnea(plan, geo, ins, batch, qd2, None, g, fx)  # (n, B)
+        M = _crba(plan, *_columns_and_forces(plan, geo, ins, batch))  # (B, n, n)
+        L, _ = torch.linalg.cholesky_ex(M)
+        return torch.cholesky_solve((tau2 - h.mT).unsqueeze(-1), L).squeeze(-1)  # (B, n)
+
+    qdd = _over_blocks(run, plan, [q2, qd2, tau2], (g, *ins), f_ext is not None)
     return _checks.out(qdd.reshape(*batch, chain.n_v), out_dtype)
