@@ -76,19 +76,25 @@ def float32_exact(fn):
 
 
 def _device_type(args: tuple, kwargs: dict) -> str:
-    """The device type of the first tensor among the arguments (one level into dicts, lists and
-    tuples, as IK targets); else of a ``device=`` argument; else ``"cpu"``."""
+    """The autocast device type of the first tensor among the arguments (one level into dicts,
+    lists and tuples, as IK targets); else of a ``device=`` argument; else ``"cpu"``.  Meta
+    tensors (shape inference, deferred initialisation) have no autocast state of their own and
+    count as ``"cpu"``."""
     for a in args:
         if isinstance(a, Tensor):
-            return "cpu" if a.is_cpu else a.device.type  # is_cpu: a fifth of .device's cost
+            return "cpu" if a.is_cpu else _autocast_type(a.device)  # is_cpu: cheaper than .device
     for a in (*args, *kwargs.values()):
         for v in (
             a.values() if isinstance(a, Mapping) else a if isinstance(a, (list, tuple)) else (a,)
         ):
             if isinstance(v, Tensor):
-                return v.device.type
+                return _autocast_type(v.device)
     device = kwargs.get("device")
-    return "cpu" if device is None else torch.device(device).type
+    return "cpu" if device is None else _autocast_type(torch.device(device))
+
+
+def _autocast_type(device: torch.device) -> str:
+    return "cpu" if device.type == "meta" else device.type
 
 
 def batch_dims(fn: str, k: int, what: str) -> None:
