@@ -6,8 +6,9 @@ operands' device fails the op (torch refuses mixed devices) or comes back on the
 would on a GPU.  Every public op of the registry of :mod:`test_bad_input` runs with its operands
 on ``meta`` and must return tensors on ``meta`` of the CPU run's shapes and dtypes; then the
 factories with ``device=``, a head, and a chain's kinematics and dynamics with their backward.
-What it cannot see (values computed wrongly on one device) the CPU tests and, where a GPU is
-present, the ``device`` fixture's CUDA runs cover.
+What it cannot see (values computed otherwise on another device) the second half checks where a
+GPU is present: the registry, kinematics and dynamics (with a gradient) against the CPU's
+values.
 """
 
 from __future__ import annotations
@@ -47,13 +48,18 @@ SWEEP_IDS = [f"{n}-{i}" for i, (n, _) in enumerate(SWEEP)]
 _cpu_arg = tb._arg
 
 
-def _on_meta(kind: object, b: tuple[int, ...]) -> object:
-    x = _cpu_arg(kind, b)
-    if isinstance(x, torch.Tensor):
-        return x.to(META)
-    if isinstance(x, torchlie.groups._Group):
-        return type(x)(x.tensor.to(META))
-    return x
+def _moved(device: torch.device | str):
+    """``test_bad_input._arg`` with its tensors and group elements on ``device``."""
+
+    def arg(kind: object, b: tuple[int, ...]) -> object:
+        x = _cpu_arg(kind, b)
+        if isinstance(x, torch.Tensor):
+            return x.to(device)
+        if isinstance(x, torchlie.groups._Group):
+            return type(x)(x.tensor.to(device))
+        return x
+
+    return arg
 
 
 def _same_place(got: list[torch.Tensor], want: list[torch.Tensor], name: str) -> None:
@@ -66,7 +72,7 @@ def _same_place(got: list[torch.Tensor], want: list[torch.Tensor], name: str) ->
 @pytest.mark.parametrize("name,call", SWEEP, ids=SWEEP_IDS)
 def test_every_op_keeps_its_operands_device(name, call, monkeypatch):
     want = tb._outputs(call((3,)))
-    monkeypatch.setattr(tb, "_arg", _on_meta)
+    monkeypatch.setattr(tb, "_arg", _moved(META))
     _same_place(tb._outputs(call((3,))), want, name)
 
 
@@ -139,3 +145,61 @@ def test_kinematics_and_dynamics_keep_the_chains_device(robot, dtype):
     assert all(o.device == META for o in outs)
     grads = torch.autograd.grad(chain.inverse_dynamics(q, v, v).sum(), (q, v))
     assert [(g.device, g.shape) for g in grads] == [(META, q.shape), (META, v.shape)]
+
+
+# ----------------------------------------------------------------------------------------------
+# On a GPU (where one is present): the same values as on the CPU
+# ----------------------------------------------------------------------------------------------
+
+GPUS = [d for d in ("cuda",) if getattr(torch, d).is_available()]
+_RANDOM = ("random", "randn")
+GPU_SWEEP = [(n, c) for n, c in SWEEP if not any(k in n for k in _RANDOM)]
+
+
+def _close(got: list[torch.Tensor], want: list[torch.Tensor], name: str, rtol: float) -> None:
+    assert len(got) == len(want), name
+    for g, w in zip(got, want, strict=True):
+        assert g.device.type != "cpu" and (g.shape, g.dtype) == (w.shape, w.dtype), name
+        g = g.cpu()
+        if w.dtype == torch.bool:
+            assert torch.equal(g, w), name
+            continue
+        err = ((g - w).abs() / (1.0 + w.abs())).nan_to_num(0.0).max() if w.numel() else 0.0
+        assert float(err) <= rtol and torch.equal(g.isnan(), w.isnan()), (name, float(err))
+
+
+@pytest.mark.skipif(not GPUS, reason="no GPU")
+@pytest.mark.parametrize("gpu", GPUS)
+@pytest.mark.parametrize("name,call", GPU_SWEEP, ids=[n for n, _ in GPU_SWEEP])
+def test_every_op_gives_the_cpus_values_on_a_gpu(name, call, gpu, monkeypatch):
+    want = tb._outputs(call((3,)))
+    monkeypatch.setattr(tb, "_arg", _moved(gpu))
+    _close(tb._outputs(call((3,))), want, name, 1e-12)
+
+
+@pytest.mark.skipif(not GPUS, reason="no GPU")
+@pytest.mark.parametrize("gpu", GPUS)
+@pytest.mark.parametrize("robot", ["arm7", "tree", "panda"])
+@pytest.mark.parametrize("dtype", [torch.float32, F64], ids=["f32", "f64"])
+def test_kinematics_and_dynamics_give_the_cpus_values_on_a_gpu(robot, dtype, gpu):
+    rtol = 1e-10 if dtype == F64 else 1e-3  # forward dynamics: M's condition in float32
+    path = sample_robot(robot)
+    gen = torch.Generator().manual_seed(0)
+    n = Chain.from_urdf(path).n_dof
+    q, qd, qdd = (torch.randn(64, 3, n, generator=gen, dtype=dtype) for _ in "abc")
+    out = {}
+    for device in ("cpu", gpu):
+        chain = Chain.from_urdf(path, dtype=dtype, device=device)
+        x, xd, xdd = (t.to(device) for t in (q, qd, qdd))
+        x.requires_grad_(True)
+        tau = chain.inverse_dynamics(x, xd, xdd)
+        (dtau,) = torch.autograd.grad(tau.square().sum(), x)
+        out[device] = [
+            *chain.forward_kinematics(x.detach()).values(),
+            chain.jacobian(x.detach(), chain.link_names[-1]),
+            tau.detach(),
+            dtau,
+            chain.mass_matrix(x.detach()),
+            chain.forward_dynamics(x.detach(), xd, xdd),
+        ]
+    _close(out[gpu], out["cpu"], robot, rtol)
