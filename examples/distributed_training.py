@@ -211,6 +211,16 @@ def spawned(rank: int, world: int, cfg: argparse.Namespace, port: int, figures: 
         dist.barrier()  # no rank tears its connections down while another still uses them
     finally:
         dist.destroy_process_group()
+    leave()
+
+
+def leave() -> None:
+    """End a spawned rank whose work is done and saved, without the interpreter's teardown:
+    there torch's gloo threads can still abort the process (``std::terminate`` in a static
+    destructor), which would fail a finished run."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(0)
 
 
 # ----------------------------------------------------------------------------------------------
