@@ -37,7 +37,7 @@ import torch
 from torch import Tensor
 
 from . import _layout
-from ._autograd import Guard, fma
+from ._autograd import Guard, fma, needs_graph, transforms_active
 from ._components import planes
 
 # --------------------------------------------------------------------------------------------
@@ -191,15 +191,39 @@ def jinv(t2: Tensor) -> Tensor:
     return (sinc3(t2) - 2.0 * cosc4(t2)) / (2.0 * cosc(t2))
 
 
-def atan2(y: Tensor, x: Tensor) -> Tensor:
-    """``torch.atan2(y, x)`` whose gradient at ``(0, 0)`` is 0 instead of NaN (double where).
+def angle(y: Tensor, x: Tensor) -> Tensor:
+    """The value of ``torch.atan2(y, x)`` (no derivative), the same for an element whatever
+    the batch around it: ``atan(y / x)``, plus ``pi`` with the sign of ``y`` where ``x`` is
+    negative (``-0`` included).
 
-    Elsewhere its derivatives are ``torch.atan2``'s, the true ones (``x / r^2`` and
-    ``-y / r^2``) at every point, on the axes and on the diagonals included.  For callers
-    where ``(0, 0)`` can occur; where it cannot, ``torch.atan2`` itself.
+    torch's ``atan2`` rounds some elements differently in its vectorised and scalar loops (by
+    an ulp, between a batch and the element alone), which the Jacobians and interpolations
+    built on the log maps amplify past two ulps of their results; division and ``atan`` round
+    alike in both loops.  Within about one ulp of the true angle
+    (``y / x`` rounds relatively, and ``atan`` is well conditioned; ``x = 0`` gives
+    ``+-pi/2`` through ``atan(+-inf)``); signed zeros as ``torch.atan2``, exactly ``pi`` for
+    ``(+0, x < 0)``.  ``(0, 0)`` and two infinities give NaN: callers guard them."""
+    t = torch.atan(y / x)
+    pi = _layout.constant((math.pi,), t)[0]  # 0-dim: the result keeps the operands' shape
+    return torch.where(torch.signbit(x), t + torch.copysign(pi, y), t)
+
+
+def atan2(y: Tensor, x: Tensor) -> Tensor:
+    """``atan2(y, x)`` with the value of :func:`angle` (the same whatever the batch) and the
+    derivatives of ``torch.atan2`` (the true ones, ``x / r^2`` and ``-y / r^2``, at every
+    point, on the axes and the diagonals included, and of every order), except at ``(0, 0)``,
+    where the value is ``atan2(y, 1)`` (a signed zero) and the gradient 0 (double where).
+
+    The derivatives ride on the value as ``angle - (t.detach() - t)`` with ``t`` torch's
+    ``atan2`` (``+0`` in value, so signed zeros are kept); that term is taken only where
+    autograd, a transform or the compiler may differentiate.
     """
     origin = (x == 0) & (y == 0)
-    return torch.atan2(y, torch.where(origin, torch.ones_like(x), x))
+    x = torch.where(origin, torch.ones_like(x), x)
+    if torch.compiler.is_compiling() or transforms_active() or needs_graph((y, x)):
+        t = torch.atan2(y, x)
+        return angle(y.detach(), x.detach()) - (t.detach() - t)
+    return angle(y, x)
 
 
 def atan_ratio(n: Tensor, w: Tensor) -> Tensor:
@@ -218,7 +242,7 @@ def atan_ratio(n: Tensor, w: Tensor) -> Tensor:
     ok = n > 0
     n_e = torch.where(small | ~ok, torch.ones_like(n), n)
     w_e = torch.where(small, torch.ones_like(w), w)
-    exact = torch.where(ok, torch.atan2(n_e, w_e) / n_e, torch.zeros_like(n))
+    exact = torch.where(ok, atan2(n_e, w_e) / n_e, torch.zeros_like(n))
     return torch.where(small, series, exact)
 
 
@@ -696,11 +720,18 @@ for _dt in (torch.float16, torch.bfloat16, torch.float32, torch.float64):
 
 
 def sinhc(u: Tensor) -> Tensor:
-    """sinh(x)/x of ``u = x**2`` (even in ``x``, so a function of ``u``; smooth at 0)."""
+    """sinh(x)/x of ``u = x**2`` (even in ``x``, so a function of ``u``; smooth at 0).
+
+    Above the series, ``sinh(x) = m (m + 2) / (2 (m + 1))`` with ``m = expm1(x)``, ``x >= 0``
+    (no cancellation, the ratio taken first so that nothing overflows before ``sinh``
+    does): torch's ``sinh`` rounds differently in its vectorised and scalar loops, ``expm1``
+    alike in both (see :func:`angle`)."""
 
     def exact(s: Tensor) -> Tensor:
         x = s.sqrt()
-        return torch.sinh(x) / x
+        m = torch.expm1(x)
+        k = torch.where(torch.isinf(m), 1.0, (m + 2.0) / (m + 1.0))
+        return 0.5 * m * k / x
 
     return _series_where("sinhc", u, exact)
 

@@ -62,6 +62,16 @@ def mv(M: Tensor, v: Tensor) -> Tensor:
     return _combine((m0, m1, m2), v, t[0] if t else None)
 
 
+def mm(A: Tensor, B: Tensor) -> Tensor:
+    """``A @ B`` for batches of 3x3 matrices (batch shapes broadcast) from components: the
+    columns of ``A`` against the rows of ``B``, by multiply-adds, so each element's product
+    rounds alike whatever the batch (torch's batched matrix products take other kernels by
+    batch size)."""
+    a = A.unsqueeze(-1).unbind(-2)  # column k of A, (..., 3, 1)
+    b = B.unsqueeze(-2).unbind(-3)  # row k of B, (..., 1, 3)
+    return fma(fma(a[0] * b[0], a[1], b[1]), a[2], b[2])
+
+
 def mtv(M: Tensor, v: Tensor) -> Tensor:
     """``M^T @ v`` (batch shapes broadcast) row by row: the same sums as :func:`mv` of the
     transpose, without transposing."""

@@ -217,7 +217,7 @@ def log_and_cot(
     nv = fma(fma(cx * cx, cy, cy), cz, cz).sqrt_()
     nv = nv.clamp_min_(_coeffs.H_MIN[nv.dtype])
     a = cw.abs()
-    theta = torch.atan2(nv, a).mul_(2.0)
+    theta = torch.atan(nv / a).mul_(2.0)  # atan2(nv, a) for nv > 0, a >= 0 (_coeffs.angle)
     f = torch.copysign(torch.div(theta, nv), s)
     phi = (f * cx, f * cy, f * cz)
     if not cot:

@@ -160,7 +160,7 @@ def _quaternion_to_euler(q: Tensor, plan: tuple[int, int, int, bool]) -> Tensor:
     # With A = a + ib = |A| e^{i(t1+t3)/2} and C = c + id = |C| e^{i(t3-t1)/2}:
     # No (0, 0) reaches atan2 (a zero quaternion is NaN by now), so its derivatives are the
     # true ones everywhere, at exact zeros and ties included.
-    atan2 = torch.atan2
+    atan2 = _coeffs.atan2
     first = atan2(sb * sc - sa * sd, sa * sc + sb * sd)  # arg(A conj(C)) = t1
     third = atan2(sb * sc + sa * sd, sa * sc - sb * sd)  # arg(A C) = t3
     sum_ = atan2(2.0 * sa * sb, sa * sa - sb * sb)  # arg(A^2) = t1 + t3

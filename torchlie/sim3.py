@@ -197,7 +197,8 @@ def _ad(xi: Tensor) -> Tensor:
 def _mat(a: Tensor, b: Tensor, c: Tensor, P: Tensor) -> Tensor:
     """``a I + b P + c P^2`` (coefficients of shape ``(...)``, ``P = hat(phi)``)."""
     eye = torch.eye(3, dtype=P.dtype, device=P.device)
-    return a[..., None, None] * eye + b[..., None, None] * P + c[..., None, None] * (P @ P)
+    P2 = _components.mm(P, P)
+    return a[..., None, None] * eye + b[..., None, None] * P + c[..., None, None] * P2
 
 
 def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
@@ -225,13 +226,14 @@ def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
     ppr = torch.linalg.cross(phi, pr)
     t = _poly(A, B, C, phi, rho)
     outer = (2.0 * (Bt[..., None] * pr + Ct[..., None] * ppr)).unsqueeze(-1) * phi.unsqueeze(-2)
-    dphi = -B[..., None, None] * R - C[..., None, None] * (_components.hat(pr) + P @ R) + outer
+    PR = _components.hat(pr) + _components.mm(P, R)
+    dphi = -B[..., None, None] * R - C[..., None, None] * PR + outer
     W = Aw[..., None] * rho + Bw[..., None] * pr + Cw[..., None] * ppr
     z31, z13 = torch.zeros_like(rho).unsqueeze(-1), torch.zeros_like(rho).unsqueeze(-2)
     one = torch.ones_like(sigma)[..., None, None]
     if not inverse:
         Jp = _rodrigues.jac_matrix(phi, "left")
-        Q = dphi + _components.hat(t) @ Jp
+        Q = dphi + _components.mm(_components.hat(t), Jp)
         return _rows(
             (_mat(A, B, C, P), Q, W.unsqueeze(-1)),
             (torch.zeros_like(P), Jp, z31),
@@ -240,7 +242,7 @@ def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
     Jpi = _rodrigues.jac_matrix(phi, "left_inv")
     a, b, c = _coefficients(_coeffs.sim3_v_inv, sigma, phi)
     Vi = _mat(a, b, c, P)
-    Qi = -(Vi @ (dphi @ Jpi + _components.hat(t)))
+    Qi = -_components.mm(Vi, _components.mm(dphi, Jpi) + _components.hat(t))
     return _rows(
         (Vi, Qi, -_components.mv(Vi, W).unsqueeze(-1)),
         (torch.zeros_like(P), Jpi, z31),

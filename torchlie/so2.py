@@ -101,7 +101,11 @@ def assemble(parts: Sequence[Tensor | float], out: Sequence[Tensor | None]) -> T
 
 def angle(x: Tensor, y: Tensor) -> Tensor:
     """``atan2(y, x)`` in ``(-pi, pi]`` (forward only): a zero ``y`` is read as ``+0``, so an
-    exact half turn given with a negative zero gives ``pi``, not ``-pi``."""
+    exact half turn given with a negative zero gives ``pi``, not ``-pi``.
+
+    torch's ``atan2`` itself: the angle is all of ``log``'s arithmetic, and the
+    batch-independent one (:func:`torchlie._coeffs.angle`) would cost several times as much;
+    an element alone and in a batch may differ by an ulp."""
     return torch.atan2(torch.where(y == 0, 0.0, y), x)
 
 
