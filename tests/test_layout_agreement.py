@@ -5,8 +5,8 @@ Every public op that takes tensors is fed its inputs contiguous, transposed (the
 innermost in memory), sliced (every other row of a larger tensor) and expanded (one element
 repeated with stride 0), at a small batch and at a batch large enough for the large-batch
 kernels; its results must agree with those of the contiguous call, and the rows of a large batch
-with a small batch holding the same elements.  Binary ops are also checked broadcast against the
-same pairs called one by one.
+with a small batch holding the same elements and with scattered elements evaluated alone.
+Binary ops are also checked broadcast against the same pairs called one by one.
 
 Agreement, not bits: torch's vectorised and scalar loops, its small matrix products and BLAS
 round differently by layout and by CPU, so results are held to ``agreement.ULPS`` units of the
@@ -22,9 +22,9 @@ from collections.abc import Callable
 
 import pytest
 import torch
-from agreement import assert_agree, assert_bits, flat
+from agreement import ULPS, assert_agree, assert_bits, flat
 
-from torchlie import conversions, nn, quaternion, se3, so3, statistics
+from torchlie import conversions, nn, quaternion, se2, se3, sim3, so2, so3, statistics
 
 SMALL = 7
 LARGE = 20_000
@@ -76,6 +76,43 @@ KINDS: dict[str, Callable[[int, torch.Generator], torch.Tensor]] = {
     "cloud": lambda n, g: torch.randn(n, 5, 3, generator=g, dtype=torch.float64),
     "query": lambda n, g: torch.rand(n, generator=g, dtype=torch.float64) * 3.0,
 }
+
+
+def _angle(n: int, g: torch.Generator) -> torch.Tensor:
+    """Angles ``(n, 1)`` in ``[-pi, pi]``, some a hair from the half turn and some near 0."""
+    t = (torch.rand(n, 1, generator=g, dtype=torch.float64) * 2.0 - 1.0) * math.pi
+    t[::5] = math.copysign(math.pi, 1.0) - t[::5].abs() * 1e-6
+    t[1::5] *= 1e-5
+    return t
+
+
+def _twist2(n: int, g: torch.Generator) -> torch.Tensor:
+    return torch.cat((torch.randn(n, 2, generator=g, dtype=torch.float64), _angle(n, g)), -1)
+
+
+def _sim3_tangent(n: int, g: torch.Generator) -> torch.Tensor:
+    sigma = torch.randn(n, 1, generator=g, dtype=torch.float64)
+    sigma[2::5] *= 1e-7  # scale near 1 (the series in sigma)
+    rho = torch.randn(n, 3, generator=g, dtype=torch.float64)
+    return torch.cat((rho, _rotvec(n, g), sigma), -1)
+
+
+KINDS.update(
+    {
+        "angle": _angle,
+        "R2": lambda n, g: so2.exp(_angle(n, g)),
+        "twist2": _twist2,
+        "T2": lambda n, g: se2.exp(_twist2(n, g)),
+        "point2": lambda n, g: torch.randn(n, 2, generator=g, dtype=torch.float64),
+        "M2": lambda n, g: torch.randn(n, 2, 2, generator=g, dtype=torch.float64),
+        "tangent7": _sim3_tangent,
+        "S": lambda n, g: sim3.exp(_sim3_tangent(n, g)),
+        "positive": lambda n, g: torch.rand(n, generator=g, dtype=torch.float64) * 3.0 + 0.1,
+        "R2set": lambda n, g: so2.exp(torch.randn(n, 3, 1, generator=g, dtype=torch.float64)),
+        "T2set": lambda n, g: se2.exp(0.5 * torch.randn(n, 3, 3, generator=g, dtype=torch.float64)),
+        "Sset": lambda n, g: sim3.exp(0.5 * torch.randn(n, 3, 7, generator=g, dtype=torch.float64)),
+    }
+)
 
 _EULER = ("xyz", "ZYX", "zxz", "YXY")
 _KEY_TIMES = torch.tensor([0.0, 1.0, 2.5])
@@ -268,6 +305,69 @@ OPS: list[tuple[str, Callable, tuple[str, ...]]] = [
     ],
 ]  # fmt: skip
 
+# SO(2), SE(2), Sim(3): the same verbs (the module, its element, tangent, point and matrix kinds).
+_PLANAR_SIM3 = (
+    (so2, "R2", "angle", "point2", "M2"),
+    (se2, "T2", "twist2", "point2", "M"),
+    (sim3, "S", "tangent7", "point", "M4"),
+)
+for _m, _E, _tan, _pt, _M in _PLANAR_SIM3:
+    _n = _m.__name__.rpartition(".")[2]
+    _jacs = ("jac_left", "jac_right", "jac_left_inv", "jac_right_inv")
+    OPS += [(f"{_n}.{f}", getattr(_m, f), (_tan,)) for f in ("hat", "exp", "ad", *_jacs)]
+    OPS += [(f"{_n}.{f}", getattr(_m, f), (_E,)) for f in
+            ("log", "inverse", "adjoint", "jac_inverse")]  # fmt: skip
+    OPS += [(f"{_n}.{f}", getattr(_m, f), (_M,)) for f in ("vee", "is_valid")]
+    OPS += [(f"{_n}.{f}", getattr(_m, f), (_E, _E)) for f in
+            ("compose", "distance", "rminus", "lminus", "between", "jac_compose", "jac_rminus",
+             "jac_between")]  # fmt: skip
+    OPS += [(f"{_n}.{f}", getattr(_m, f), (_E, _tan)) for f in ("rplus", "lplus", "jac_rplus")]
+    OPS += [(f"{_n}.{f}", getattr(_m, f), (_E, _pt)) for f in ("act", "jac_act")]
+    OPS += [(f"{_n}.interpolate", _m.interpolate, (_E, _E, "scalar"))]
+OPS += [
+    ("so2.to_complex", so2.to_complex, ("R2",)),
+    ("so2.from_complex", so2.from_complex, ("point2",)),
+    ("so2.angle_to_complex", so2.angle_to_complex, ("angle",)),
+    ("so2.complex_to_angle", so2.complex_to_angle, ("point2",)),
+    ("se2.from_rt", se2.from_rt, ("R2", "point2")),
+    ("se2.to_rt", se2.to_rt, ("T2",)),
+    ("se2.from_xytheta", se2.from_xytheta, ("twist2",)),
+    ("se2.to_xytheta", se2.to_xytheta, ("T2",)),
+    ("sim3.from_srt", sim3.from_srt, ("positive", "R", "point")),
+    ("sim3.to_srt", sim3.to_srt, ("S",)),
+    ("sim3.from_se3", sim3.from_se3, ("T", "positive")),
+    ("sim3.scale", sim3.scale, ("S",)),
+    ("statistics.so2_mean.chordal", lambda R: statistics.so2_mean(R, method="chordal"),
+     ("R2set",)),
+    ("statistics.so2_mean.geodesic", lambda R, w: statistics.so2_mean(R, w, iterations=3),
+     ("R2set", "weights")),
+    ("statistics.se2_mean.chordal", lambda T: statistics.se2_mean(T, method="chordal"),
+     ("T2set",)),
+    ("statistics.se2_mean.geodesic", lambda T, w: statistics.se2_mean(T, w, iterations=3),
+     ("T2set", "weights")),
+    ("statistics.sim3_mean.chordal", lambda T: statistics.sim3_mean(T, method="chordal"),
+     ("Sset",)),
+    ("statistics.sim3_mean.geodesic", lambda T, w: statistics.sim3_mean(T, w, iterations=3),
+     ("Sset", "weights")),
+    *[
+        (f"nn.so2_geodesic_loss.{kind}",
+         lambda a, b, kind=kind: nn.so2_geodesic_loss(a, b, kind=kind, reduction="none"),
+         ("R2", "R2"))
+        for kind in ("angle", "chordal")
+    ],
+    *[
+        (f"nn.se2_geodesic_loss.{kind}",
+         lambda a, b, kind=kind: nn.se2_geodesic_loss(a, b, 2.0, 0.5, kind, "none"), ("T2", "T2"))
+        for kind in ("angle", "chordal")
+    ],
+    *[
+        (f"nn.sim3_geodesic_loss.{kind}",
+         lambda a, b, kind=kind: nn.sim3_geodesic_loss(a, b, 2.0, 0.5, 1.5, kind, "none"),
+         ("S", "S"))
+        for kind in ("angle", "chordal")
+    ],
+]  # fmt: skip
+
 IDS = [name for name, _, _ in OPS]
 
 
@@ -324,6 +424,16 @@ def test_small_batch(name, fn, kinds, dtype):
     _check_layouts(fn, _inputs(kinds, SMALL, dtype, seed=1), f"{name} batch {SMALL}")
 
 
+#: Rows of the large batch also evaluated alone.
+_ALONE = range(1, LARGE, 211)
+#: The ops held to more than ``ULPS`` between an element alone and in a batch: the planar log
+#: takes torch's ``atan2`` (its angle alone agrees within an ulp; the batch-independent angle
+#: of ``_coeffs.angle`` would take most of ``so2.log``'s time), and these amplify the angle's
+#: ulp: the interpolation multiplies it by ``t`` (an ulp of ``pi`` is two of the result), the
+#: Jacobians of ``rminus`` take it through their coefficients of the angle.
+_ALONE_ULPS = {"so2.interpolate": 3.0, "se2.jac_rminus": 3.0}
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
 @pytest.mark.parametrize(("name", "fn", "kinds"), OPS, ids=IDS)
@@ -337,6 +447,12 @@ def test_large_batch(name, fn, kinds, dtype):
     for k in (1, SMALL, 1000, LARGE - 3):
         small = flat(fn(*[x[:k] for x in xs]))
         assert_agree(small, [b[:k] for b in big], f"{name}: the first {k} of {LARGE}")
+    # elements alone (torch's scalar loops) against their rows of the batch (its vectorised
+    # loops), every residue of the samplers' patterns (near 0, near pi, small sigma) among them
+    ulps = _ALONE_ULPS.get(name, ULPS)
+    for r in _ALONE:
+        one = flat(fn(*[x[r : r + 1] for x in xs]))
+        assert_agree(one, [b[r : r + 1] for b in big], f"{name}: element {r} alone", ulps=ulps)
     threads = torch.get_num_threads()
     try:
         torch.set_num_threads(2)
