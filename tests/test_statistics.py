@@ -12,14 +12,17 @@ from scipy.spatial.transform import Rotation, Slerp
 from torch.autograd import gradcheck
 
 import torchlie.statistics
-from torchlie import se3, so3
+from torchlie import se2, se3, sim3, so2, so3
 from torchlie.statistics import (
     Alignment,
     align,
+    se2_mean,
     se3_integrate,
     se3_interpolate_keyframes,
     se3_mean,
     se3_randn,
+    sim3_mean,
+    so2_mean,
     so3_integrate,
     so3_interpolate_keyframes,
     so3_mean,
@@ -33,12 +36,20 @@ def gen(seed: int) -> torch.Generator:
     return torch.Generator().manual_seed(seed)
 
 
+_DOF = {so3: 3, se3: 6, so2: 1, se2: 3, sim3: 7}
+#: Every group's mean, for the properties they share.
+MEANS = pytest.mark.parametrize(
+    "core, mean_fn",
+    [(so3, so3_mean), (se3, se3_mean), (so2, so2_mean), (se2, se2_mean), (sim3, sim3_mean)],
+    ids=["so3", "se3", "so2", "se2", "sim3"],
+)
+
+
 def cluster(core, n: int, spread: float, *batch: int, seed: int = 0, dtype=F64) -> torch.Tensor:
     """``n`` elements ``M Exp(spread * N(0, I))`` about a random ``M`` per batch element."""
     g = gen(seed)
     M = core.random(*batch, generator=g, dtype=F64)
-    dof = 3 if core is so3 else 6
-    tau = spread * torch.randn(*batch, n, dof, generator=g, dtype=F64)
+    tau = spread * torch.randn(*batch, n, _DOF[core], generator=g, dtype=F64)
     return core.rplus(M.unsqueeze(-3), tau).to(dtype)
 
 
@@ -210,10 +221,13 @@ def test_geodesic_mean_stationarity():
     assert so3.distance(M[0], torch.from_numpy(ref)) < 1e-2
 
 
-def test_se3_geodesic_mean_stationarity():
-    T = cluster(se3, 40, 0.3, 4, seed=5)
-    M = se3_mean(T)
-    res = se3.rminus(T, M.unsqueeze(-3)).mean(-2)
+@MEANS
+def test_geodesic_mean_is_stationary(core, mean_fn):
+    # sum_i w_i Log(M^-1 X_i) = 0
+    X = cluster(core, 12, 0.4, 3, seed=5)
+    w = torch.rand(3, 12, generator=gen(6), dtype=F64) + 0.1
+    M = mean_fn(X, w, iterations=20)
+    res = (w[..., None] * core.rminus(X, M.unsqueeze(-3))).sum(-2)
     assert res.norm(dim=-1).max() < 1e-14
 
 
@@ -227,7 +241,7 @@ def test_geodesic_mean_converges_from_chordal_in_few_steps():
     assert torch.equal(so3_mean(R, iterations=0), so3_mean(R, method="chordal"))
 
 
-@pytest.mark.parametrize("core, mean_fn", [(so3, so3_mean), (se3, se3_mean)], ids=["so3", "se3"])
+@MEANS
 @pytest.mark.parametrize("method", ["chordal", "geodesic"])
 def test_mean_of_single_element_is_itself(core, mean_fn, method, dtype):
     X = core.random(7, 1, generator=gen(0), dtype=dtype)
@@ -242,7 +256,7 @@ def test_mean_of_single_element_is_itself(core, mean_fn, method, dtype):
     torch.testing.assert_close(M, X[:, 0], rtol=0, atol=16 * eps(dtype))
 
 
-@pytest.mark.parametrize("core, mean_fn", [(so3, so3_mean), (se3, se3_mean)], ids=["so3", "se3"])
+@MEANS
 @pytest.mark.parametrize("method", ["chordal", "geodesic"])
 def test_mean_left_invariance(core, mean_fn, method):
     X = cluster(core, 20, 0.5, 3, seed=8)
@@ -253,7 +267,7 @@ def test_mean_left_invariance(core, mean_fn, method):
     torch.testing.assert_close(lhs, rhs, rtol=0, atol=1e-13)
 
 
-@pytest.mark.parametrize("core, mean_fn", [(so3, so3_mean), (se3, se3_mean)], ids=["so3", "se3"])
+@MEANS
 def test_geodesic_mean_right_invariance(core, mean_fn):
     X = cluster(core, 20, 0.4, 3, seed=11)
     B = core.random(3, generator=gen(12), dtype=F64)
