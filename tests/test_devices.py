@@ -24,21 +24,18 @@ from torchlie.kinematics import Chain, sample_robot
 META = torch.device("meta")
 F64 = torch.float64
 
-# Calls that read values by design: an explicit validity check (check=True), the keyframe
-# times' order; on meta there are none to read.  The heads build their layer on the CPU (a head
-# on meta is tested below); the factories take device= (below).
-_READS_VALUES = ("check=True", "keyframes")
+# Calls that read values by design: the registry's constructors with check=True (an explicit
+# validity check) and the keyframe times' order; on meta there are none to read.  The heads
+# build their layer on the CPU (a head on meta is tested below); the factories take device=
+# (below).
+_CHECKED = ("torchlie.SO3", "torchlie.SE3")
 
 
 def _kept(name: str, call) -> bool:
     if "_head" in call.__qualname__ or name.endswith((".identity", ".random")):
         return False
-    return not any(k in name for k in _READS_VALUES) and not _checks_values(call)
-
-
-def _checks_values(call) -> bool:
-    kwargs = [c.cell_contents for c in call.__closure__ or () if isinstance(c.cell_contents, dict)]
-    return any(k.get("check") for k in kwargs)
+    checked = name in _CHECKED or name.startswith(tuple(c + ".from_" for c in _CHECKED))
+    return "keyframes" not in name and not checked
 
 
 SWEEP = [(n, c) for n, c in tb.BATCHED if _kept(n, c)]
