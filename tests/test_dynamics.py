@@ -240,6 +240,51 @@ def test_equations_of_motion_are_consistent(robot):
     torch.testing.assert_close(h2, 4 * h1, rtol=0, atol=1e-11)
 
 
+@pytest.mark.parametrize("dtype", [F64, torch.float32])
+@pytest.mark.parametrize("x", [1e3, 1e6, 1e30])
+def test_results_do_not_depend_on_where_the_robot_stands(dtype, x):
+    # A floating base far from the world origin (the tree's drone) and an arm mounted far from
+    # it: the equations of motion are those at the origin, to the same precision (computed
+    # about each subtree's own first link, not about the world origin, where the moments of a
+    # body x away are ~m x^2 and cancel).
+    with open(sample_robot("arm7")) as f:
+        text = f.read()
+    mount = '<origin xyz="0.05 -0.02 0" rpy="0 0 0.35"/>'
+    assert mount in text
+    arms = [
+        Chain.from_urdf(
+            text.replace(mount, f'<origin xyz="{dx} -0.02 {dz}" rpy="0 0 0.35"/>'), dtype=dtype
+        )
+        for dx, dz in ((0.05, 0), (x, -x / 3))
+    ]
+    tree = Chain.from_urdf(sample_robot("tree"), dtype=dtype)
+    i = tree.joint_names.index("drone_free:x")
+    for near, far_q in (
+        (arms[0], lambda q: (arms[1], q)),
+        (
+            tree,
+            lambda q: (
+                tree,
+                q + x * torch.nn.functional.one_hot(torch.tensor(i), tree.n_dof).to(dtype),
+            ),
+        ),
+    ):
+        q, qd, qdd = _state(near, 4, seed=21)
+        far, qx = far_q(q)
+        tau = near.inverse_dynamics(q, qd, qdd)
+        assert torch.equal(far.mass_matrix(qx), near.mass_matrix(q))
+        assert torch.equal(far.inverse_dynamics(qx, qd, qdd), tau)
+        assert torch.equal(far.forward_dynamics(qx, qd, tau), near.forward_dynamics(q, qd, tau))
+        wrench = torch.tensor([1.0, -2.0, 0.5, 0.3, 0.1, -0.2], dtype=dtype)
+        link = near.body_names[-1]
+        torch.testing.assert_close(
+            far.inverse_dynamics(qx, qd, qdd, f_ext={link: wrench}),
+            near.inverse_dynamics(q, qd, qdd, f_ext={link: wrench}),
+            rtol=0,
+            atol=1e-12 if dtype == F64 else 1e-4,
+        )
+
+
 def test_mass_matrix_is_kinetic_energy(tree):
     # 1/2 qd^T M qd equals the bodies' kinetic energy from their Jacobians (at the centre of
     # mass): independent of the composite-inertia algorithm.

@@ -70,10 +70,20 @@ def _needed(links: Sequence[_Link], targets: Iterable[int]) -> list[int]:
 
 
 def _build_plan(
-    links: Sequence[_Link], targets: tuple[int, ...], dt: torch.dtype, dev: torch.device
+    links: Sequence[_Link],
+    targets: tuple[int, ...],
+    dt: torch.dtype,
+    dev: torch.device,
+    relative: bool = False,
 ) -> _Plan:
     """The plan computing the links ``targets`` and their ancestors, constants in ``dt`` on
-    ``dev``."""
+    ``dev``.
+
+    ``relative``: every child of the root is placed with its translation from the root dropped
+    (its rotation kept), so that each subtree hanging from the root is computed about its own
+    first link's origin, however far from the root that stands (a floating base, a mount), and
+    its relative geometry keeps full precision; the poses are those of the chain moved, subtree
+    by subtree, by one translation."""
     need = _needed(links, targets)
     by_depth: dict[int, list[_Link]] = {}
     for i in need:
@@ -135,6 +145,8 @@ def _build_plan(
             n, K = cts.shape[:2]
             ct: Tensor | tuple[Tensor, ...]
             if depth == 1:  # K constants (n, 4, 4, 1)
+                if relative:  # C_f^T[3, :3] is C_f's translation
+                    cts[:, :, 3, :3] = 0.0
                 ct = cts.unsqueeze(-1).to(dtype=dt, device=dev).unbind(1)
             else:
                 ct = cts.reshape(n, K * 4, 4).to(dtype=dt, device=dev).contiguous()

@@ -220,7 +220,7 @@ class Chain:
         self.leaf_links: tuple[str, ...] = tuple(
             name for name in spec.links if self._index[name] not in has_child
         )
-        self._plans: dict[tuple[int, ...], _Plan] = {}
+        self._plans: dict[tuple[tuple[int, ...], bool], _Plan] = {}
         self._jac_plans: dict[int, _JacPlan] = {}
         # (link, DoFs) -> where the link's Jacobian columns go among those DoFs (None: in order).
         self._dof_maps: dict[tuple[int, tuple[int, ...]], Tensor | None] = {}
@@ -446,9 +446,13 @@ class Chain:
     # Forward kinematics: plans (which links, grouped by depth and joint kind) and their run
     # ------------------------------------------------------------------------------------------
 
-    def _plan(self, targets: tuple[int, ...]) -> _Plan:
+    def _plan(self, targets: tuple[int, ...], relative: bool = False) -> _Plan:
+        """The plan of ``targets`` (see :func:`_build_plan`; ``relative``: each subtree of the
+        root about its own origin)."""
         return _cached(
-            self._plans, targets, lambda: _build_plan(self._links, targets, self.dtype, self.device)
+            self._plans,
+            (targets, relative),
+            lambda: _build_plan(self._links, targets, self.dtype, self.device, relative),
         )
 
     def _values(self, q2: Tensor) -> Tensor:

@@ -31,18 +31,21 @@ Conventions (see also ``docs/dynamics.md``):
   the link's origin (the dual of :meth:`Chain.jacobian`'s default ``frame="world"``: the
   wrench contributes ``J^T f`` to the equations).
 
-Method: spatial vectors are 6-vectors (linear; angular) in world coordinates at the world
-origin (Plücker coordinates).  In that frame every recursion of the Newton-Euler algorithm is
-a sum along the tree: body velocities and accelerations are sums of their joints' motions over
-the ancestors, and joint forces sums of body forces over the subtree, so each is one product
-with a constant 0/1 ancestor matrix, batch innermost, instead of a loop over links.  The mass
-matrix follows from composite inertias (mass, first and second moment about the world origin,
-summed over subtrees by one product with the subtree matrix) and the joint axes; forward
-dynamics solves ``M qdd = tau - h`` by a batched Cholesky factorisation (the articulated-body
-algorithm would be a Python loop over the tree's depth; for the tens of degrees of freedom of
-a robot the Cholesky solve is as exact and costs fewer torch calls).  Large eager CPU batches
-run block by block through the shared driver (:func:`torchlie._autograd.evaluate`, blocks of
-fewer rows the more joint columns), so that the temporaries of a call stay bounded.
+Method: spatial vectors are 6-vectors (linear; angular) in world coordinates (Plücker
+coordinates) about one point per subtree hanging from the root: the origin of that subtree's
+first link, so that the moments stay of the size of the robot however far from the world origin
+it stands (a floating base, a mount): the results do not depend on where a subtree stands, and
+neither does their precision. In that frame every recursion of the Newton-Euler algorithm is a
+sum along the tree: body velocities and accelerations are sums of their joints' motions over the
+ancestors, and joint forces sums of body forces over the subtree, so each is one product with a
+constant 0/1 ancestor matrix, batch innermost, instead of a loop over links. The mass matrix
+follows from composite inertias (mass, first and second moment about that point, summed over
+subtrees by one product with the subtree matrix) and the joint axes; forward dynamics solves
+``M qdd = tau - h`` by a batched Cholesky factorisation (the articulated-body algorithm would be a
+Python loop over the tree's depth; for the tens of degrees of freedom of a robot the Cholesky
+solve is as exact and costs fewer torch calls). Large eager CPU batches run block by block
+through the shared driver (:func:`torchlie._autograd.evaluate`, blocks of fewer rows the more
+joint columns), so that the temporaries of a call stay bounded.
 """
 
 from __future__ import annotations
@@ -196,7 +199,7 @@ def _geometry(chain, plan: _DynPlan, q2: Tensor, extra: tuple[int, ...]) -> _Geo
     wanted."""
     B = q2.shape[0]
     targets = plan.targets + extra
-    fk = chain._plan(targets)
+    fk = chain._plan(targets, relative=True)
     out = chain._run(fk, q2)
     poses = [chain._pose(fk, out, i, B, q2) for i in targets]  # (c, r, B) each
     nb = len(plan.bodies)
@@ -272,11 +275,12 @@ def _forces(
     vl: Tensor | None,
     va: Tensor | None,
 ) -> Tensor:
-    """Per body the force about the world origin ``I a + v x* I v`` ``(nb, 2, 3, B)`` for
-    accelerations ``(al; aa)`` and velocities ``(vl; va)`` ``(nb, 3, B)`` (None: 0), in the
-    form ``fl = m (al + aa x c + va x vc)``, ``fa = c x fl + Iw aa + va x Iw va`` (``vc`` the
-    centre of mass's velocity, ``Iw = R Ic R^T``; the bias terms ``v x* (m vc; c x m vc +
-    Iw va)`` folded in by the Jacobi identity)."""
+    """Per body the force ``I a + v x* I v`` about its subtree's reference point
+    ``(nb, 2, 3, B)`` for accelerations ``(al; aa)`` and velocities ``(vl; va)``
+    ``(nb, 3, B)`` (None: 0), in the form ``fl = m (al + aa x c + va x vc)``,
+    ``fa = c x fl + Iw aa + va x Iw va`` (``vc`` the centre of mass's velocity,
+    ``Iw = R Ic R^T``; the bias terms ``v x* (m vc; c x m vc + Iw va)`` folded in by the Jacobi
+    identity)."""
 
     def Iw(x: Tensor) -> Tensor:
         return _rot(RT, _const_mat(Ic, _rot_t(RT, x)))
@@ -417,7 +421,7 @@ def _const_times(M: Tensor, X: Tensor) -> Tensor:
 
 
 def _composite(plan: _DynPlan, geo: _Geometry, m: Tensor, cw: Tensor, Ic: Tensor):
-    """Composite inertias per column (of the column's body subtree) about the world origin:
+    """Composite inertias per column (of the column's body subtree) about their reference point:
     mass ``(K, 1, B|1)``, first moment ``h = m c`` ``(K, 3, B)`` and second moment
     ``J = sum m r r^T`` ``(K, 3, 3, B)`` (the rotational inertia is ``tr(J) 1 - J``).
 
@@ -574,7 +578,7 @@ def _fext(
     fn: str,
     batch: tuple[int, ...],
 ) -> Tensor | None:
-    """The wrenches of ``f_ext`` summed per body, about the world origin, ``(nb, 2, 3, B)``
+    """The wrenches of ``f_ext`` summed per body, about their reference point, ``(nb, 2, 3, B)``
     (forces; torques)."""
     nb = len(plan.bodies)
     B = geo.S.shape[-1]
