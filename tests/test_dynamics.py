@@ -640,6 +640,12 @@ def test_bad_arguments(arm):
         arm.inverse_dynamics(q, qd, qdd, f_ext={"link3": torch.zeros(3, dtype=F64)})
     with pytest.raises(ValueError, match=r"expected gravity of shape \(\.\.\., 3\)"):
         arm.inverse_dynamics(q, qd, qdd, gravity=torch.zeros(2, dtype=F64))
+    with pytest.raises(TypeError, match=rf"{fn}: expected gravity to be a \(3,\) or"):
+        arm.inverse_dynamics(q, qd, qdd, gravity="down")
+    # a wrench on a link fixed to the world acts on the world, and is checked all the same
+    for link in ("world", "base"):
+        with pytest.raises(ValueError, match=rf"f_ext\['{link}'\] of shape \(5, 6\) does not"):
+            arm.inverse_dynamics(q, qd, qdd, f_ext={link: torch.zeros(5, 6, dtype=F64)})
     ins = arm.inertials
     with pytest.raises(ValueError, match=r"mass_matrix: expected inertials.mass of shape"):
         arm.mass_matrix(q, inertials=Inertials(ins.mass[:3], ins.com, ins.inertia))

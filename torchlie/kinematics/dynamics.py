@@ -541,7 +541,13 @@ def _gravity(chain, gravity, fn: str, batch: tuple[int, ...], like: Tensor) -> T
     if gravity is None:
         return _plan(chain).gravity
     if not isinstance(gravity, Tensor):
-        gravity = torch.as_tensor(gravity, dtype=like.dtype, device=like.device)
+        try:
+            gravity = torch.as_tensor(gravity, dtype=like.dtype, device=like.device)
+        except (TypeError, ValueError, RuntimeError):
+            raise TypeError(
+                f"{_NAME}{fn}: expected gravity to be a (3,) or (..., 3) tensor or a sequence "
+                f"of 3 numbers, got {type(gravity).__name__} {gravity!r:.60}"
+            ) from None
     g, _ = _checks.tensor(gravity, _NAME + fn, "gravity", (3,))
     chain._check_like(g, _NAME + fn, "gravity", gravity.dtype)
     try:
@@ -587,9 +593,6 @@ def _fext(
     for k, (name, w) in enumerate(f_ext.items()):
         t, _ = _checks.tensor(w, _NAME + fn, f"f_ext[{name!r}]", (6,))
         chain._check_like(t, _NAME + fn, f"f_ext[{name!r}]", w.dtype)
-        b = plan.body_of[chain._index[name]]
-        if b < 0:
-            continue  # a link fixed to the world: the wrench acts on the world
         try:
             wb = _batch_last(t, batch, 1).expand(6, B)
         except RuntimeError:
@@ -597,6 +600,9 @@ def _fext(
                 f"{_NAME}{fn}: f_ext[{name!r}] of shape {tuple(w.shape)} does not broadcast "
                 f"to q's batch shape {batch}"
             ) from None
+        b = plan.body_of[chain._index[name]]
+        if b < 0:
+            continue  # a link fixed to the world: the wrench acts on the world
         p = geo.origins[k]  # the link's origin, (3, B)
         f, n = wb[:3], wb[3:]
         parts.append(torch.cat((f, n + torch.linalg.cross(p, f, dim=0)), dim=0))
