@@ -589,6 +589,52 @@ def test_massless_moving_subtree_is_named():
         chain.forward_dynamics(q, qd, qdd)
 
 
+def _two_joints(child_inertial: str, kind: str) -> str:
+    inertia = '<inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.1"/>'
+    limit = '<limit lower="-1" upper="1" effort="1" velocity="1"/>'
+    return (
+        f'<robot name="r"><link name="world"/><link name="a"><inertial><mass value="1"/>{inertia}'
+        f'</inertial></link><link name="b">{child_inertial}</link>'
+        '<joint name="j1" type="revolute"><parent link="world"/><child link="a"/>'
+        f'<axis xyz="0 0 1"/>{limit}</joint><joint name="j2" type="{kind}"><parent link="a"/>'
+        f'<child link="b"/><origin xyz="0.5 0 0"/><axis xyz="1 0 0"/>{limit}</joint></robot>'
+    )
+
+
+def test_singular_mass_matrix():
+    q = torch.tensor([[0.3, 0.2]], dtype=F64)
+    one = torch.ones(1, 2, dtype=F64)
+    # A translation that moves inertia but no mass: singular at every state, named.
+    no_mass = '<inertial><mass value="0"/><inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" iyz="0" '
+    chain = Chain.from_urdf(_two_joints(no_mass + 'izz="0.1"/></inertial>', "prismatic"), dtype=F64)
+    with pytest.raises(ValueError, match=r"forward_dynamics: the mass matrix is singular.*'j2'"):
+        chain.forward_dynamics(q, one, one)
+    # The same joint turning instead moves inertia: not singular.
+    chain = Chain.from_urdf(_two_joints(no_mass + 'izz="0.1"/></inertial>', "revolute"), dtype=F64)
+    assert bool(torch.isfinite(chain.forward_dynamics(q, one, one)).all())
+    # A point mass on the axis of the joint turning it: M(q) is not positive definite; that
+    # state's accelerations are NaN (documented), never what the failed factor gives.
+    point = '<inertial><origin xyz="0.3 0 0"/><mass value="1"/><inertia ixx="0" ixy="0" ixz="0" '
+    chain = Chain.from_urdf(
+        _two_joints(point + 'iyy="0" iyz="0" izz="0"/></inertial>', "revolute"), dtype=F64
+    )
+    assert bool(torch.isnan(chain.forward_dynamics(q, one, one)).all())
+    # Inertials given per state: only the singular state is NaN.
+    full = Chain.from_urdf(_two_joints(no_mass + 'izz="0.1"/></inertial>', "revolute"), dtype=F64)
+    ins = full.inertials
+    mass = ins.mass.expand(3, 2).clone()
+    inertia = ins.inertia.expand(3, 2, 3, 3).clone()
+    inertia[1, 1] = 0.0  # the second state's link b: no mass, no inertia
+    acc = full.forward_dynamics(
+        q.expand(3, 2),
+        one.expand(3, 2),
+        one.expand(3, 2),
+        inertials=Inertials(mass, ins.com.expand(3, 2, 3), inertia),
+    )
+    assert bool(torch.isnan(acc[1]).all()) and bool(torch.isfinite(acc[[0, 2]]).all())
+    torch.testing.assert_close(acc[0], full.forward_dynamics(q, one, one)[0], rtol=1e-14, atol=0)
+
+
 def test_robot_without_degrees_of_freedom():
     chain = Chain.from_urdf(
         '<robot name="r"><link name="a"/><link name="b"><inertial><mass value="1"/>'

@@ -57,7 +57,7 @@ class _DynPlan:
     inertials64: tuple[Tensor, Tensor, Tensor]  # merged (mass, com, inertia), float64 CPU
     inertials: tuple[Tensor, Tensor, Tensor]  # the same in the chain's dtype and device
     gravity: Tensor  # (3, 1) DEFAULT_GRAVITY in the chain's dtype and device
-    massless: list[str]  # DoFs whose moving subtree has neither mass nor inertia
+    massless: list[str]  # DoFs that move neither mass nor inertia (a translation: no mass)
 
 
 # The merge of the inertials is written on Python floats: the plan is then the same whether
@@ -220,13 +220,23 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
         dtype=torch.float64,
     ).reshape(K, K)
 
-    # DoFs whose subtree carries neither mass nor inertia (M has a zero row there).
+    # DoFs that move nothing resisting their motion (M has a zero row there): a subtree with
+    # neither mass nor inertia, or a translation (prismatic, floating, free) moving no mass;
+    # a DoF is named when every column it drives is such a column.
+    subtrees = [[c for c in range(nb) if b in anc_sets[c]] for b in range(nb)]
     empty = [
         all(merged[c][0] == 0.0 and not any(any(r) for r in merged[c][2]) for c in sub_b)
-        for sub_b in ([c for c in range(nb) if b in anc_sets[c]] for b in range(nb))
+        for sub_b in subtrees
     ]
+    no_mass = [all(merged[c][0] == 0.0 for c in sub_b) for sub_b in subtrees]
+    n_turn = len(rot) + 3 * len(floats_raw)  # the columns after these translate
+    inert = [empty[col_body[k]] or (k >= n_turn and no_mass[col_body[k]]) for k in range(K)]
     massless = sorted(
-        {joint_names[col_dof[k]] for k in range(K) if empty[col_body[k]]},
+        {
+            joint_names[d]
+            for d in {col_dof[k] for k in range(K)}
+            if all(inert[k] for k in range(K) if col_dof[k] == d)
+        },
         key=joint_names.index,
     )
     return _DynPlan(

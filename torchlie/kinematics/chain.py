@@ -964,8 +964,14 @@ class Chain:
         sum J^T f_ext)`` by a batched Cholesky solve.  Arguments as for
         :meth:`inverse_dynamics`.
 
+        The chain's own inertials are checked once: a DoF that moves neither mass nor inertia
+        (a translation: no mass) makes ``M`` singular at every state and raises.  Where ``M(q)``
+        is not positive definite otherwise (inertials given with ``inertials=``, or ones that
+        leave a joint no inertia about its axis in some configuration: a point mass on the
+        axis, a thin rod along it), the accelerations of that state are NaN.
+
         Raises:
-            ValueError: a DoF moves no mass and no inertia (``M`` would be singular).
+            ValueError: a DoF moves nothing that resists its motion (``M`` singular).
 
         Example:
             >>> from torchlie.kinematics import sample_robot

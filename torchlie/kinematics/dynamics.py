@@ -701,9 +701,10 @@ def _forward_dynamics(
     q2, out_dtype, batch, plan = _prepare(chain, q, fn)
     if inertials is None and plan.massless:
         raise ValueError(
-            f"{_NAME}{fn}: the mass matrix is singular: no mass or inertia moves with "
-            f"{_some(plan.massless)} (links without <inertial>?); give those links inertials "
-            "or pass inertials="
+            f"{_NAME}{fn}: the mass matrix is singular: nothing resisting their motion moves "
+            f"with {_some(plan.massless)} (neither mass nor inertia; no mass for a "
+            "translation: links without <inertial>?); give those links inertials or pass "
+            "inertials="
         )
     qd2 = _check_vec(chain, qd, fn, "qd", batch)
     tau2 = _check_vec(chain, tau, fn, "tau", batch)
@@ -718,8 +719,10 @@ def _forward_dynamics(
         fx = None if f_ext is None else _fext(chain, plan, geo, f_ext, fn, batch)
         h = _rnea(plan, geo, ins, batch, qd2, None, g, fx)  # (n, B)
         M = _crba(plan, *_columns_and_forces(plan, geo, ins, batch))  # (B, n, n)
-        L, _ = torch.linalg.cholesky_ex(M)
-        return torch.cholesky_solve((tau2 - h.mT).unsqueeze(-1), L).squeeze(-1)  # (B, n)
+        L, info = torch.linalg.cholesky_ex(M)
+        qdd = torch.cholesky_solve((tau2 - h.mT).unsqueeze(-1), L).squeeze(-1)  # (B, n)
+        # a state whose M is not positive definite: NaN, not what the failed factor gives
+        return torch.where((info > 0).unsqueeze(-1), torch.nan, qdd)
 
     qdd = _over_blocks(run, plan, [q2, qd2, tau2], (g, *ins), f_ext is not None)
     return _checks.out(qdd.reshape(*batch, chain.n_v), out_dtype)
