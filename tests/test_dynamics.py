@@ -110,6 +110,18 @@ def test_against_pinocchio(name):
         assert v <= TOL[k], (name, k, v)
 
 
+@pytest.mark.parametrize("name", ["arm7", "panda"])
+def test_fast_motion_against_pinocchio(name):
+    # Velocities and accelerations of 1e3 (rad/s, rad/s^2): the velocity-product terms,
+    # a million times the gravity terms, within the same relative bounds.
+    chain, q, qd, qdd, _, P = _reference(name)
+    q, qd, qdd = q[:20], 1e3 * qd[:20], 1e3 * qdd[:20]
+    ref = P.dynamics(q, qd, qdd, derivatives=False)
+    assert _rel(chain.inverse_dynamics(q, qd, qdd), ref["tau"]) <= TOL["tau"]
+    assert _rel(chain.bias_forces(q, qd), ref["bias"]) <= TOL["bias"]
+    assert _rel(chain.forward_dynamics(q, qd, ref["tau"]), qdd) <= TOL["aba"]
+
+
 @pytest.mark.parametrize("name", [r for r in ROBOTS if r != "tree"])
 def test_rnea_derivatives_against_pinocchio(name):
     chain, q, qd, qdd, ref, _ = _reference(name)

@@ -135,12 +135,13 @@ class _Pin:
 
     def _d_dot_qd(self, q: Tensor, qd: Tensor):
         """``(dD/dt) qd`` by a 4th-order central difference of ``D`` along ``qd`` (``D`` is
-        smooth; the step's error is far below float64's round-off of the dynamics)."""
+        smooth; a step of at most 1e-3 in ``q``, whose error is far below float64's round-off
+        of the dynamics, whatever the size of ``qd``)."""
         import numpy as np
 
         if not self.has_moving_map():
             return np.zeros(self.model.nv)
-        h = 1e-3
+        h = 1e-3 / max(1.0, float(qd.abs().max()))
         Ds = [self._q_and_map(q + k * h * qd)[1] for k in (-2, -1, 1, 2)]
         dD = (Ds[0] - 8.0 * Ds[1] + 8.0 * Ds[2] - Ds[3]) / (12.0 * h)
         return dD @ qd.numpy()
