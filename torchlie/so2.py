@@ -150,21 +150,48 @@ def _log(R: Tensor) -> Tensor:
     return angle(*conformal(R)).unsqueeze(-1)
 
 
+def angle_scaled(x: Tensor, y: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """``(x / k, y / k, r2, k)``: the conformal part scaled by the power of two ``k`` (detached)
+    that brings ``max(|x|, |y|)`` into ``[1, 2)``, and its squared norm ``r2`` (1 where it is
+    0), for the derivative ``(x dy - y dx) / (x^2 + y^2)`` of the angle without the squares of
+    ``x`` and ``y`` at their own magnitude.
+
+    The scaling is exact, so wherever the squares neither overflow nor underflow the
+    derivatives have the bits of the formula on ``x`` and ``y`` themselves; ``k = 1`` at the
+    zero conformal part, whose derivative is then 0.  The derivative, homogeneous of degree
+    -1, is the one of the scaled part divided by ``k``; with ``k`` held constant, its own
+    derivatives are the true ones too (double backward), and their powers of ``r2`` cannot
+    overflow either."""
+    m = _coeffs.largest((x, y))
+    k = torch.where(m > 0, m / (2.0 * torch.frexp(m).mantissa), 1.0)  # m = 2 mantissa k
+    xs, ys = x / k, y / k
+    r2 = xs * xs + ys * ys
+    return xs, ys, torch.where(r2 > 0, r2, 1.0), k
+
+
+def angle_gradient(x: Tensor, y: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
+    """Gradient ``(-y, x) g / (x^2 + y^2)`` of ``g atan2(y, x)`` at every finite magnitude (0
+    at ``x = y = 0``, where there is no direction)."""
+    xs, ys, r2, k = angle_scaled(x, y)
+    c = g / r2  # the product with the scaled part before the division by k: no underflow
+    return -(ys * c) / k, (xs * c) / k
+
+
+def angle_tangent(x: Tensor, y: Tensor, dx: Tensor, dy: Tensor) -> Tensor:
+    """Tangent ``(x dy - y dx) / (x^2 + y^2)`` of ``atan2(y, x)`` (as :func:`angle_gradient`)."""
+    xs, ys, r2, k = angle_scaled(x, y)
+    return (xs * dy - ys * dx) / r2 / k
+
+
 def _log_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:
     # d atan2(y, x) = (x dy - y dx) / (x^2 + y^2); 0 where x = y = 0 (no direction)
-    x, y = conformal(saved[0])
-    r2 = x * x + y * y
-    k = g[..., 0] / torch.where(r2 > 0, r2, 1.0)
-    gx, gy = -y * k, x * k
+    gx, gy = angle_gradient(*conformal(saved[0]), g[..., 0])
     o = columns(gx, 4)
     return (assemble((gx, torch.neg(gy, out=o[1]), gy, gx), o).unflatten(-1, (2, 2)),)
 
 
 def _log_jvp(saved: tuple[Tensor, ...], dR: Tensor) -> Tensor:
-    x, y = conformal(saved[0])
-    dx, dy = conformal(dR)
-    r2 = x * x + y * y
-    return ((x * dy - y * dx) / torch.where(r2 > 0, r2, torch.ones_like(r2))).unsqueeze(-1)
+    return angle_tangent(*conformal(saved[0]), *conformal(dR)).unsqueeze(-1)
 
 
 # one pass over blocks of the batch (the one driver), the backward's planes kept in cache
