@@ -167,6 +167,21 @@ def test_angle_second_derivatives_at_large_and_small_magnitudes(dtype):
             _assert_rows_close(H.reshape(1, 4), want[i].reshape(1, 4), rtol)
 
 
+def test_complex_to_angle_up_to_the_largest_float():
+    for dtype in (torch.float32, torch.float64):
+        big = torch.finfo(dtype).max
+        z = torch.tensor([[big, big / 3], [-big / 2, -big], [big, -big]], dtype=dtype)
+        want = torch.atan2(z[:, 1].double(), z[:, 0].double())
+        torch.testing.assert_close(so2.complex_to_angle(z)[:, 0].double(), want, rtol=0, atol=1e-6)
+        zg = z.clone().requires_grad_()
+        (g,) = torch.autograd.grad(so2.complex_to_angle(zg).sum(), zg)
+        zd = z.double() / big  # (the reference without squares at 1e308)
+        ref = torch.stack((-zd[:, 1], zd[:, 0]), -1) / (zd * zd).sum(-1, keepdim=True) / big
+        # the gradients ~ 1 / max are subnormal: 21 significant bits in float32, 49 in float64
+        rtol = 1e-5 if dtype == torch.float32 else 1e-13
+        torch.testing.assert_close(g.double(), ref, rtol=rtol, atol=0)
+
+
 def test_angle_derivatives_at_the_zero_conformal_part():
     # no direction: the documented 0 in every mode, never NaN
     for dtype in (torch.float32, torch.float64):

@@ -278,7 +278,8 @@ def log(R: Float[Tensor, "*b 2 2"]) -> Float[Tensor, "*b 1"]:
     direction ``R hat(d)`` and 0 across.  The log jumps by ``2 pi`` at the half turn; there
     (and only there) the gradient returned is the derivative of the branch that holds ``pi``
     (the limit from the angles below it), which is also the derivative ``1`` of the continuous
-    angle in tangent coordinates.  At the zero matrix it is 0.
+    angle in tangent coordinates.  Right at every finite magnitude of the conformal part
+    (its squares are never formed at their own magnitude); at the zero matrix it is 0.
 
     Example:
         >>> log(-torch.eye(2))
@@ -515,7 +516,10 @@ def complex_to_angle(z: Float[Tensor, "*b 2"]) -> Float[Tensor, "*b 1"]:
         tensor([3.1416])
     """
     x, dtype = _checks.tensor(z, _NAME + "complex_to_angle", "z", (2,))
-    return _checks.out(_LogFn(matrix(x[..., 0], x[..., 1])), dtype)
+    # [[re, 0], [im, 0]]: its conformal part is z itself (no doubling that could overflow)
+    re, im = x[..., 0], x[..., 1]
+    zero = torch.zeros_like(re)
+    return _checks.out(_LogFn(torch.stack((re, zero, im, zero), -1).unflatten(-1, (2, 2))), dtype)
 
 
 # ----------------------------------------------------------------------------------------------
