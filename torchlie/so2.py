@@ -150,37 +150,53 @@ def _log(R: Tensor) -> Tensor:
     return angle(*conformal(R)).unsqueeze(-1)
 
 
+#: the integer type of each float type's bits, and the mask of its exponent field
+_EXPONENT_BITS = {
+    torch.float32: (torch.int32, 0x7F800000),
+    torch.float64: (torch.int64, 0x7FF0000000000000),
+}
+
+
+def power_of_two(m: Tensor) -> Tensor:
+    """The power of two ``k <= m`` with ``m / k`` in ``[1, 2)`` for positive ``m`` (float32 or
+    float64), ``k`` the smallest normal number where ``m`` is below it (0 included); infinite
+    where ``m`` is not finite.  Read from the exponent field of ``m`` (no rounding, a few cheap
+    element-wise operations): dividing by ``k`` is exact."""
+    bits, mask = _EXPONENT_BITS[m.dtype]
+    return (m.clamp(min=torch.finfo(m.dtype).tiny).view(bits) & mask).view(m.dtype)
+
+
 def angle_scaled(x: Tensor, y: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """``(x / k, y / k, r2, k)``: the conformal part scaled by the power of two ``k`` (detached)
-    that brings ``max(|x|, |y|)`` into ``[1, 2)``, and its squared norm ``r2`` (1 where it is
-    0), for the derivative ``(x dy - y dx) / (x^2 + y^2)`` of the angle without the squares of
-    ``x`` and ``y`` at their own magnitude.
+    """``(x / k, y / k, r2, 1 / k)``: the conformal part scaled by the power of two ``k``
+    (detached) that brings ``max(|x|, |y|)`` into ``[1, 2)`` (:func:`power_of_two`), and its
+    squared norm ``r2`` (1 where it is 0), for the derivative ``(x dy - y dx) / (x^2 + y^2)``
+    of the angle without the squares of ``x`` and ``y`` at their own magnitude.
 
     The scaling is exact, so wherever the squares neither overflow nor underflow the
-    derivatives have the bits of the formula on ``x`` and ``y`` themselves; ``k = 1`` at the
-    zero conformal part, whose derivative is then 0.  The derivative, homogeneous of degree
+    derivatives have the bits of the formula on ``x`` and ``y`` themselves; at the zero
+    conformal part ``k = 1`` and the derivative is 0.  The derivative, homogeneous of degree
     -1, is the one of the scaled part divided by ``k``; with ``k`` held constant, its own
     derivatives are the true ones too (double backward), and their powers of ``r2`` cannot
     overflow either."""
     m = _coeffs.largest((x, y))
-    k = torch.where(m > 0, m / (2.0 * torch.frexp(m).mantissa), 1.0)  # m = 2 mantissa k
-    xs, ys = x / k, y / k
-    r2 = xs * xs + ys * ys
-    return xs, ys, torch.where(r2 > 0, r2, 1.0), k
+    zero = 1.0 - torch.sign(m)  # 1 where m = 0, else 0 (cheaper than a comparison)
+    inv = torch.reciprocal(power_of_two(m + zero))  # exact: k is a normal power of two
+    xs, ys = x * inv, y * inv
+    return xs, ys, xs * xs + ys * ys + zero, inv
 
 
 def angle_gradient(x: Tensor, y: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
     """Gradient ``(-y, x) g / (x^2 + y^2)`` of ``g atan2(y, x)`` at every finite magnitude (0
     at ``x = y = 0``, where there is no direction)."""
-    xs, ys, r2, k = angle_scaled(x, y)
-    c = g / r2  # the product with the scaled part before the division by k: no underflow
-    return -(ys * c) / k, (xs * c) / k
+    xs, ys, r2, inv = angle_scaled(x, y)
+    c = g / r2 * inv
+    return -(ys * c), xs * c
 
 
 def angle_tangent(x: Tensor, y: Tensor, dx: Tensor, dy: Tensor) -> Tensor:
     """Tangent ``(x dy - y dx) / (x^2 + y^2)`` of ``atan2(y, x)`` (as :func:`angle_gradient`)."""
-    xs, ys, r2, k = angle_scaled(x, y)
-    return (xs * dy - ys * dx) / r2 / k
+    xs, ys, r2, inv = angle_scaled(x, y)
+    return (xs * dy - ys * dx) / r2 * inv
 
 
 def _log_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:

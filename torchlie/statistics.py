@@ -233,9 +233,8 @@ def _wsum(w: Tensor, x: Tensor, k: int) -> Tensor:
 
 def _binade(x: Tensor) -> Tensor:
     """The power of two ``k`` with ``max |x_ij| / k`` in ``[1, 2)`` over the last two dimensions
-    (kept, size 1), detached; 1 where every ``x_ij`` is 0 (and where one is NaN)."""
-    m = x.detach().abs().amax((-2, -1), keepdim=True)
-    return torch.where(m > 0, m / (2.0 * torch.frexp(m).mantissa), 1.0)  # m = 2 mantissa k
+    (kept, size 1), detached (:func:`torchlie.so2.power_of_two`)."""
+    return so2.power_of_two(x.detach().abs().amax((-2, -1), keepdim=True))
 
 
 def _sum(x: Tensor, dims: int | tuple[int, ...]) -> Tensor:
