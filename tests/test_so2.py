@@ -195,3 +195,24 @@ def test_angle_derivatives_at_the_zero_conformal_part():
         R = torch.zeros(2, 2, dtype=dtype, requires_grad=True)
         (gR,) = torch.autograd.grad(so2.log(R).sum(), R)
         assert gR.abs().sum().item() == 0.0
+
+
+@pytest.mark.compile
+def test_compiled_angle_gradient_at_large_and_small_magnitudes():
+    # torch.compile (Inductor) of the derivative's exact scaling (the exponent field read as
+    # bits) gives eager's gradient (the compiled backward) and tangent
+    torch._dynamo.reset()
+    log = torch.compile(so2.log, fullgraph=True)
+    tangent = torch.compile(lambda R, dR: torch.func.jvp(so2.log, (R,), (dR,))[1], fullgraph=True)
+    for dtype, mags in ((torch.float32, (1.0, 1e20, 1e-25)), (torch.float64, (1.0, 1e160, 1e-300))):
+        z = torch.cat([_complex_points(s, dtype) for s in mags])
+        R = so2.matrix(z[:, 0], z[:, 1]).requires_grad_()
+        dR = torch.ones_like(R)
+        got = (torch.autograd.grad(log(R).sum(), R)[0], tangent(R.detach(), dR))
+        want = (
+            torch.autograd.grad(so2.log(R).sum(), R)[0],
+            torch.func.jvp(so2.log, (R.detach(),), (dR,))[1],
+        )
+        for a, b in zip(got, want, strict=True):
+            assert bool(a.isfinite().all())
+            torch.testing.assert_close(a, b, rtol=4 * torch.finfo(dtype).eps, atol=0)
