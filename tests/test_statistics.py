@@ -687,6 +687,24 @@ def test_align_magnitudes_per_element_and_gradients():
         torch.testing.assert_close(a * cs, b.expand_as(a), rtol=1e-12, atol=1e-12)
 
 
+def test_align_sets_at_the_origin_keep_finite_gradients():
+    # a set all at the origin has the smallest scaling factor: the ratio of the factors
+    # overflows, and must stay out of the result and its gradient (the documented s = 1 / 0)
+    for dtype in (torch.float32, torch.float64):
+        big = 0.25 * torch.finfo(dtype).max ** 0.5
+        for zero_p in (True, False):
+            X = torch.randn(5, 3, generator=gen(38), dtype=dtype) * big
+            P = torch.zeros_like(X) if zero_p else X
+            Q = X if zero_p else torch.zeros_like(X)
+            P, Q = P.clone().requires_grad_(), Q.clone().requires_grad_()
+            fit = align(P, Q, scale=True)
+            assert float(fit.scale.detach()) == (1.0 if zero_p else 0.0)
+            assert torch.equal(fit.rotation, torch.eye(3, dtype=dtype))
+            out = fit.scale + fit.rotation.sum() + fit.translation.sum() / big
+            for g in torch.autograd.grad(out, (P, Q)):
+                assert bool(g.isfinite().all())
+
+
 def test_align_errors():
     P = torch.randn(5, 3)
     with pytest.raises(
