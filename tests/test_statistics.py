@@ -623,6 +623,88 @@ def test_align_broadcast_weights_and_half():
     torch.testing.assert_close(h.rotation.double(), ref, rtol=0, atol=4 * eps(torch.float16))
 
 
+#: magnitudes of the points whose products overflow or underflow (H, the spread), per dtype
+_ALIGN_MAGNITUDES = {
+    torch.float32: (1e21, 1e-25, 1e30, 1e-30, 1e36, 1e-36),
+    torch.float64: (1e170, 1e-170, 1e250, 1e-250, 1e300, 1e-300),
+}
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_align_at_every_magnitude(dtype):
+    # equivariance: scaling both sets by c leaves R and s and scales t; scaling P by c and Q
+    # by d divides s by c / d.  Checked against the fit at magnitude 1 and against the truth.
+    g = gen(36)
+    P = torch.randn(6, 3, generator=g, dtype=F64)
+    R = so3.exp(torch.tensor([0.3, -0.5, 1.1], dtype=F64))
+    t = torch.tensor([0.5, -1.0, 2.0], dtype=F64)
+    Q = 2.0 * P @ R.T + t + 0.01 * torch.randn(6, 3, generator=g, dtype=F64)  # (noisy)
+    tol = 16 * eps(dtype)
+    for kw in ({"scale": True}, {"scale": False}, {"scale": True, "translation": False}):
+        ref = align(P.to(dtype), Q.to(dtype), **kw)
+        for c in _ALIGN_MAGNITUDES[dtype]:
+            fit = align((c * P).to(dtype), (c * Q).to(dtype), **kw)
+            for x in fit:
+                assert bool(x.isfinite().all()), (kw, c, fit)
+            torch.testing.assert_close(fit.rotation, ref.rotation, rtol=0, atol=tol)
+            torch.testing.assert_close(fit.scale, ref.scale, rtol=tol, atol=0)
+            torch.testing.assert_close(
+                fit.translation.double() / c, ref.translation.double(), rtol=0, atol=tol * 8
+            )
+            assert so3.is_valid(fit.rotation)
+            if kw.get("translation", True):  # the truth, within the noise
+                assert float((fit.rotation.double() - R).abs().max()) < 0.02
+    # P and Q at different magnitudes (the scale 1e30 or 1e200): its own factor each
+    c, d = (1e-15, 1e15) if dtype == torch.float32 else (1e-100, 1e100)
+    fit = align((c * P).to(dtype), (d * Q).to(dtype), scale=True)
+    ref = align(P.to(dtype), Q.to(dtype), scale=True)
+    torch.testing.assert_close(fit.rotation, ref.rotation, rtol=0, atol=tol)
+    torch.testing.assert_close(fit.scale.double() * c / d, ref.scale.double(), rtol=tol, atol=0)
+    torch.testing.assert_close(
+        fit.translation.double() / d, ref.translation.double(), rtol=0, atol=tol * 8
+    )
+
+
+def test_align_magnitudes_per_element_and_gradients():
+    # a batch of sets at 1e-170, 1 and 1e170: each its own fit (the same as alone, within the
+    # rounding of the batched products), and the gradients scale as 1 / c (homogeneity)
+    g = gen(37)
+    P = torch.randn(6, 3, generator=g, dtype=F64)
+    Q = 1.5 * P @ so3.exp(torch.tensor([0.2, 0.9, -0.4], dtype=F64)).T
+    Q = Q + 0.05 * torch.randn(6, 3, generator=g, dtype=F64)
+    cs = torch.tensor([1e-170, 1.0, 1e170], dtype=F64)[:, None, None]
+    Pc, Qc = (cs * P).requires_grad_(), (cs * Q).requires_grad_()
+    fit = align(Pc, Qc, scale=True)
+    alone = align(P, Q, scale=True)
+    for i in range(3):
+        torch.testing.assert_close(fit.rotation[i], alone.rotation, rtol=0, atol=1e-15)
+        torch.testing.assert_close(fit.scale[i], alone.scale, rtol=1e-15, atol=0)
+    P1, Q1 = P.clone().requires_grad_(), Q.clone().requires_grad_()
+    f1 = align(P1, Q1, scale=True)
+    want = torch.autograd.grad(f1.scale + f1.rotation[0, 1], (P1, Q1))
+    got = torch.autograd.grad((fit.scale + fit.rotation[:, 0, 1]).sum(), (Pc, Qc))
+    for a, b in zip(got, want, strict=True):
+        torch.testing.assert_close(a * cs, b.expand_as(a), rtol=1e-12, atol=1e-12)
+
+
+def test_align_sets_at_the_origin_keep_finite_gradients():
+    # a set all at the origin has the smallest scaling factor: the ratio of the factors
+    # overflows, and must stay out of the result and its gradient (the documented s = 1 / 0)
+    for dtype in (torch.float32, torch.float64):
+        big = 0.25 * torch.finfo(dtype).max ** 0.5
+        for zero_p in (True, False):
+            X = torch.randn(5, 3, generator=gen(38), dtype=dtype) * big
+            P = torch.zeros_like(X) if zero_p else X
+            Q = X if zero_p else torch.zeros_like(X)
+            P, Q = P.clone().requires_grad_(), Q.clone().requires_grad_()
+            fit = align(P, Q, scale=True)
+            assert float(fit.scale.detach()) == (1.0 if zero_p else 0.0)
+            assert torch.equal(fit.rotation, torch.eye(3, dtype=dtype))
+            out = fit.scale + fit.rotation.sum() + fit.translation.sum() / big
+            for g in torch.autograd.grad(out, (P, Q)):
+                assert bool(g.isfinite().all())
+
+
 def test_align_errors():
     P = torch.randn(5, 3)
     with pytest.raises(

@@ -150,21 +150,64 @@ def _log(R: Tensor) -> Tensor:
     return angle(*conformal(R)).unsqueeze(-1)
 
 
+#: the integer type of each float type's bits, and the mask of its exponent field
+_EXPONENT_BITS = {
+    torch.float32: (torch.int32, 0x7F800000),
+    torch.float64: (torch.int64, 0x7FF0000000000000),
+}
+
+
+def power_of_two(m: Tensor) -> Tensor:
+    """The power of two ``k <= m`` with ``m / k`` in ``[1, 2)`` for positive ``m`` (float32 or
+    float64), ``k`` the smallest normal number where ``m`` is below it (0 included); infinite
+    where ``m`` is not finite.  Read from the exponent field of ``m`` (no rounding, a few cheap
+    element-wise operations): dividing by ``k`` is exact."""
+    bits, mask = _EXPONENT_BITS[m.dtype]
+    return (m.clamp(min=torch.finfo(m.dtype).tiny).view(bits) & mask).view(m.dtype)
+
+
+def angle_scaled(x: Tensor, y: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """``(x / k, y / k, r2, 1 / k)``: the conformal part scaled by the power of two ``k``
+    (detached) that brings ``max(|x|, |y|)`` into ``[1, 2)`` (:func:`power_of_two`), and its
+    squared norm ``r2`` (1 where it is 0), for the derivative ``(x dy - y dx) / (x^2 + y^2)``
+    of the angle without the squares of ``x`` and ``y`` at their own magnitude.
+
+    The scaling is exact, so wherever the squares neither overflow nor underflow the
+    derivatives have the bits of the formula on ``x`` and ``y`` themselves; at the zero
+    conformal part ``k = 1`` and the derivative is 0.  The derivative, homogeneous of degree
+    -1, is the one of the scaled part divided by ``k``; with ``k`` held constant, its own
+    derivatives are the true ones too (double backward), and their powers of ``r2`` cannot
+    overflow either."""
+    m = _coeffs.largest((x, y))
+    zero = 1.0 - torch.sign(m)  # 1 where m = 0, else 0 (cheaper than a comparison)
+    inv = torch.reciprocal(power_of_two(m + zero))  # exact: k is a normal power of two
+    xs, ys = x * inv, y * inv
+    return xs, ys, xs * xs + ys * ys + zero, inv
+
+
+def angle_gradient(x: Tensor, y: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
+    """Gradient ``(-y, x) g / (x^2 + y^2)`` of ``g atan2(y, x)`` at every finite magnitude (0
+    at ``x = y = 0``, where there is no direction)."""
+    xs, ys, r2, inv = angle_scaled(x, y)
+    c = g / r2 * inv
+    return -(ys * c), xs * c
+
+
+def angle_tangent(x: Tensor, y: Tensor, dx: Tensor, dy: Tensor) -> Tensor:
+    """Tangent ``(x dy - y dx) / (x^2 + y^2)`` of ``atan2(y, x)`` (as :func:`angle_gradient`)."""
+    xs, ys, r2, inv = angle_scaled(x, y)
+    return (xs * dy - ys * dx) / r2 * inv
+
+
 def _log_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:
     # d atan2(y, x) = (x dy - y dx) / (x^2 + y^2); 0 where x = y = 0 (no direction)
-    x, y = conformal(saved[0])
-    r2 = x * x + y * y
-    k = g[..., 0] / torch.where(r2 > 0, r2, 1.0)
-    gx, gy = -y * k, x * k
+    gx, gy = angle_gradient(*conformal(saved[0]), g[..., 0])
     o = columns(gx, 4)
     return (assemble((gx, torch.neg(gy, out=o[1]), gy, gx), o).unflatten(-1, (2, 2)),)
 
 
 def _log_jvp(saved: tuple[Tensor, ...], dR: Tensor) -> Tensor:
-    x, y = conformal(saved[0])
-    dx, dy = conformal(dR)
-    r2 = x * x + y * y
-    return ((x * dy - y * dx) / torch.where(r2 > 0, r2, torch.ones_like(r2))).unsqueeze(-1)
+    return angle_tangent(*conformal(saved[0]), *conformal(dR)).unsqueeze(-1)
 
 
 # one pass over blocks of the batch (the one driver), the backward's planes kept in cache
@@ -251,7 +294,8 @@ def log(R: Float[Tensor, "*b 2 2"]) -> Float[Tensor, "*b 1"]:
     direction ``R hat(d)`` and 0 across.  The log jumps by ``2 pi`` at the half turn; there
     (and only there) the gradient returned is the derivative of the branch that holds ``pi``
     (the limit from the angles below it), which is also the derivative ``1`` of the continuous
-    angle in tangent coordinates.  At the zero matrix it is 0.
+    angle in tangent coordinates.  Right at every finite magnitude of the conformal part
+    (its squares are never formed at their own magnitude); at the zero matrix it is 0.
 
     Example:
         >>> log(-torch.eye(2))
@@ -488,7 +532,10 @@ def complex_to_angle(z: Float[Tensor, "*b 2"]) -> Float[Tensor, "*b 1"]:
         tensor([3.1416])
     """
     x, dtype = _checks.tensor(z, _NAME + "complex_to_angle", "z", (2,))
-    return _checks.out(_LogFn(matrix(x[..., 0], x[..., 1])), dtype)
+    # [[re, 0], [im, 0]]: its conformal part is z itself (no doubling that could overflow)
+    re, im = x[..., 0], x[..., 1]
+    zero = torch.zeros_like(re)
+    return _checks.out(_LogFn(torch.stack((re, zero, im, zero), -1).unflatten(-1, (2, 2))), dtype)
 
 
 # ----------------------------------------------------------------------------------------------

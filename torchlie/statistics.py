@@ -231,6 +231,12 @@ def _wsum(w: Tensor, x: Tensor, k: int) -> Tensor:
     return _sum(w[(...,) + (None,) * k] * x, -1 - k)
 
 
+def _binade(x: Tensor) -> Tensor:
+    """The power of two ``k`` with ``max |x_ij| / k`` in ``[1, 2)`` over the last two dimensions
+    (kept, size 1), detached (:func:`torchlie.so2.power_of_two`)."""
+    return so2.power_of_two(x.detach().abs().amax((-2, -1), keepdim=True))
+
+
 def _sum(x: Tensor, dims: int | tuple[int, ...]) -> Tensor:
     """``x.sum(dims)`` in an order fixed by the numbers summed alone: the summed dimensions
     are moved last and made contiguous first (torch sums in an order that depends on the
@@ -594,7 +600,8 @@ def align(
     ``P`` coincide every scale fits equally too: ``s = 1``, with zero gradient (never NaN); when
     only those of ``Q`` do, ``s = 0``.
     ``weights`` is a tensor of the dtype of ``P`` or numbers (a list, a numpy array), converted
-    to it.
+    to it.  Points of any finite magnitude: each set is scaled by a power of two before the
+    products are formed, and the factors are undone exactly.
 
     Returns:
         :class:`Alignment` ``(rotation (..., 3, 3), translation (..., 3), scale (...))``; its
@@ -628,6 +635,14 @@ def align(
     batch = _checks.batch_broadcast(fn, *shapes)
     if w is None:
         w = torch.full((*batch, n), 1.0 / n, dtype=p.dtype, device=p.device)
+    # The fit is equivariant under scaling either set (R unchanged, s and t scaled): each set is
+    # divided by a power of two from its largest coordinate, exactly, so that the products in H
+    # and the spread neither overflow nor underflow at any finite magnitude; the factors are
+    # undone at the end (exactly too).  They are constants: the result's dependence on them is
+    # exactly cancelled, so its derivatives are those of the unscaled formula.
+    a, b = _binade(p), _binade(q)
+    p, q = p / a, q / b
+    a, b = a[..., 0, 0], b[..., 0, 0]
     if translation:
         # Centred through the first point: points that all coincide centre to exactly 0.
         p0, q0 = p[..., :1, :], q[..., :1, :]
@@ -648,12 +663,15 @@ def align(
         spread = _sum(w * _sum(p * p, -1), -1)
         some = spread > 0
         s = _sum(R * H, (-1, -2)) / torch.where(some, spread, torch.ones_like(spread))
-        s = torch.where(some, s, torch.ones_like(s))
+        s = torch.where(some, s, torch.ones_like(s))  # (of the scaled sets)
+        if translation:  # t = b (q_bar - s R p_bar) of the scaled sets
+            t = (q_bar - s.unsqueeze(-1) * _sum(R * p_bar.unsqueeze(-2), -1)) * b.unsqueeze(-1)
+        s = torch.where(some, s * (b / a), s)
     else:
         s = torch.ones(batch, dtype=p.dtype, device=p.device)
-    if translation:
-        t = q_bar - s.unsqueeze(-1) * _sum(R * p_bar.unsqueeze(-2), -1)
-    else:
+        if translation:
+            t = q_bar * b.unsqueeze(-1) - _sum(R * p_bar.unsqueeze(-2), -1) * a.unsqueeze(-1)
+    if not translation:
         t = torch.zeros((*batch, 3), dtype=p.dtype, device=p.device)
     return Alignment(_checks.out(R, dtype), _checks.out(t, dtype), _checks.out(s, dtype))
 
