@@ -762,6 +762,51 @@ SIM3_SERIES = {
 }
 
 
+#: Per dtype of the evaluation: ``sigma`` above which the Sim(3) coefficients ``B`` and ``C``
+#: are evaluated with ``e^sigma`` factored out (:func:`sim3_v`), far below any overflow and
+#: above every ``sigma`` a float32 scale of moderate size has.
+SIM3_BIG = 64.0
+
+
+def _sim3_v_scaled(
+    sigma: Tensor, t2: Tensor, dtype: torch.dtype, differentiable: bool
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+    """``(A, A', B', C', big)`` with ``V = A I + f (B' hat(phi) + C' hat(phi)^2)``,
+    ``A = f A'`` and ``f = e^sigma`` where ``big`` (``sigma > SIM3_BIG``), ``f = 1`` elsewhere
+    (:func:`sim3_v`)."""
+    r2max, terms = SIM3_SERIES[(dtype, differentiable)]
+    small = sigma * sigma + t2 < r2max
+    # series branch: its own arguments only (zeros where it is not taken)
+    ss = torch.where(small, sigma, 0.0)
+    ts = torch.where(small, t2, 0.0)
+    p = torch.full_like(t2, _E1[terms - 1])
+    q = torch.zeros_like(t2)
+    r = torch.zeros_like(t2)
+    for c in _E1[terms - 2 :: -1]:
+        p, q, r = fma(ss * p, ts, q, value=-1.0) + c, fma(p, ss, q), fma(q, ss, r)
+    # closed forms: safe arguments where the series is taken
+    sl = torch.where(small, 1.0, sigma)
+    tl = torch.where(small, 1.0, t2)
+    big = sigma > SIM3_BIG
+    e = torch.exp(torch.where(big, 0.0, sl))  # exactly 1 where e^sigma is factored out
+    if differentiable:
+        A = expc(sigma)  # accurate at every sigma (its own series)
+        sc, cc = sinc(tl), cosc(tl)
+    else:  # forward-only: one sin and cos of the half angle (as rodrigues_values), expm1
+        h = tl.sqrt().mul_(0.5).clamp_min_(H_MIN[tl.dtype])
+        sh, ch = torch.sin(h), torch.cos(h)
+        sh_h = sh / h
+        sc, cc = sh_h * ch, 0.5 * sh_h * sh_h
+        nz = sigma != 0
+        A = torch.where(nz, torch.expm1(sigma) / torch.where(nz, sigma, 1.0), 1.0)
+    sb = torch.where(big, sl, 1.0)
+    Ah = torch.where(big, -torch.expm1(-sb) / sb, A)  # A e^-sigma = (1 - e^-sigma)/sigma
+    inv = 1.0 / (sl * sl + tl)
+    B = fma(fma(sl * e * sc, e * tl, cc), sl, Ah, value=-1.0) * inv
+    C = fma(fma(Ah, sl * e, cc), e, sc, value=-1.0) * inv
+    return A, Ah, torch.where(small, q, B), torch.where(small, r, C), big
+
+
 def sim3_v(
     sigma: Tensor, t2: Tensor, dtype: torch.dtype = torch.float64, differentiable: bool = True
 ) -> tuple[Tensor, Tensor, Tensor]:
@@ -778,40 +823,14 @@ def sim3_v(
     with ``differentiable=False``) they are the series of ``E1`` in ``z``,
     evaluated by Horner's rule on ``p + i theta q = E1(z)`` and ``r = (E1(sigma) - p)/t2``
     (real polynomials in ``sigma`` and ``t2``: ``B = q``, ``C = r``, ``A = p + t2 r``); double
-    where, so neither branch produces Inf/NaN in forward or backward.
+    where, so neither branch produces Inf/NaN in forward or backward.  Above
+    :data:`SIM3_BIG` the numerators are evaluated with ``e^sigma`` factored out (``A e^-sigma
+    = (1 - e^-sigma)/sigma``) and multiplied by it at the end, so that no product overflows
+    before the coefficient does.
     """
-    r2max, terms = SIM3_SERIES[(dtype, differentiable)]
-    small = sigma * sigma + t2 < r2max
-    # series branch: its own arguments only (zeros where it is not taken)
-    ss = torch.where(small, sigma, 0.0)
-    ts = torch.where(small, t2, 0.0)
-    p = torch.full_like(t2, _E1[terms - 1])
-    q = torch.zeros_like(t2)
-    r = torch.zeros_like(t2)
-    for c in _E1[terms - 2 :: -1]:
-        p, q, r = fma(ss * p, ts, q, value=-1.0) + c, fma(p, ss, q), fma(q, ss, r)
-    # closed forms: safe arguments where the series is taken
-    sl = torch.where(small, 1.0, sigma)
-    tl = torch.where(small, 1.0, t2)
-    e = torch.exp(sl)
-    if differentiable:
-        A = expc(sigma)  # accurate at every sigma (its own series)
-        sc, cc = sinc(tl), cosc(tl)
-    else:  # forward-only: one sin and cos of the half angle (as rodrigues_values), expm1
-        h = tl.sqrt().mul_(0.5).clamp_min_(H_MIN[tl.dtype])
-        sh, ch = torch.sin(h), torch.cos(h)
-        sh_h = sh / h
-        sc, cc = sh_h * ch, 0.5 * sh_h * sh_h
-        nz = sigma != 0
-        A = torch.where(nz, torch.expm1(sigma) / torch.where(nz, sigma, 1.0), 1.0)
-    inv = 1.0 / (sl * sl + tl)
-    B = fma(fma(sl * e * sc, e * tl, cc), sl, A, value=-1.0) * inv
-    C = fma(fma(A, sl * e, cc), e, sc, value=-1.0) * inv
-    return (
-        A,
-        torch.where(small, q, B),
-        torch.where(small, r, C),
-    )
+    A, _, B, C, big = _sim3_v_scaled(sigma, t2, dtype, differentiable)
+    f = torch.exp(torch.where(big, sigma, 0.0))
+    return A, B * f, C * f
 
 
 def sim3_v_inv(
@@ -822,11 +841,15 @@ def sim3_v_inv(
         a = 1/A,  b = -B/det,  c = (B^2 - C D)/(A det),  D = A - t2 C,  det = D^2 + t2 B^2
 
     (``D + i theta B = E1(z)``, so ``det = |E1(z)|^2 > 0`` for ``theta < 2 pi``); no
-    cancellation beyond a factor 3 in ``B^2 - C D`` near 0."""
-    A, B, C = sim3_v(sigma, t2, dtype, differentiable)
-    D = A - t2 * C
+    cancellation beyond a factor 3 in ``B^2 - C D`` near 0.  Above :data:`SIM3_BIG` from the
+    coefficients with ``e^sigma`` factored out (``det`` and ``A det`` would overflow long before
+    ``b`` and ``c ~ e^-sigma`` underflow), multiplied by ``e^-sigma`` as two factors
+    ``e^-sigma/2`` (the one factor is subnormal near the top of the float64 range)."""
+    A, Ah, B, C, big = _sim3_v_scaled(sigma, t2, dtype, differentiable)
+    D = Ah - t2 * C
     det = D * D + t2 * B * B
-    return 1.0 / A, -B / det, (B * B - C * D) / (A * det)
+    h = torch.exp(torch.where(big, -0.5 * sigma, 0.0))
+    return 1.0 / A, -B * h / det * h, (B * B - C * D) * h / (Ah * det) * h
 
 
 #: E1'(sigma) = sum_n (n + 1) sigma^n/(n + 2)!: the series below |sigma| = 1/2.

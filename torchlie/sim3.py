@@ -90,17 +90,27 @@ def _log_scale2(M: Tensor) -> Tensor:
     """``2 sigma = log(|M|_F^2 / 3)`` of the linear block ``M = s R``: near ``s = 1`` as
     ``log1p`` of ``(sum (M_ii - 1)(M_ii + 1) + sum_(i != j) M_ij^2) / 3`` (exact at the
     identity, where ``|M|^2 - 3`` cancels), elsewhere as ``log`` of the sum of squares (double
-    where: no branch sees an argument out of its range).  Entry by entry (planes)."""
+    where: no branch sees an argument out of its range).  Entry by entry (planes).
+
+    Where the largest ``|M_ij|`` lies outside the range whose squares are normal and finite
+    (that of :func:`torchlie._coeffs.rescaled`), the squares are those of ``M / k`` with ``k`` a
+    power of two near it (an exact division; ``k`` detached) and ``2 log(k)`` is added back:
+    every finite scale has its log.  Elsewhere ``k = 1``, the same values as without it."""
     e = M.flatten(-2).unbind(-1)
+    m = _coeffs.largest(e)
+    lo, hi = _coeffs._PLAIN[m.dtype]
+    out = ((m < lo) & (m > 0.0)) | ((m > hi) & (m < float("inf")))
+    k = torch.where(out, torch.exp2(torch.floor(torch.log2(torch.where(out, m, 1.0)))), 1.0)
+    e = [x / k for x in e]
     d, off = (e[0], e[4], e[8]), (e[1], e[2], e[3], e[5], e[6], e[7])
     o2 = _coeffs.dot(off, off)
     sq = o2 + _coeffs.dot(d, d)
     x = (_coeffs.dot([v - 1.0 for v in d], [v + 1.0 for v in d]) + o2) / 3.0
-    near = x.abs() < 0.5
+    near = (x.abs() < 0.5) & ~out
     return torch.where(
         near,
         torch.log1p(torch.where(near, x, 0.0)),
-        torch.log(torch.where(near, 1.0, sq / 3.0)),
+        torch.log(torch.where(near, 1.0, sq / 3.0)) + 2.0 * torch.log(k),
     )
 
 
@@ -142,8 +152,10 @@ _exp_blocked = blocked(_exp, (1,))
 
 
 def _inverse(T: Tensor) -> Tensor:
-    """``[[M^-1, -M^-1 t], [0, 1]]`` with ``M^-1 = M^T / s^2``."""
-    Mi = _lin(T).transpose(-1, -2) * torch.exp(-_log_scale2(_lin(T)))[..., None, None]
+    """``[[M^-1, -M^-1 t], [0, 1]]`` with ``M^-1 = (M^T / s) / s`` (``s^2`` may not be
+    representable where ``s`` is)."""
+    r = torch.exp(-0.5 * _log_scale2(_lin(T)))[..., None, None]
+    Mi = _lin(T).transpose(-1, -2) * r * r
     return _components.homogeneous(Mi, -_components.mv(Mi, _trans(T)))
 
 
@@ -290,7 +302,8 @@ def _log_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:
     diff = torch.is_grad_enabled()
     h_phi = _rodrigues.jl_apply(phi, g[..., 3:6] - j_phi, inverse=True, differentiable=diff)
     h_sigma = g[..., 6] - j_sigma
-    Mt = _lin(T) * torch.exp(-2.0 * sigma)[..., None, None]
+    r = torch.exp(-sigma)[..., None, None]
+    Mt = _lin(T) * r * r
     eye = torch.eye(3, dtype=T.dtype, device=T.device)
     inner = 0.5 * _components.hat(h_phi) + (h_sigma / 3.0)[..., None, None] * eye
     top = torch.cat((Mt @ inner, u.unsqueeze(-1)), dim=-1)
@@ -302,7 +315,8 @@ def _log_jvp(saved: tuple[Tensor, ...], dT: Tensor) -> Tensor:
     # dsigma = d_sigma, dphi = so3 Jr(phi)^-1 d_phi, drho = V^-1 (dt - J (dphi, dsigma)).
     T, xi = saved
     rho, phi, sigma = xi[..., :3], xi[..., 3:6], xi[..., 6]
-    Mi = _lin(T).transpose(-1, -2) * torch.exp(-2.0 * sigma)[..., None, None]
+    r = torch.exp(-sigma)[..., None, None]
+    Mi = _lin(T).transpose(-1, -2) * r * r
     X = Mi @ _lin(dT)
     d_sigma = X.diagonal(dim1=-2, dim2=-1).sum(-1) / 3.0
     d_phi = _rodrigues.jl_apply(phi, _components.vee(X), sign=-1.0, inverse=True)
@@ -714,8 +728,9 @@ def distance(
     """
     a, b, dtype, batch = _checks.pair(_NAME + "distance", T1, T2, "T1", "T2", (4, 4), (4, 4))
     la, lb = _log_scale2(_lin(a)), _log_scale2(_lin(b))
-    k = torch.exp(-0.5 * (la + lb))[..., None, None]
-    angle = _rotation_matrix.angle(_lin(a).transpose(-1, -2) @ _lin(b) * k)
+    Ra = _lin(a) * torch.exp(-0.5 * la)[..., None, None]
+    Rb = _lin(b) * torch.exp(-0.5 * lb)[..., None, None]
+    angle = _rotation_matrix.angle(Ra.transpose(-1, -2) @ Rb)
     trans = _coeffs.norm(_trans(b) - _trans(a)).expand(batch)
     ds = 0.5 * (lb - la)
     ds = _coeffs.norm(ds.unsqueeze(-1)).expand(batch)
