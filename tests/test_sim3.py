@@ -992,3 +992,21 @@ def test_log_and_inverse_jacobians_at_large_sigma():
                                    atol=1e-13)  # fmt: skip
         torch.testing.assert_close(sim3.rminus(sim3.exp(xi), sim3.identity(dtype=F64)), xi,
                                    rtol=1e-14, atol=1e-14)  # fmt: skip
+
+
+def test_chordal_loss_of_far_apart_scales():
+    """``log(s_pred / s_target)`` as a difference of logs: the ratio of two finite scales may
+    overflow (1e19 / 1e-20 in float32; 8064.19 = (log 1e39)^2)."""
+    from torchlie import nn as tnn
+
+    eye = torch.eye(3)
+    A = sim3.from_srt(torch.tensor(1e19), eye, torch.zeros(3))
+    B = sim3.from_srt(torch.tensor(1e-20), eye, torch.zeros(3))
+    X = A.clone().requires_grad_(True)
+    loss = tnn.sim3_geodesic_loss(X, B, kind="chordal", rotation_weight=0.0,
+                                  translation_weight=0.0)  # fmt: skip
+    assert float(loss.detach()) == pytest.approx(math.log(1e39) ** 2, rel=1e-6)
+    loss.backward()
+    # d/dM of (log s_A - log s_B)^2 = 2 log(1e39) M / (3 s_A^2) on the diagonal
+    want = 2 * math.log(1e39) / (3 * 1e19)
+    torch.testing.assert_close(X.grad[:3, :3], want * eye, rtol=1e-5, atol=0)
