@@ -26,7 +26,7 @@ import torch
 from torch import Tensor
 
 from . import _checks, _coeffs, _components, _layout, _rodrigues, _rotation_matrix, so3
-from ._autograd import CustomFunction, blocked, needs_graph, transforms_active
+from ._autograd import CustomFunction, blocked, fma, needs_graph, transforms_active
 from ._typing import Bool, Float
 
 __all__ = [
@@ -134,12 +134,32 @@ def _coefficients(
     return tuple(x.to(sigma.dtype) for x in out)  # type: ignore[return-value]
 
 
+def _huge(phi: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """``(phi', lam, big, u)``: the rotation vectors reduced where their angle is beyond the
+    range of the formulas (:func:`torchlie._coeffs.reduction`; ``phi`` itself elsewhere, with
+    derivative ``lam I + (1 - lam) u u^T`` there), and the unit axis ``u`` where ``big``, 0
+    elsewhere (so that the limit terms built from it are finite everywhere).
+
+    ``V = A I + B hat(phi) + C hat(phi)^2`` tends to ``A u u^T`` as the angle grows (``B theta``
+    and ``A - C theta^2`` are the parts of ``E1(sigma + i theta)``, of order ``A / theta``), so
+    where the angle is known only to more than ``2 pi``, ``V(phi) = lam V(phi') + (1 - lam) A u
+    u^T`` to rounding, as so3's ``Jl`` (``V`` at ``sigma = 0``)."""
+    x = phi.unbind(-1)
+    f = _coeffs.reduction_planes(x)
+    lam, big, u = f
+    red = torch.stack(_coeffs.reduced_planes(x, f), dim=-1)
+    return red, lam, big, torch.stack([torch.where(big, c, 0.0) for c in u], dim=-1)
+
+
 def _exp(xi: Tensor) -> Tensor:
     rho, phi, sigma = xi[..., :3], xi[..., 3:6], xi[..., 6]
     # forward-only coefficients where nothing can differentiate them
     diff = torch.compiler.is_compiling() or transforms_active() or needs_graph((xi,))
-    A, B, C = _coefficients(_coeffs.sim3_v, sigma, phi, diff)
-    t = _poly_planes(A, B, C, phi, rho)
+    red, lam, big, u = _huge(phi)
+    A, B, C = _coefficients(_coeffs.sim3_v, sigma, red, diff)
+    t = _poly_planes(A, B, C, red, rho)
+    k = (1.0 - lam) * A * _coeffs.dot(u.unbind(-1), rho.unbind(-1))  # 0 where not big
+    t = [torch.where(big, fma(c * lam, k, uc), c) for c, uc in zip(t, u.unbind(-1), strict=True)]
     s = torch.exp(sigma)
     R = so3._ExpMapFn(phi).flatten(-2).unbind(-1)
     zero, one = torch.zeros_like(s), torch.ones_like(s)
@@ -223,16 +243,16 @@ def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
     C P^2``, ``P = hat(phi)``, so ``d(V rho)/dphi = -B hat(rho) - C (hat(phi x rho) +
     P hat(rho)) + 2 (B_t (phi x rho) + C_t (phi x (phi x rho))) phi^T`` and ``d(V rho)/dsigma -
     t = (A_s - A) rho + (B_s - B) (phi x rho) + (C_s - C) (phi x (phi x rho))``: coefficients
-    of :func:`torchlie._coeffs.sim3_v_partials` (in float64 for float32 input).  The inverse is
+    of :func:`torchlie._coeffs.sim3_v_partials` (all in float64 for float32 input).  The inverse is
     block triangular: ``[[V^-1, -V^-1 Q Jl(phi)^-1, -V^-1 W], [0, Jl(phi)^-1, 0], [0, 0, 1]]``.
     """
+    dtype = xi.dtype  # evaluated in float64 for float32: the products of up to three
+    xi = _wide(xi)  # components of phi overflow float32 below the angle reduction's range
     rho, phi, sigma = xi[..., :3], xi[..., 3:6], xi[..., 6]
-    w = _wide(sigma)
-    A, B, C, As, Bs, Cs, Bt, Ct = _coeffs.sim3_v_partials(w, _coeffs.theta2(_wide(phi)), w.dtype)
-    # differences in the wide dtype (they cancel at large sigma)
-    A, B, C, Aw, Bw, Cw, Bt, Ct = (
-        x.to(xi.dtype) for x in (A, B, C, As - A, Bs - B, Cs - C, Bt, Ct)
-    )
+    if not inverse:  # the inverse is meant for angles below 2 pi
+        phi, lam, big, u = _huge(phi)
+    A, B, C, As, Bs, Cs, Bt, Ct = _coeffs.sim3_v_partials(sigma, _coeffs.theta2(phi), xi.dtype)
+    Aw, Bw, Cw = As - A, Bs - B, Cs - C
     P, R = _components.hat(phi), _components.hat(rho)
     pr = torch.linalg.cross(phi, rho)
     ppr = torch.linalg.cross(phi, pr)
@@ -246,11 +266,22 @@ def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
     if not inverse:
         Jp = _rodrigues.jac_matrix(phi, "left")
         Q = dphi + _components.mm(_components.hat(t), Jp)
-        return _rows(
+        J = _rows(
             (_mat(A, B, C, P), Q, W.unsqueeze(-1)),
             (torch.zeros_like(P), Jp, z31),
             (z13, z13, one),
         )
+        # beyond the formulas' angles: lam Jl(xi') + (1 - lam) times the limit of Jl, whose
+        # blocks are V -> A u u^T, so3's Jl -> u u^T, W -> (A_s - A) u (u . rho), Q -> 0
+        uu = u.unsqueeze(-1) * u.unsqueeze(-2)
+        ur = (Aw * _coeffs.dot(u.unbind(-1), rho.unbind(-1)))[..., None] * u
+        L = _rows(
+            (A[..., None, None] * uu, torch.zeros_like(P), ur.unsqueeze(-1)),
+            (torch.zeros_like(P), uu, z31),
+            (z13, z13, one),
+        )
+        lam = lam[..., None, None]
+        return torch.where(big[..., None, None], lam * J + (1.0 - lam) * L, J).to(dtype)
     Jpi = _rodrigues.jac_matrix(phi, "left_inv")
     a, b, c = _coefficients(_coeffs.sim3_v_inv, sigma, phi)
     Vi = _mat(a, b, c, P)
@@ -259,7 +290,7 @@ def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
         (Vi, Qi, -_components.mv(Vi, W).unsqueeze(-1)),
         (torch.zeros_like(P), Jpi, z31),
         (z13, z13, one),
-    )
+    ).to(dtype)
 
 
 # ----------------------------------------------------------------------------------------------
