@@ -867,7 +867,7 @@ def test_sim3_parametrization(rep):
 #: Log scales near both ends of each dtype's range (e^sigma finite, e^(2 sigma) not, or subnormal).
 EXTREME_SIGMAS = {
     torch.float32: [-87.0, -60.0, -45.0, 44.0, 50.0, 80.0, 88.0],
-    torch.float64: [-708.0, -400.0, -360.0, 250.0, 354.0, 400.0, 700.0, 709.0],
+    torch.float64: [-708.0, -400.0, -360.0, 250.0, 354.0, 400.0, 700.0, 703.0],
 }
 
 
@@ -921,6 +921,15 @@ def test_every_finite_scale_is_read(dtype):
         assert (loss.abs() <= 1e3 * eps).all(), kind
     mean = statistics.sim3_mean(T[:, None].expand(n, 3, 4, 4))
     torch.testing.assert_close(sim3.log(mean)[:, 3:], xi[:, 3:], rtol=4 * eps, atol=16 * eps)
+    # the top of the range (exp's translation overflows its intermediates from sigma ~ 703)
+    top = math.log(torch.finfo(dtype).max) - 0.1
+    R = so3.exp(torch.tensor([0.3, -0.2, 0.4], dtype=dtype))
+    T = sim3.from_srt(torch.tensor(math.exp(top), dtype=dtype), R, torch.ones(3, dtype=dtype))
+    L = sim3.log(T)
+    assert torch.isfinite(L).all()
+    torch.testing.assert_close(L[6], torch.tensor(top, dtype=dtype), rtol=4 * eps, atol=0)
+    torch.testing.assert_close(L[3:6], R.new_tensor([0.3, -0.2, 0.4]), rtol=0, atol=16 * eps)
+    torch.testing.assert_close(sim3.to_srt(T)[1], R, rtol=0, atol=16 * eps)
 
 
 def _mp_e1_parts(s, t2) -> tuple:

@@ -762,18 +762,18 @@ SIM3_SERIES = {
 }
 
 
-#: Per dtype of the evaluation: ``sigma`` above which the Sim(3) coefficients ``B`` and ``C``
-#: are evaluated with ``e^sigma`` factored out (:func:`sim3_v`), far below any overflow and
-#: above every ``sigma`` a float32 scale of moderate size has.
+#: ``sigma`` above which :func:`sim3_v_inv` takes ``V``'s coefficients with ``e^sigma``
+#: factored out: far below any overflow, above the log scales of moderate size, and where
+#: ``A e^-sigma = (1 - e^-sigma)/sigma`` is ``1/sigma`` to float64's rounding.
 SIM3_BIG = 64.0
 
 
 def _sim3_v_scaled(
-    sigma: Tensor, t2: Tensor, dtype: torch.dtype, differentiable: bool
-) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+    sigma: Tensor, t2: Tensor, dtype: torch.dtype, differentiable: bool, scaled: bool = True
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor | None]:
     """``(A, A', B', C', big)`` with ``V = A I + f (B' hat(phi) + C' hat(phi)^2)``,
-    ``A = f A'`` and ``f = e^sigma`` where ``big`` (``sigma > SIM3_BIG``), ``f = 1`` elsewhere
-    (:func:`sim3_v`)."""
+    ``A = f A'`` and ``f = e^sigma`` where ``big`` (``sigma > SIM3_BIG``), ``f = 1`` elsewhere;
+    ``scaled=False``: ``f = 1`` everywhere (``big`` None)."""
     r2max, terms = SIM3_SERIES[(dtype, differentiable)]
     small = sigma * sigma + t2 < r2max
     # series branch: its own arguments only (zeros where it is not taken)
@@ -787,8 +787,8 @@ def _sim3_v_scaled(
     # closed forms: safe arguments where the series is taken
     sl = torch.where(small, 1.0, sigma)
     tl = torch.where(small, 1.0, t2)
-    big = sigma > SIM3_BIG
-    e = torch.exp(torch.where(big, 0.0, sl))  # exactly 1 where e^sigma is factored out
+    big = sigma > SIM3_BIG if scaled else None
+    e = torch.exp(sl if big is None else torch.where(big, 0.0, sl))  # 1 where factored out
     if differentiable:
         A = expc(sigma)  # accurate at every sigma (its own series)
         sc, cc = sinc(tl), cosc(tl)
@@ -799,8 +799,10 @@ def _sim3_v_scaled(
         sc, cc = sh_h * ch, 0.5 * sh_h * sh_h
         nz = sigma != 0
         A = torch.where(nz, torch.expm1(sigma) / torch.where(nz, sigma, 1.0), 1.0)
-    sb = torch.where(big, sl, 1.0)
-    Ah = torch.where(big, -torch.expm1(-sb) / sb, A)  # A e^-sigma = (1 - e^-sigma)/sigma
+    Ah = A
+    if big is not None:
+        # A e^-sigma = (1 - e^-sigma)/sigma: 1/sigma to float64's rounding above SIM3_BIG
+        Ah = torch.where(big, 1.0 / torch.where(big, sl, 1.0), A)
     inv = 1.0 / (sl * sl + tl)
     B = fma(fma(sl * e * sc, e * tl, cc), sl, Ah, value=-1.0) * inv
     C = fma(fma(Ah, sl * e, cc), e, sc, value=-1.0) * inv
@@ -823,14 +825,21 @@ def sim3_v(
     with ``differentiable=False``) they are the series of ``E1`` in ``z``,
     evaluated by Horner's rule on ``p + i theta q = E1(z)`` and ``r = (E1(sigma) - p)/t2``
     (real polynomials in ``sigma`` and ``t2``: ``B = q``, ``C = r``, ``A = p + t2 r``); double
-    where, so neither branch produces Inf/NaN in forward or backward.  Above
-    :data:`SIM3_BIG` the numerators are evaluated with ``e^sigma`` factored out (``A e^-sigma
-    = (1 - e^-sigma)/sigma``) and multiplied by it at the end, so that no product overflows
-    before the coefficient does.
+    where, so neither branch produces Inf/NaN in forward or backward.
     """
-    A, _, B, C, big = _sim3_v_scaled(sigma, t2, dtype, differentiable)
-    f = torch.exp(torch.where(big, sigma, 0.0))
-    return A, B * f, C * f
+    A, _, B, C, _ = _sim3_v_scaled(sigma, t2, dtype, differentiable, scaled=False)
+    return A, B, C
+
+
+def sim3_reduced(w: Sequence[Tensor]) -> tuple[list[Tensor], Tensor, Tensor]:
+    """``(w', lam, big)``: the planes of :func:`reduced` of the rotation vectors ``w`` (with its
+    derivative under autograd) and the ``lam`` and ``big`` of :func:`reduction`, without the
+    unit axis (Sim(3)'s exponential builds its limit term from ``w'``)."""
+    if torch.is_grad_enabled() and any(x.requires_grad for x in w):
+        f = reduction_planes(w)
+        return reduce_planes(f, w, [x - x.detach() for x in w]), f[0], f[1]
+    lam, big, _ = _lam(w)
+    return [x * lam for x in w], lam, big
 
 
 def sim3_v_inv(
@@ -848,7 +857,7 @@ def sim3_v_inv(
     A, Ah, B, C, big = _sim3_v_scaled(sigma, t2, dtype, differentiable)
     D = Ah - t2 * C
     det = D * D + t2 * B * B
-    h = torch.exp(torch.where(big, -0.5 * sigma, 0.0))
+    h = torch.exp(torch.where(big, -0.5 * sigma, 0.0))  # type: ignore[arg-type]
     return 1.0 / A, -B * h / det * h, (B * B - C * D) * h / (Ah * det) * h
 
 

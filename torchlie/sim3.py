@@ -97,7 +97,8 @@ def _log_scale2(M: Tensor) -> Tensor:
     power of two near it (an exact division; ``k`` detached) and ``2 log(k)`` is added back:
     every finite scale has its log.  Elsewhere ``k = 1``, the same values as without it."""
     e = M.flatten(-2).unbind(-1)
-    m = _coeffs.largest(e)
+    # the largest |M_ij| (a max is exact: the same in any order); planes while compiling
+    m = _coeffs.largest(e) if torch.compiler.is_compiling() else M.detach().abs().amax((-2, -1))
     lo, hi = _coeffs._PLAIN[m.dtype]
     out = ((m < lo) & (m > 0.0)) | ((m > hi) & (m < float("inf")))
     k = torch.where(out, torch.exp2(torch.floor(torch.log2(torch.where(out, m, 1.0)))), 1.0)
@@ -155,11 +156,16 @@ def _exp(xi: Tensor) -> Tensor:
     rho, phi, sigma = xi[..., :3], xi[..., 3:6], xi[..., 6]
     # forward-only coefficients where nothing can differentiate them
     diff = torch.compiler.is_compiling() or transforms_active() or needs_graph((xi,))
-    red, lam, big, u = _huge(phi)
+    # angles beyond the formulas' range reduced, V(phi) = lam V(phi') + (1 - lam) A u u^T
+    # there (see _huge), with u u^T = phi' phi'^T / |phi'|^2
+    red, lam, big = _coeffs.sim3_reduced(phi.unbind(-1))
     A, B, C = _coefficients(_coeffs.sim3_v, sigma, red, diff)
-    t = _poly_planes(A, B, C, red, rho)
-    k = (1.0 - lam) * A * _coeffs.dot(u.unbind(-1), rho.unbind(-1))  # 0 where not big
-    t = [torch.where(big, fma(c * lam, k, uc), c) for c, uc in zip(t, u.unbind(-1), strict=True)]
+    t2 = _coeffs.dot(red, red)
+    v = rho.unbind(-1)
+    t = _rodrigues.jl_components(red, v, A - C * t2, B, C)
+    k = (1.0 - lam) * A * _coeffs.dot(red, v) / torch.where(big, t2, 1.0)
+    k = torch.where(big, k, 0.0)
+    t = [torch.where(big, fma(c * lam, k, r), c) for c, r in zip(t, red, strict=True)]
     s = torch.exp(sigma)
     R = so3._ExpMapFn(phi).flatten(-2).unbind(-1)
     zero, one = torch.zeros_like(s), torch.ones_like(s)
