@@ -936,3 +936,31 @@ def sim3_v_partials(
         w(small, qt, Bt),
         w(small, rt, Ct),
     )
+
+
+#: ``sigma`` above which :func:`sim3_w` takes the closed forms of ``E2``: the differences
+#: ``A_s - A`` ... cancel there (``log2(sigma)`` bits), the closed forms do not.
+SIM3_W_SIGMA = 4.0
+
+
+def sim3_w(sigma: Tensor, t2: Tensor, parts: tuple[Tensor, ...]) -> tuple[Tensor, Tensor, Tensor]:
+    """``(A_s - A, B_s - B, C_s - C)`` from the output ``parts`` of :func:`sim3_v_partials`:
+    the coefficients of ``d(V rho)/dsigma - V rho`` in the Sim(3) Jacobian.
+
+    They are ``-(A2, B2, C2)`` of ``E2(z) = (E1(z) - 1)/z`` (``E1' - E1 = -E2``)::
+
+        A2 = (A - 1)/sigma,  B2 = (sigma B - (D - 1))/(sigma^2 + t2),
+        C2 = (A2 + sigma C - B)/(sigma^2 + t2),  D = A - t2 C
+
+    taken above :data:`SIM3_W_SIGMA`, where the plain differences lose ``log2(sigma)`` bits
+    (``A_s`` and ``A`` agree to ``1/sigma``); below it the differences, which do not cancel
+    there (double where)."""
+    A, B, C, As, Bs, Cs = parts[:6]
+    big = sigma > SIM3_W_SIGMA
+    sb = torch.where(big, sigma, SIM3_W_SIGMA + 1.0)
+    inv = 1.0 / (sb * sb + t2)
+    A2 = (A - 1.0) / sb
+    B2 = (sb * B - (A - t2 * C - 1.0)) * inv
+    C2 = (A2 + sb * C - B) * inv
+    w = torch.where
+    return w(big, -A2, As - A), w(big, -B2, Bs - B), w(big, -C2, Cs - C)

@@ -249,7 +249,8 @@ def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
     C P^2``, ``P = hat(phi)``, so ``d(V rho)/dphi = -B hat(rho) - C (hat(phi x rho) +
     P hat(rho)) + 2 (B_t (phi x rho) + C_t (phi x (phi x rho))) phi^T`` and ``d(V rho)/dsigma -
     t = (A_s - A) rho + (B_s - B) (phi x rho) + (C_s - C) (phi x (phi x rho))``: coefficients
-    of :func:`torchlie._coeffs.sim3_v_partials` (all in float64 for float32 input).  The inverse is
+    of :func:`torchlie._coeffs.sim3_v_partials` and :func:`torchlie._coeffs.sim3_w` (all in
+    float64 for float32 input).  The inverse is
     block triangular: ``[[V^-1, -V^-1 Q Jl(phi)^-1, -V^-1 W], [0, Jl(phi)^-1, 0], [0, 0, 1]]``.
     """
     dtype = xi.dtype  # evaluated in float64 for float32: the products of up to three
@@ -257,8 +258,10 @@ def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
     rho, phi, sigma = xi[..., :3], xi[..., 3:6], xi[..., 6]
     if not inverse:  # the inverse is meant for angles below 2 pi
         phi, lam, big, u = _huge(phi)
-    A, B, C, As, Bs, Cs, Bt, Ct = _coeffs.sim3_v_partials(sigma, _coeffs.theta2(phi), xi.dtype)
-    Aw, Bw, Cw = As - A, Bs - B, Cs - C
+    t2 = _coeffs.theta2(phi)
+    parts = _coeffs.sim3_v_partials(sigma, t2, xi.dtype)
+    A, B, C, _, _, _, Bt, Ct = parts
+    Aw, Bw, Cw = _coeffs.sim3_w(sigma, t2, parts)
     P, R = _components.hat(phi), _components.hat(rho)
     pr = torch.linalg.cross(phi, rho)
     ppr = torch.linalg.cross(phi, pr)
