@@ -20,7 +20,7 @@ import math
 import pytest
 import torch
 
-from torchlie import _coeffs, conversions, nn, quaternion, se3, so3, statistics
+from torchlie import _coeffs, conversions, nn, quaternion, se3, sim3, so3, statistics
 
 DTYPES = [torch.float32, torch.float64]
 
@@ -283,6 +283,66 @@ def test_se3_jacobian_q_is_linear_in_rho(dtype):
     )
 
 
+def _sim3_tangents(dtype: torch.dtype, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(s, xi)``: the sweep of rotation vectors with random ``rho`` and log scales alternating
+    between 0 (where Sim(3) is SE(3)), 0.7 and -1.3."""
+    s, phi = _sweep(3, dtype)
+    g = torch.Generator().manual_seed(seed)
+    rho = torch.randn(phi.shape, generator=g, dtype=dtype)
+    sigma = torch.tensor([0.0, 0.7, -1.3], dtype=dtype).repeat(len(s) // 3 + 1)[: len(s)]
+    return s, torch.cat((rho, phi, sigma[:, None]), -1)
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+def test_sim3_exp_at_every_angle(dtype):
+    """``M / s`` is the rotation of ``phi`` and ``t = V rho`` tends to ``A (u . rho) u`` (``A =
+    (e^sigma - 1)/sigma``) with an error of order ``A |rho| / |phi|``; at ``sigma = 0`` the
+    translation is se3's."""
+    s, xi = _sim3_tangents(dtype, 7)
+    T = sim3.exp(xi)
+    assert torch.isfinite(T).all()
+    u = _unit_of(xi[:, 3:6])
+    sig = xi[:, 6].double()
+    _assert_rotation(T[:, :3, :3] / torch.exp(xi[:, 6])[:, None, None], u, dtype)
+    A = torch.where(sig == 0, 1.0, torch.expm1(sig) / torch.where(sig == 0, 1.0, sig))
+    t, rho = T[:, :3, 3].double(), xi[:, :3].double()
+    along = (t * u).sum(-1)
+    torch.testing.assert_close(along, A * (rho * u).sum(-1), rtol=0, atol=_tol(dtype) * 8)
+    across = (t - along[:, None] * u).norm(dim=-1)
+    assert (across <= 2.0 * A * rho.norm(dim=-1) / s.double().clamp_max(2.0) + 1e-6).all()
+    zero = sig == 0
+    T3 = se3.exp(xi[zero, :6])
+    torch.testing.assert_close(T[zero, :3, 3], T3[:, :3, 3], rtol=0, atol=_tol(dtype) * 4)
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+def test_sim3_jacobians_at_every_angle(dtype):
+    """Finite at every magnitude of ``phi``; the rotation block is so3's ``Jl(phi)``, ``Jr`` is
+    ``Jl(-xi)``, at ``sigma = 0`` the (rho, phi) block is se3's, and as ``|phi| -> inf`` the
+    blocks tend to ``V -> A u u^T``, ``Q -> 0``, ``W -> (A_s - A) (u . rho) u``."""
+    s, xi = _sim3_tangents(dtype, 8)
+    J = sim3.jac_left(xi)
+    assert torch.isfinite(J).all()
+    assert torch.equal(sim3.jac_right(xi), sim3.jac_left(-xi))
+    tol = _tol(dtype)
+    torch.testing.assert_close(J[:, 3:6, 3:6], so3.jac_left(xi[:, 3:6]), rtol=0, atol=tol)
+    zero = xi[:, 6] == 0
+    torch.testing.assert_close(J[zero, :6, :6], se3.jac_left(xi[zero, :6]), rtol=0, atol=tol * 4)
+    u, sig, rho = _unit_of(xi[:, 3:6]), xi[:, 6].double(), xi[:, :3].double()
+    nz = torch.where(sig == 0, 1.0, sig)
+    A = torch.where(sig == 0, 1.0, torch.expm1(sig) / nz)
+    As = torch.where(sig == 0, 0.5, (torch.exp(sig) * (sig - 1.0) + 1.0) / (nz * nz))
+    uu = u.unsqueeze(-1) * u.unsqueeze(-2)
+    big = s.double() > 1e8
+    Jd = J.double()[big]
+    size = 1.0 + rho[big].norm(dim=-1)
+    near = 1e-7 + tol
+    assert ((Jd[:, :3, :3] - A[big, None, None] * uu[big]).abs().amax((-1, -2)) <= near).all()
+    assert (Jd[:, :3, 3:6].abs().amax((-1, -2)) <= near * size).all()
+    W = ((As - A) * (rho * u).sum(-1))[:, None] * u
+    assert ((Jd[:, :3, 6] - W[big]).abs().amax(-1) <= near * size).all()
+
+
 @pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
 def test_gradients_are_finite(dtype):
     s, w = _sweep(3, dtype)
@@ -298,6 +358,9 @@ def test_gradients_are_finite(dtype):
         (se3.exp, xi),
         (se3.jac_left, xi),
         (se3.jac_right, xi),
+        (sim3.exp, torch.cat((xi, torch.full_like(xi[:, :1], 0.7)), -1)),
+        (sim3.jac_left, torch.cat((xi, torch.full_like(xi[:, :1], -1.3)), -1)),
+        (sim3.jac_right, torch.cat((xi, torch.full_like(xi[:, :1], 0.7)), -1)),
         # d (v / |v|) / dv ~ 1 / |v|: representable from |v| ~ 1 / max
         (lambda v: conversions.axis_angle_to_matrix(v, 1.0), w[s > 64 / torch.finfo(dtype).max]),
     ]

@@ -858,3 +858,201 @@ def test_sim3_parametrization(rep):
     assert float(tnn.sim3_geodesic_loss(holder.T, target, kind="chordal").detach()) < 0.5 * first
     with pytest.raises(ValueError, match=r"torchlie\.nn\.Sim3Parametrization"):
         tnn.Sim3Parametrization("matrix")
+
+
+# ----------------------------------------------------------------------------------------------
+# Every finite scale: no square of the scale, no product of e^sigma factors, overflows
+# ----------------------------------------------------------------------------------------------
+
+#: Log scales near both ends of each dtype's range (e^sigma finite, e^(2 sigma) not, or subnormal).
+EXTREME_SIGMAS = {
+    torch.float32: [-87.0, -60.0, -45.0, 44.0, 50.0, 80.0, 88.0],
+    torch.float64: [-708.0, -400.0, -360.0, 250.0, 354.0, 400.0, 700.0, 703.0],
+}
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64], ids=["f32", "f64"])
+def test_every_finite_scale_is_read(dtype):
+    """Everything that reads the scale of ``M = s R`` is finite and right wherever ``s`` is a
+    finite positive number: log, scale, to_srt, inverse, adjoint, is_valid, distance, the class,
+    the loss, the mean."""
+    from torchlie import Sim3, statistics
+    from torchlie import nn as tnn
+
+    sig = torch.tensor(EXTREME_SIGMAS[dtype], dtype=F64)
+    g = torch.Generator().manual_seed(21)
+    n = len(sig)
+    xi = torch.cat(
+        (
+            torch.randn(n, 3, generator=g, dtype=F64),
+            torch.nn.functional.normalize(torch.randn(n, 3, generator=g, dtype=F64), dim=-1),
+            sig[:, None],
+        ),
+        -1,
+    ).to(dtype)
+    T = sim3.exp(xi)
+    eps = torch.finfo(dtype).eps
+    L = sim3.log(T)
+    assert torch.isfinite(L).all()
+    torch.testing.assert_close(L[:, 6], xi[:, 6], rtol=4 * eps, atol=0)
+    torch.testing.assert_close(L[:, 3:6], xi[:, 3:6], rtol=0, atol=16 * eps)
+    s_ref = torch.exp(xi[:, 6].double())
+    for s in (sim3.scale(T), sim3.to_srt(T)[0], Sim3(T).scale):
+        torch.testing.assert_close(s.double(), s_ref, rtol=64 * eps, atol=0)
+    R = so3.exp(xi[:, 3:6])
+    torch.testing.assert_close(sim3.to_srt(T)[1], R, rtol=0, atol=16 * eps)
+    assert sim3.is_valid(T).all()
+    eye = torch.eye(4, dtype=dtype).expand(n, 4, 4)
+    Ti = sim3.inverse(T)
+    torch.testing.assert_close(Ti[:, :3, :3] * s_ref.to(dtype)[:, None, None], R.mT, rtol=0,
+                               atol=16 * eps)  # fmt: skip
+    torch.testing.assert_close(sim3.act(Ti, T[:, :3, 3]), torch.zeros(n, 3, dtype=dtype),
+                               rtol=0, atol=16 * eps * T[:, :3, 3].abs().amax())  # fmt: skip
+    torch.testing.assert_close(sim3.compose(T, Ti)[:, :3, :3], eye[:, :3, :3], rtol=0,
+                               atol=16 * eps)  # fmt: skip
+    Ad = sim3.adjoint(T)
+    torch.testing.assert_close(Ad[:, 3:6, 3:6], R, rtol=0, atol=16 * eps)
+    angle, _, ds = sim3.distance(T, sim3.compose(T, sim3.exp(torch.tensor(
+        [0.0, 0.0, 0.0, 0.0, 0.0, 0.25, -0.5], dtype=dtype))))  # fmt: skip
+    torch.testing.assert_close(angle, torch.full_like(angle, 0.25), rtol=0, atol=16 * eps)
+    torch.testing.assert_close(ds, torch.full_like(ds, 0.5), rtol=0, atol=16 * eps)
+    for kind in ("angle", "chordal"):
+        loss = tnn.sim3_geodesic_loss(T, T, kind=kind, reduction="none")
+        assert (loss.abs() <= 1e3 * eps).all(), kind
+    mean = statistics.sim3_mean(T[:, None].expand(n, 3, 4, 4))
+    torch.testing.assert_close(sim3.log(mean)[:, 3:], xi[:, 3:], rtol=4 * eps, atol=16 * eps)
+    # the top of the range (exp's translation overflows its intermediates from sigma ~ 703)
+    top = math.log(torch.finfo(dtype).max) - 0.1
+    R = so3.exp(torch.tensor([0.3, -0.2, 0.4], dtype=dtype))
+    T = sim3.from_srt(torch.tensor(math.exp(top), dtype=dtype), R, torch.ones(3, dtype=dtype))
+    L = sim3.log(T)
+    assert torch.isfinite(L).all()
+    torch.testing.assert_close(L[6], torch.tensor(top, dtype=dtype), rtol=4 * eps, atol=0)
+    torch.testing.assert_close(L[3:6], R.new_tensor([0.3, -0.2, 0.4]), rtol=0, atol=16 * eps)
+    torch.testing.assert_close(sim3.to_srt(T)[1], R, rtol=0, atol=16 * eps)
+
+
+def _mp_e1_parts(s, t2) -> tuple:
+    """``(A, B, C)`` of V at ``sigma = s``, ``theta^2 = t2`` (mpf), the limits at ``theta = 0``
+    from the derivatives of ``E1`` in ``z``, at 0 as well."""
+    if t2 != 0:
+        if s == 0:
+            t = mp.sqrt(t2)
+            E = (mp.expj(t) - 1) / mp.mpc(0, t)
+            return mp.mpf(1), E.imag / t, (1 - E.real) / t2
+        return _mp_abc(s, t2)
+
+    def e1(x):
+        return (mp.exp(x) - 1) / x if x != 0 else mp.mpf(1)
+
+    if s == 0:
+        return mp.mpf(1), mp.mpf(1) / 2, mp.mpf(1) / 6
+    return e1(s), mp.diff(e1, s), mp.diff(e1, s, 2) / 2
+
+
+def _v_inv_errors(dtype: torch.dtype, sigmas, angles, diff: bool) -> list[tuple]:
+    """``(sigma, theta, err)``: the largest error of ``V^-1 = a I + b hat(phi) + c hat(phi)^2``'s
+    coefficients weighted by ``theta^k`` (``theta`` at least 1), in units of the last place of
+    the largest term ``|a|``, ``|b| theta``, ``|c| theta^2``: the error of the matrix
+    (``c`` alone, nearly 0 at large negative sigma, cancels)."""
+    s = torch.tensor([a for a in sigmas for _ in angles], dtype=dtype)
+    th = torch.tensor([t for _ in sigmas for t in angles], dtype=dtype)
+    t2 = th.double() * th.double() if dtype == F64 else (th * th).double()
+    got = [x.to(dtype).double() for x in _coeffs.sim3_v_inv(s.double(), t2, dtype, diff)]
+    out = []
+    for i in range(len(s)):
+        with mp.workdps(DPS + 20):
+            sm, tm = mp.mpf(float(s[i])), mp.mpf(float(t2[i]))
+            A, B, C = _mp_e1_parts(sm, tm)
+            D = A - tm * C
+            det = D * D + tm * B * B
+            ref = (1 / A, -B / det, (B * B - C * D) / (A * det))
+        w = max(float(th[i]), 1.0)
+        size = max(abs(float(ref[k])) * w**k for k in range(3))
+        ulp = 2.0 ** math.floor(math.log2(size)) * torch.finfo(dtype).eps
+        err = max(abs(float(got[k][i]) - float(ref[k])) * w**k for k in range(3)) / ulp
+        out.append((float(s[i]), float(th[i]), err))
+    return out
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64], ids=["f32", "f64"])
+def test_v_inverse_coefficients_at_every_sigma(dtype):
+    """``V^-1`` within 4 ulp of 60-digit references for sigma from -80 to 700 (``A det ~
+    (e^sigma / sigma)^3`` is far beyond the range above 242) jointly with the angles, for the
+    differentiable and the forward-only coefficients; float32 evaluates in float64 and rounds."""
+    sigmas = [0.0, 1e-12, 1e-6, 0.5, -3.0, 20.0, 80.0, -80.0, 250.0, 400.0, 700.0]
+    if dtype == torch.float32:
+        sigmas = [s for s in sigmas if abs(s) < 88]
+    for diff in (True, False):
+        for s, th, err in _v_inv_errors(dtype, sigmas, [0.0, 1e-8, 1.0, 3.0, PI], diff):
+            # just outside the joint series (sigma = 0.5, theta <= 1e-8) the closed form of c
+            # cancels a few bits: 7.1 ulp of float64 measured there
+            assert err <= (VALUE_ULP if abs(s) >= 1 else 2 * VALUE_ULP), (s, th, diff, err)
+
+
+def test_log_and_inverse_jacobians_at_large_sigma():
+    """``rho = V^-1 t`` and ``Jl^-1`` stay right where ``V``'s determinant overflows."""
+    for sg in (250.0, 361.0, 400.0, 700.0):
+        xi = torch.tensor([0.3, -0.2, 0.1, 1.0, 0.0, 0.0, sg], dtype=F64)
+        torch.testing.assert_close(sim3.log(sim3.exp(xi)), xi, rtol=1e-14, atol=1e-14)
+        Ji = sim3.jac_left_inv(xi)
+        assert torch.isfinite(Ji).all() and torch.equal(Ji, sim3.jac_right_inv(-xi))
+        torch.testing.assert_close(Ji @ sim3.jac_left(xi), torch.eye(7, dtype=F64), rtol=0,
+                                   atol=1e-13)  # fmt: skip
+        torch.testing.assert_close(sim3.rminus(sim3.exp(xi), sim3.identity(dtype=F64)), xi,
+                                   rtol=1e-14, atol=1e-14)  # fmt: skip
+
+
+def test_chordal_loss_of_far_apart_scales():
+    """``log(s_pred / s_target)`` as a difference of logs: the ratio of two finite scales may
+    overflow (1e19 / 1e-20 in float32; 8064.19 = (log 1e39)^2)."""
+    from torchlie import nn as tnn
+
+    eye = torch.eye(3)
+    A = sim3.from_srt(torch.tensor(1e19), eye, torch.zeros(3))
+    B = sim3.from_srt(torch.tensor(1e-20), eye, torch.zeros(3))
+    X = A.clone().requires_grad_(True)
+    loss = tnn.sim3_geodesic_loss(X, B, kind="chordal", rotation_weight=0.0,
+                                  translation_weight=0.0)  # fmt: skip
+    assert float(loss.detach()) == pytest.approx(math.log(1e39) ** 2, rel=1e-6)
+    loss.backward()
+    # d/dM of (log s_A - log s_B)^2 = 2 log(1e39) M / (3 s_A^2) on the diagonal
+    want = 2 * math.log(1e39) / (3 * 1e19)
+    torch.testing.assert_close(X.grad[:3, :3], want * eye, rtol=1e-5, atol=0)
+
+
+def _mp_e2_parts(s, t2) -> tuple:
+    """``(A2, B2, C2)``: the coefficients of ``E2(z) = (e^z - 1 - z)/z^2`` as ``(A, B, C)`` are
+    of ``E1`` (:func:`_mp_abc`), with the limits at ``theta = 0`` from its derivatives."""
+
+    def e2(z):
+        return (mp.exp(z) - 1 - z) / z**2
+
+    if t2 == 0:
+        return e2(s), mp.diff(e2, s), mp.diff(e2, s, 2) / 2
+    t = mp.sqrt(t2)
+    E = e2(mp.mpc(s, t))
+    return e2(s), E.imag / t, (e2(s) - E.real) / t2
+
+
+def test_jacobian_sigma_coefficients_at_large_sigma():
+    """``(A_s - A, B_s - B, C_s - C) = -(A2, B2, C2)`` of ``E2`` (the coupling of the translation
+    to ``sigma`` in the Jacobians) within 4 ulp, and their derivatives in ``sigma`` within 8 ulp,
+    of 60-digit references: the differences of the partials lost ``log2(sigma)`` bits (47 ulp at
+    sigma = 40, 205 at 250) and passed them on to the gradients of the Jacobians."""
+    worst = [0.0, 0.0]
+    for sg in (4.5, 10.0, 20.0, 40.0, 80.0, 250.0):
+        for th in (0.0, 1e-4, 1.0, 3.0):
+            s = torch.tensor(sg, dtype=F64, requires_grad=True)
+            t2 = torch.tensor(th * th, dtype=F64)
+            got = _coeffs.sim3_w(s, t2, _coeffs.sim3_v_partials(s, t2))
+            with mp.workdps(DPS):
+                S, T2 = mp.mpf(sg), mp.mpf(float(t2))
+                ref = [-x for x in _mp_e2_parts(S, T2)]
+                dref = [-mp.diff(lambda x, k=k, T2=T2: _mp_e2_parts(x, T2)[k], S) for k in range(3)]
+            for k in range(3):
+                (g,) = torch.autograd.grad(got[k], s, retain_graph=True)
+                for i, (o, r) in enumerate(((got[k], ref[k]), (g, dref[k]))):
+                    ulp = 2.0 ** math.floor(math.log2(abs(float(r)))) * torch.finfo(F64).eps
+                    worst[i] = max(worst[i], abs(float(o.detach()) - float(r)) / ulp)
+    assert worst[0] <= VALUE_ULP and worst[1] <= GRAD_ULP, worst

@@ -762,6 +762,53 @@ SIM3_SERIES = {
 }
 
 
+#: ``sigma`` above which :func:`sim3_v_inv` takes ``V``'s coefficients with ``e^sigma``
+#: factored out: far below any overflow, above the log scales of moderate size, and where
+#: ``A e^-sigma = (1 - e^-sigma)/sigma`` is ``1/sigma`` to float64's rounding.
+SIM3_BIG = 64.0
+
+
+def _sim3_v_scaled(
+    sigma: Tensor, t2: Tensor, dtype: torch.dtype, differentiable: bool, scaled: bool = True
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor | None]:
+    """``(A, A', B', C', big)`` with ``V = A I + f (B' hat(phi) + C' hat(phi)^2)``,
+    ``A = f A'`` and ``f = e^sigma`` where ``big`` (``sigma > SIM3_BIG``), ``f = 1`` elsewhere;
+    ``scaled=False``: ``f = 1`` everywhere (``big`` None)."""
+    r2max, terms = SIM3_SERIES[(dtype, differentiable)]
+    small = sigma * sigma + t2 < r2max
+    # series branch: its own arguments only (zeros where it is not taken)
+    ss = torch.where(small, sigma, 0.0)
+    ts = torch.where(small, t2, 0.0)
+    p = torch.full_like(t2, _E1[terms - 1])
+    q = torch.zeros_like(t2)
+    r = torch.zeros_like(t2)
+    for c in _E1[terms - 2 :: -1]:
+        p, q, r = fma(ss * p, ts, q, value=-1.0) + c, fma(p, ss, q), fma(q, ss, r)
+    # closed forms: safe arguments where the series is taken
+    sl = torch.where(small, 1.0, sigma)
+    tl = torch.where(small, 1.0, t2)
+    big = sigma > SIM3_BIG if scaled else None
+    e = torch.exp(sl if big is None else torch.where(big, 0.0, sl))  # 1 where factored out
+    if differentiable:
+        A = expc(sigma)  # accurate at every sigma (its own series)
+        sc, cc = sinc(tl), cosc(tl)
+    else:  # forward-only: one sin and cos of the half angle (as rodrigues_values), expm1
+        h = tl.sqrt().mul_(0.5).clamp_min_(H_MIN[tl.dtype])
+        sh, ch = torch.sin(h), torch.cos(h)
+        sh_h = sh / h
+        sc, cc = sh_h * ch, 0.5 * sh_h * sh_h
+        nz = sigma != 0
+        A = torch.where(nz, torch.expm1(sigma) / torch.where(nz, sigma, 1.0), 1.0)
+    Ah = A
+    if big is not None:
+        # A e^-sigma = (1 - e^-sigma)/sigma: 1/sigma to float64's rounding above SIM3_BIG
+        Ah = torch.where(big, 1.0 / torch.where(big, sl, 1.0), A)
+    inv = 1.0 / (sl * sl + tl)
+    B = fma(fma(sl * e * sc, e * tl, cc), sl, Ah, value=-1.0) * inv
+    C = fma(fma(Ah, sl * e, cc), e, sc, value=-1.0) * inv
+    return A, Ah, torch.where(small, q, B), torch.where(small, r, C), big
+
+
 def sim3_v(
     sigma: Tensor, t2: Tensor, dtype: torch.dtype = torch.float64, differentiable: bool = True
 ) -> tuple[Tensor, Tensor, Tensor]:
@@ -780,38 +827,19 @@ def sim3_v(
     (real polynomials in ``sigma`` and ``t2``: ``B = q``, ``C = r``, ``A = p + t2 r``); double
     where, so neither branch produces Inf/NaN in forward or backward.
     """
-    r2max, terms = SIM3_SERIES[(dtype, differentiable)]
-    small = sigma * sigma + t2 < r2max
-    # series branch: its own arguments only (zeros where it is not taken)
-    ss = torch.where(small, sigma, 0.0)
-    ts = torch.where(small, t2, 0.0)
-    p = torch.full_like(t2, _E1[terms - 1])
-    q = torch.zeros_like(t2)
-    r = torch.zeros_like(t2)
-    for c in _E1[terms - 2 :: -1]:
-        p, q, r = fma(ss * p, ts, q, value=-1.0) + c, fma(p, ss, q), fma(q, ss, r)
-    # closed forms: safe arguments where the series is taken
-    sl = torch.where(small, 1.0, sigma)
-    tl = torch.where(small, 1.0, t2)
-    e = torch.exp(sl)
-    if differentiable:
-        A = expc(sigma)  # accurate at every sigma (its own series)
-        sc, cc = sinc(tl), cosc(tl)
-    else:  # forward-only: one sin and cos of the half angle (as rodrigues_values), expm1
-        h = tl.sqrt().mul_(0.5).clamp_min_(H_MIN[tl.dtype])
-        sh, ch = torch.sin(h), torch.cos(h)
-        sh_h = sh / h
-        sc, cc = sh_h * ch, 0.5 * sh_h * sh_h
-        nz = sigma != 0
-        A = torch.where(nz, torch.expm1(sigma) / torch.where(nz, sigma, 1.0), 1.0)
-    inv = 1.0 / (sl * sl + tl)
-    B = fma(fma(sl * e * sc, e * tl, cc), sl, A, value=-1.0) * inv
-    C = fma(fma(A, sl * e, cc), e, sc, value=-1.0) * inv
-    return (
-        A,
-        torch.where(small, q, B),
-        torch.where(small, r, C),
-    )
+    A, _, B, C, _ = _sim3_v_scaled(sigma, t2, dtype, differentiable, scaled=False)
+    return A, B, C
+
+
+def sim3_reduced(w: Sequence[Tensor]) -> tuple[list[Tensor], Tensor, Tensor]:
+    """``(w', lam, big)``: the planes of :func:`reduced` of the rotation vectors ``w`` (with its
+    derivative under autograd) and the ``lam`` and ``big`` of :func:`reduction`, without the
+    unit axis (Sim(3)'s exponential builds its limit term from ``w'``)."""
+    if torch.is_grad_enabled() and any(x.requires_grad for x in w):
+        f = reduction_planes(w)
+        return reduce_planes(f, w, [x - x.detach() for x in w]), f[0], f[1]
+    lam, big, _ = _lam(w)
+    return [x * lam for x in w], lam, big
 
 
 def sim3_v_inv(
@@ -822,11 +850,15 @@ def sim3_v_inv(
         a = 1/A,  b = -B/det,  c = (B^2 - C D)/(A det),  D = A - t2 C,  det = D^2 + t2 B^2
 
     (``D + i theta B = E1(z)``, so ``det = |E1(z)|^2 > 0`` for ``theta < 2 pi``); no
-    cancellation beyond a factor 3 in ``B^2 - C D`` near 0."""
-    A, B, C = sim3_v(sigma, t2, dtype, differentiable)
-    D = A - t2 * C
+    cancellation beyond a factor 3 in ``B^2 - C D`` near 0.  Above :data:`SIM3_BIG` from the
+    coefficients with ``e^sigma`` factored out (``det`` and ``A det`` would overflow long before
+    ``b`` and ``c ~ e^-sigma`` underflow), multiplied by ``e^-sigma`` as two factors
+    ``e^-sigma/2`` (the one factor is subnormal near the top of the float64 range)."""
+    A, Ah, B, C, big = _sim3_v_scaled(sigma, t2, dtype, differentiable)
+    D = Ah - t2 * C
     det = D * D + t2 * B * B
-    return 1.0 / A, -B / det, (B * B - C * D) / (A * det)
+    h = torch.exp(torch.where(big, -0.5 * sigma, 0.0))  # type: ignore[arg-type]
+    return 1.0 / A, -B * h / det * h, (B * B - C * D) * h / (Ah * det) * h
 
 
 #: E1'(sigma) = sum_n (n + 1) sigma^n/(n + 2)!: the series below |sigma| = 1/2.
@@ -904,3 +936,31 @@ def sim3_v_partials(
         w(small, qt, Bt),
         w(small, rt, Ct),
     )
+
+
+#: ``sigma`` above which :func:`sim3_w` takes the closed forms of ``E2``: the differences
+#: ``A_s - A`` ... cancel there (``log2(sigma)`` bits), the closed forms do not.
+SIM3_W_SIGMA = 4.0
+
+
+def sim3_w(sigma: Tensor, t2: Tensor, parts: tuple[Tensor, ...]) -> tuple[Tensor, Tensor, Tensor]:
+    """``(A_s - A, B_s - B, C_s - C)`` from the output ``parts`` of :func:`sim3_v_partials`:
+    the coefficients of ``d(V rho)/dsigma - V rho`` in the Sim(3) Jacobian.
+
+    They are ``-(A2, B2, C2)`` of ``E2(z) = (E1(z) - 1)/z`` (``E1' - E1 = -E2``)::
+
+        A2 = (A - 1)/sigma,  B2 = (sigma B - (D - 1))/(sigma^2 + t2),
+        C2 = (A2 + sigma C - B)/(sigma^2 + t2),  D = A - t2 C
+
+    taken above :data:`SIM3_W_SIGMA`, where the plain differences lose ``log2(sigma)`` bits
+    (``A_s`` and ``A`` agree to ``1/sigma``); below it the differences, which do not cancel
+    there (double where)."""
+    A, B, C, As, Bs, Cs = parts[:6]
+    big = sigma > SIM3_W_SIGMA
+    sb = torch.where(big, sigma, SIM3_W_SIGMA + 1.0)
+    inv = 1.0 / (sb * sb + t2)
+    A2 = (A - 1.0) / sb
+    B2 = (sb * B - (A - t2 * C - 1.0)) * inv
+    C2 = (A2 + sb * C - B) * inv
+    w = torch.where
+    return w(big, -A2, As - A), w(big, -B2, Bs - B), w(big, -C2, Cs - C)

@@ -836,7 +836,7 @@ def sim3_geodesic_loss(
         sa, Ra, ta = sim3.to_srt(a)
         sb, Rb, tb = sim3.to_srt(b)
         rot, trans = _sum_squares(Ra - Rb, 2), _sum_squares(ta - tb, 1)
-        scale = torch.log(sa / sb).square()
+        scale = (torch.log(sa) - torch.log(sb)).square()  # sa / sb may overflow
     loss = w_rot * rot + w_trans * trans + w_scale * scale
     return _checks.out(_reduce(loss, reduction), dtype)
 

@@ -26,7 +26,7 @@ import torch
 from torch import Tensor
 
 from . import _checks, _coeffs, _components, _layout, _rodrigues, _rotation_matrix, so3
-from ._autograd import CustomFunction, blocked, needs_graph, transforms_active
+from ._autograd import CustomFunction, blocked, fma, needs_graph, transforms_active
 from ._typing import Bool, Float
 
 __all__ = [
@@ -90,17 +90,28 @@ def _log_scale2(M: Tensor) -> Tensor:
     """``2 sigma = log(|M|_F^2 / 3)`` of the linear block ``M = s R``: near ``s = 1`` as
     ``log1p`` of ``(sum (M_ii - 1)(M_ii + 1) + sum_(i != j) M_ij^2) / 3`` (exact at the
     identity, where ``|M|^2 - 3`` cancels), elsewhere as ``log`` of the sum of squares (double
-    where: no branch sees an argument out of its range).  Entry by entry (planes)."""
+    where: no branch sees an argument out of its range).  Entry by entry (planes).
+
+    Where the largest ``|M_ij|`` lies outside the range whose squares are normal and finite
+    (that of :func:`torchlie._coeffs.rescaled`), the squares are those of ``M / k`` with ``k`` a
+    power of two near it (an exact division; ``k`` detached) and ``2 log(k)`` is added back:
+    every finite scale has its log.  Elsewhere ``k = 1``, the same values as without it."""
     e = M.flatten(-2).unbind(-1)
+    # the largest |M_ij| (a max is exact: the same in any order); planes while compiling
+    m = _coeffs.largest(e) if torch.compiler.is_compiling() else M.detach().abs().amax((-2, -1))
+    lo, hi = _coeffs._PLAIN[m.dtype]
+    out = ((m < lo) & (m > 0.0)) | ((m > hi) & (m < float("inf")))
+    k = torch.where(out, torch.exp2(torch.floor(torch.log2(torch.where(out, m, 1.0)))), 1.0)
+    e = [x / k for x in e]
     d, off = (e[0], e[4], e[8]), (e[1], e[2], e[3], e[5], e[6], e[7])
     o2 = _coeffs.dot(off, off)
     sq = o2 + _coeffs.dot(d, d)
     x = (_coeffs.dot([v - 1.0 for v in d], [v + 1.0 for v in d]) + o2) / 3.0
-    near = x.abs() < 0.5
+    near = (x.abs() < 0.5) & ~out
     return torch.where(
         near,
         torch.log1p(torch.where(near, x, 0.0)),
-        torch.log(torch.where(near, 1.0, sq / 3.0)),
+        torch.log(torch.where(near, 1.0, sq / 3.0)) + 2.0 * torch.log(k),
     )
 
 
@@ -124,12 +135,37 @@ def _coefficients(
     return tuple(x.to(sigma.dtype) for x in out)  # type: ignore[return-value]
 
 
+def _huge(phi: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """``(phi', lam, big, u)``: the rotation vectors reduced where their angle is beyond the
+    range of the formulas (:func:`torchlie._coeffs.reduction`; ``phi`` itself elsewhere, with
+    derivative ``lam I + (1 - lam) u u^T`` there), and the unit axis ``u`` where ``big``, 0
+    elsewhere (so that the limit terms built from it are finite everywhere).
+
+    ``V = A I + B hat(phi) + C hat(phi)^2`` tends to ``A u u^T`` as the angle grows (``B theta``
+    and ``A - C theta^2`` are the parts of ``E1(sigma + i theta)``, of order ``A / theta``), so
+    where the angle is known only to more than ``2 pi``, ``V(phi) = lam V(phi') + (1 - lam) A u
+    u^T`` to rounding, as so3's ``Jl`` (``V`` at ``sigma = 0``)."""
+    x = phi.unbind(-1)
+    f = _coeffs.reduction_planes(x)
+    lam, big, u = f
+    red = torch.stack(_coeffs.reduced_planes(x, f), dim=-1)
+    return red, lam, big, torch.stack([torch.where(big, c, 0.0) for c in u], dim=-1)
+
+
 def _exp(xi: Tensor) -> Tensor:
     rho, phi, sigma = xi[..., :3], xi[..., 3:6], xi[..., 6]
     # forward-only coefficients where nothing can differentiate them
     diff = torch.compiler.is_compiling() or transforms_active() or needs_graph((xi,))
-    A, B, C = _coefficients(_coeffs.sim3_v, sigma, phi, diff)
-    t = _poly_planes(A, B, C, phi, rho)
+    # angles beyond the formulas' range reduced, V(phi) = lam V(phi') + (1 - lam) A u u^T
+    # there (see _huge), with u u^T = phi' phi'^T / |phi'|^2
+    red, lam, big = _coeffs.sim3_reduced(phi.unbind(-1))
+    A, B, C = _coefficients(_coeffs.sim3_v, sigma, red, diff)
+    t2 = _coeffs.dot(red, red)
+    v = rho.unbind(-1)
+    t = _rodrigues.jl_components(red, v, A - C * t2, B, C)
+    k = (1.0 - lam) * A * _coeffs.dot(red, v) / torch.where(big, t2, 1.0)
+    k = torch.where(big, k, 0.0)
+    t = [torch.where(big, fma(c * lam, k, r), c) for c, r in zip(t, red, strict=True)]
     s = torch.exp(sigma)
     R = so3._ExpMapFn(phi).flatten(-2).unbind(-1)
     zero, one = torch.zeros_like(s), torch.ones_like(s)
@@ -142,8 +178,10 @@ _exp_blocked = blocked(_exp, (1,))
 
 
 def _inverse(T: Tensor) -> Tensor:
-    """``[[M^-1, -M^-1 t], [0, 1]]`` with ``M^-1 = M^T / s^2``."""
-    Mi = _lin(T).transpose(-1, -2) * torch.exp(-_log_scale2(_lin(T)))[..., None, None]
+    """``[[M^-1, -M^-1 t], [0, 1]]`` with ``M^-1 = (M^T / s) / s`` (``s^2`` may not be
+    representable where ``s`` is)."""
+    r = torch.exp(-0.5 * _log_scale2(_lin(T)))[..., None, None]
+    Mi = _lin(T).transpose(-1, -2) * r * r
     return _components.homogeneous(Mi, -_components.mv(Mi, _trans(T)))
 
 
@@ -211,16 +249,19 @@ def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
     C P^2``, ``P = hat(phi)``, so ``d(V rho)/dphi = -B hat(rho) - C (hat(phi x rho) +
     P hat(rho)) + 2 (B_t (phi x rho) + C_t (phi x (phi x rho))) phi^T`` and ``d(V rho)/dsigma -
     t = (A_s - A) rho + (B_s - B) (phi x rho) + (C_s - C) (phi x (phi x rho))``: coefficients
-    of :func:`torchlie._coeffs.sim3_v_partials` (in float64 for float32 input).  The inverse is
+    of :func:`torchlie._coeffs.sim3_v_partials` and :func:`torchlie._coeffs.sim3_w` (all in
+    float64 for float32 input).  The inverse is
     block triangular: ``[[V^-1, -V^-1 Q Jl(phi)^-1, -V^-1 W], [0, Jl(phi)^-1, 0], [0, 0, 1]]``.
     """
+    dtype = xi.dtype  # evaluated in float64 for float32: the products of up to three
+    xi = _wide(xi)  # components of phi overflow float32 below the angle reduction's range
     rho, phi, sigma = xi[..., :3], xi[..., 3:6], xi[..., 6]
-    w = _wide(sigma)
-    A, B, C, As, Bs, Cs, Bt, Ct = _coeffs.sim3_v_partials(w, _coeffs.theta2(_wide(phi)), w.dtype)
-    # differences in the wide dtype (they cancel at large sigma)
-    A, B, C, Aw, Bw, Cw, Bt, Ct = (
-        x.to(xi.dtype) for x in (A, B, C, As - A, Bs - B, Cs - C, Bt, Ct)
-    )
+    if not inverse:  # the inverse is meant for angles below 2 pi
+        phi, lam, big, u = _huge(phi)
+    t2 = _coeffs.theta2(phi)
+    parts = _coeffs.sim3_v_partials(sigma, t2, xi.dtype)
+    A, B, C, _, _, _, Bt, Ct = parts
+    Aw, Bw, Cw = _coeffs.sim3_w(sigma, t2, parts)
     P, R = _components.hat(phi), _components.hat(rho)
     pr = torch.linalg.cross(phi, rho)
     ppr = torch.linalg.cross(phi, pr)
@@ -234,11 +275,22 @@ def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
     if not inverse:
         Jp = _rodrigues.jac_matrix(phi, "left")
         Q = dphi + _components.mm(_components.hat(t), Jp)
-        return _rows(
+        J = _rows(
             (_mat(A, B, C, P), Q, W.unsqueeze(-1)),
             (torch.zeros_like(P), Jp, z31),
             (z13, z13, one),
         )
+        # beyond the formulas' angles: lam Jl(xi') + (1 - lam) times the limit of Jl, whose
+        # blocks are V -> A u u^T, so3's Jl -> u u^T, W -> (A_s - A) u (u . rho), Q -> 0
+        uu = u.unsqueeze(-1) * u.unsqueeze(-2)
+        ur = (Aw * _coeffs.dot(u.unbind(-1), rho.unbind(-1)))[..., None] * u
+        L = _rows(
+            (A[..., None, None] * uu, torch.zeros_like(P), ur.unsqueeze(-1)),
+            (torch.zeros_like(P), uu, z31),
+            (z13, z13, one),
+        )
+        lam = lam[..., None, None]
+        return torch.where(big[..., None, None], lam * J + (1.0 - lam) * L, J).to(dtype)
     Jpi = _rodrigues.jac_matrix(phi, "left_inv")
     a, b, c = _coefficients(_coeffs.sim3_v_inv, sigma, phi)
     Vi = _mat(a, b, c, P)
@@ -247,7 +299,7 @@ def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
         (Vi, Qi, -_components.mv(Vi, W).unsqueeze(-1)),
         (torch.zeros_like(P), Jpi, z31),
         (z13, z13, one),
-    )
+    ).to(dtype)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -290,7 +342,8 @@ def _log_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:
     diff = torch.is_grad_enabled()
     h_phi = _rodrigues.jl_apply(phi, g[..., 3:6] - j_phi, inverse=True, differentiable=diff)
     h_sigma = g[..., 6] - j_sigma
-    Mt = _lin(T) * torch.exp(-2.0 * sigma)[..., None, None]
+    r = torch.exp(-sigma)[..., None, None]
+    Mt = _lin(T) * r * r
     eye = torch.eye(3, dtype=T.dtype, device=T.device)
     inner = 0.5 * _components.hat(h_phi) + (h_sigma / 3.0)[..., None, None] * eye
     top = torch.cat((Mt @ inner, u.unsqueeze(-1)), dim=-1)
@@ -302,7 +355,8 @@ def _log_jvp(saved: tuple[Tensor, ...], dT: Tensor) -> Tensor:
     # dsigma = d_sigma, dphi = so3 Jr(phi)^-1 d_phi, drho = V^-1 (dt - J (dphi, dsigma)).
     T, xi = saved
     rho, phi, sigma = xi[..., :3], xi[..., 3:6], xi[..., 6]
-    Mi = _lin(T).transpose(-1, -2) * torch.exp(-2.0 * sigma)[..., None, None]
+    r = torch.exp(-sigma)[..., None, None]
+    Mi = _lin(T).transpose(-1, -2) * r * r
     X = Mi @ _lin(dT)
     d_sigma = X.diagonal(dim1=-2, dim2=-1).sum(-1) / 3.0
     d_phi = _rodrigues.jl_apply(phi, _components.vee(X), sign=-1.0, inverse=True)
@@ -714,8 +768,9 @@ def distance(
     """
     a, b, dtype, batch = _checks.pair(_NAME + "distance", T1, T2, "T1", "T2", (4, 4), (4, 4))
     la, lb = _log_scale2(_lin(a)), _log_scale2(_lin(b))
-    k = torch.exp(-0.5 * (la + lb))[..., None, None]
-    angle = _rotation_matrix.angle(_lin(a).transpose(-1, -2) @ _lin(b) * k)
+    Ra = _lin(a) * torch.exp(-0.5 * la)[..., None, None]
+    Rb = _lin(b) * torch.exp(-0.5 * lb)[..., None, None]
+    angle = _rotation_matrix.angle(Ra.transpose(-1, -2) @ Rb)
     trans = _coeffs.norm(_trans(b) - _trans(a)).expand(batch)
     ds = 0.5 * (lb - la)
     ds = _coeffs.norm(ds.unsqueeze(-1)).expand(batch)
