@@ -290,6 +290,22 @@ _HUGE = {torch.float32: 2.0**60, torch.float64: 2.0**200}
 _PLAIN = {torch.float32: (2.0**-30, 2.0**30), torch.float64: (2.0**-300, 2.0**300)}
 
 
+#: the integer type of each float type's bits, and the mask of its exponent field
+_EXPONENT_BITS = {
+    torch.float32: (torch.int32, 0x7F800000),
+    torch.float64: (torch.int64, 0x7FF0000000000000),
+}
+
+
+def power_of_two(m: Tensor) -> Tensor:
+    """The power of two ``k <= m`` with ``m / k`` in ``[1, 2)`` for positive ``m`` (float32 or
+    float64), ``k`` the smallest normal number where ``m`` is below it (0 included); infinite
+    where ``m`` is not finite.  Read from the exponent field of ``m`` (no rounding, a few cheap
+    element-wise operations): dividing by ``k`` is exact."""
+    bits, mask = _EXPONENT_BITS[m.dtype]
+    return (m.clamp(min=torch.finfo(m.dtype).tiny).view(bits) & mask).view(m.dtype)
+
+
 def largest(v: Tensor | Sequence[Tensor]) -> Tensor:
     """``max_i |v_i|`` over the last dimension (kept, size 1) or over planes, detached.
 

@@ -101,7 +101,7 @@ def _log_scale2(M: Tensor) -> Tensor:
     m = _coeffs.largest(e) if torch.compiler.is_compiling() else M.detach().abs().amax((-2, -1))
     lo, hi = _coeffs._PLAIN[m.dtype]
     out = ((m < lo) & (m > 0.0)) | ((m > hi) & (m < float("inf")))
-    k = torch.where(out, torch.exp2(torch.floor(torch.log2(torch.where(out, m, 1.0)))), 1.0)
+    k = torch.where(out, _coeffs.power_of_two(m), 1.0)
     e = [x / k for x in e]
     d, off = (e[0], e[4], e[8]), (e[1], e[2], e[3], e[5], e[6], e[7])
     o2 = _coeffs.dot(off, off)

@@ -150,27 +150,12 @@ def _log(R: Tensor) -> Tensor:
     return angle(*conformal(R)).unsqueeze(-1)
 
 
-#: the integer type of each float type's bits, and the mask of its exponent field
-_EXPONENT_BITS = {
-    torch.float32: (torch.int32, 0x7F800000),
-    torch.float64: (torch.int64, 0x7FF0000000000000),
-}
-
-
-def power_of_two(m: Tensor) -> Tensor:
-    """The power of two ``k <= m`` with ``m / k`` in ``[1, 2)`` for positive ``m`` (float32 or
-    float64), ``k`` the smallest normal number where ``m`` is below it (0 included); infinite
-    where ``m`` is not finite.  Read from the exponent field of ``m`` (no rounding, a few cheap
-    element-wise operations): dividing by ``k`` is exact."""
-    bits, mask = _EXPONENT_BITS[m.dtype]
-    return (m.clamp(min=torch.finfo(m.dtype).tiny).view(bits) & mask).view(m.dtype)
-
-
 def angle_scaled(x: Tensor, y: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """``(x / k, y / k, r2, 1 / k)``: the conformal part scaled by the power of two ``k``
-    (detached) that brings ``max(|x|, |y|)`` into ``[1, 2)`` (:func:`power_of_two`), and its
-    squared norm ``r2`` (1 where it is 0), for the derivative ``(x dy - y dx) / (x^2 + y^2)``
-    of the angle without the squares of ``x`` and ``y`` at their own magnitude.
+    (detached) that brings ``max(|x|, |y|)`` into ``[1, 2)``
+    (:func:`torchlie._coeffs.power_of_two`), and its squared norm ``r2`` (1 where it is 0), for
+    the derivative ``(x dy - y dx) / (x^2 + y^2)`` of the angle without the squares of ``x``
+    and ``y`` at their own magnitude.
 
     The scaling is exact, so wherever the squares neither overflow nor underflow the
     derivatives have the bits of the formula on ``x`` and ``y`` themselves; at the zero
@@ -180,7 +165,7 @@ def angle_scaled(x: Tensor, y: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     overflow either."""
     m = _coeffs.largest((x, y))
     zero = 1.0 - torch.sign(m)  # 1 where m = 0, else 0 (cheaper than a comparison)
-    inv = torch.reciprocal(power_of_two(m + zero))  # exact: k is a normal power of two
+    inv = torch.reciprocal(_coeffs.power_of_two(m + zero))  # exact: k is a normal power of two
     xs, ys = x * inv, y * inv
     return xs, ys, xs * xs + ys * ys + zero, inv
 

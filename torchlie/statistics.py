@@ -35,7 +35,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from . import _checks, se2, se3, sim3, so2, so3
+from . import _checks, _coeffs, se2, se3, sim3, so2, so3
 from ._typing import Float
 
 __all__ = [
@@ -233,8 +233,8 @@ def _wsum(w: Tensor, x: Tensor, k: int) -> Tensor:
 
 def _binade(x: Tensor) -> Tensor:
     """The power of two ``k`` with ``max |x_ij| / k`` in ``[1, 2)`` over the last two dimensions
-    (kept, size 1), detached (:func:`torchlie.so2.power_of_two`)."""
-    return so2.power_of_two(x.detach().abs().amax((-2, -1), keepdim=True))
+    (kept, size 1), detached (:func:`torchlie._coeffs.power_of_two`)."""
+    return _coeffs.power_of_two(x.detach().abs().amax((-2, -1), keepdim=True))
 
 
 def _sum(x: Tensor, dims: int | tuple[int, ...]) -> Tensor:
