@@ -22,6 +22,8 @@ Jacobians of operations follow Sola et al. (as :mod:`torchlie.se3`):
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
 from torch import Tensor
 
@@ -129,7 +131,7 @@ def _poly(a: Tensor, b: Tensor, c: Tensor, phi: Tensor, v: Tensor) -> Tensor:
 
 
 def _coefficients(
-    fn, sigma: Tensor, phi: Tensor, differentiable: bool = True
+    fn, sigma: Tensor, phi: Tensor | Sequence[Tensor], differentiable: bool = True
 ) -> tuple[Tensor, Tensor, Tensor]:
     out = fn(_wide(sigma), _coeffs.theta2(phi), sigma.dtype, differentiable)
     return tuple(x.to(sigma.dtype) for x in out)  # type: ignore[return-value]
