@@ -841,10 +841,14 @@ def sim3_v(
     with ``differentiable=False``) they are the series of ``E1`` in ``z``,
     evaluated by Horner's rule on ``p + i theta q = E1(z)`` and ``r = (E1(sigma) - p)/t2``
     (real polynomials in ``sigma`` and ``t2``: ``B = q``, ``C = r``, ``A = p + t2 r``); double
-    where, so neither branch produces Inf/NaN in forward or backward.
+    where, so neither branch produces Inf/NaN in forward or backward.  Above
+    :data:`SIM3_BIG` ``B`` and ``C`` come from the coefficients with ``e^sigma`` factored out
+    (``sigma e^sigma`` overflows from ``sigma`` about 703 in float64, where they are finite),
+    times two factors ``e^(sigma/2)``.
     """
-    A, _, B, C, _ = _sim3_v_scaled(sigma, t2, dtype, differentiable, scaled=False)
-    return A, B, C
+    A, _, B, C, big = _sim3_v_scaled(sigma, t2, dtype, differentiable)
+    h = torch.exp(torch.where(big, 0.5 * sigma, 0.0))  # type: ignore[arg-type]
+    return A, B * h * h, C * h * h
 
 
 def sim3_reduced(w: Sequence[Tensor]) -> tuple[list[Tensor], Tensor, Tensor]:
@@ -930,27 +934,36 @@ def sim3_v_partials(
         p, q, r = fma(ss * p, ts, q, value=-1.0) + c, fma(p, ss, q), fma(q, ss, r)
     sl = torch.where(small, 1.0, sigma)
     tl = torch.where(small, 1.0, t2)
-    e = torch.exp(sl)
     A, As = expc(sigma), expc_prime(sigma)
+    # Above SIM3_BIG the closed forms with f = e^sigma factored out (sigma e^sigma overflows
+    # from about 703 in float64, where the coefficients are finite), times f as two factors
+    # e^(sigma/2); below it f = 1 and the same values as without it.
+    big = sigma > SIM3_BIG
+    sb = torch.where(big, sl, 1.0)
+    e = torch.exp(torch.where(big, 0.0, sl))  # e^sigma / f
+    em1 = torch.where(big, -torch.expm1(-sb), torch.expm1(torch.where(big, 0.0, sl)))
+    Af = torch.where(big, em1 / sb, A)  # A / f
+    Asf = torch.where(big, (sb - 1.0 + torch.exp(-sb)) / (sb * sb), As)  # A_s / f
     sc, cc, s3, c4 = sinc(tl), cosc(tl), sinc3(tl), cosc4(tl)
     dsc, dcc = 0.5 * (s3 - cc), c4 - 0.5 * s3
     inv = 1.0 / (sl * sl + tl)
-    B = (sl * e * sc + e * tl * cc - torch.expm1(sl)) * inv
-    C = (A + e * (sl * cc - sc)) * inv
+    B = (sl * e * sc + e * tl * cc - em1) * inv
+    C = (Af + e * (sl * cc - sc)) * inv
     Bs = (e * (sl * sc + tl * (cc - s3)) - 2.0 * sl * B) * inv
-    Cs = (As + e * ((1.0 + sl) * cc - sc) - 2.0 * sl * C) * inv
+    Cs = (Asf + e * ((1.0 + sl) * cc - sc) - 2.0 * sl * C) * inv
     Bt = (e * (sl * dsc + cc + tl * dcc) - B) * inv
     Ct = (e * (sl * dcc - dsc) - C) * inv
+    h = torch.exp(torch.where(big, 0.5 * sigma, 0.0))
     w = torch.where
     return (
         A,
-        w(small, q, B),
-        w(small, r, C),
+        w(small, q, B * h * h),
+        w(small, r, C * h * h),
         As,
-        w(small, qs, Bs),
-        w(small, rs, Cs),
-        w(small, qt, Bt),
-        w(small, rt, Ct),
+        w(small, qs, Bs * h * h),
+        w(small, rs, Cs * h * h),
+        w(small, qt, Bt * h * h),
+        w(small, rt, Ct * h * h),
     )
 
 
