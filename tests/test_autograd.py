@@ -440,3 +440,45 @@ def test_without_the_private_queries_every_mode_still_works(case, monkeypatch):
     y2, dx2 = _value_and_grad(fn, x)
     assert torch.equal(y2, y) and torch.equal(dx2, dx)
     torch.testing.assert_close(torch.func.jvp(fn, (x,), (torch.ones_like(x),))[1], tangent)
+
+
+def test_first_call_under_a_transform_or_inference_mode_leaves_the_ops_usable():
+    """Ops that build shared constants on first use (the angle's pi, the matrix kernels' rows)
+    keep none of the mode of that first call: in a fresh process, a first call under
+    ``torch.func.hessian`` or ``torch.inference_mode`` leaves ``jacrev``, ``jacfwd`` and backward
+    working."""
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent(
+        """
+        import sys
+        import torch
+        from torch.func import hessian, jacfwd, jacrev
+        from torchlie import conversions, se3, so3
+
+        fns = [
+            lambda v: conversions.quaternion_to_euler(v, "xyz").sum(),
+            lambda v: so3.distance(so3.exp(v[:3]), so3.exp(v[1:])).sum(),
+            lambda v: se3.exp(torch.cat([v, v[:2]])).sum(),
+        ]
+        q = torch.tensor([0.5, 0.5, 0.5, 0.5], dtype=torch.float64)
+        for f in fns:
+            if sys.argv[1] == "hessian":
+                hessian(f)(q)
+            else:
+                with torch.inference_mode():
+                    f(q)
+        for f in fns:
+            jacrev(f)(q), jacfwd(f)(q)
+            x = q.clone().requires_grad_()
+            f(x).backward()
+            assert bool(x.grad.isfinite().all())
+        """
+    )
+    for first in ("hessian", "inference_mode"):
+        run = subprocess.run(
+            [sys.executable, "-c", script, first], capture_output=True, text=True, timeout=300
+        )
+        assert run.returncode == 0, (first, run.stderr[-2000:])

@@ -632,3 +632,41 @@ def test_mimic_jacobian_under_vmap(tree):
     for link in ("right_index", "left_finger_b"):
         J = torch.func.vmap(lambda x, link=link: tree.jacobian(x, link))(q)
         torch.testing.assert_close(J, tree.jacobian(q, link), atol=1e-15, rtol=0)
+
+
+@pytest.mark.parametrize("robot_name", ["arm7", "tree"])  # tree: mimic joints, floating base
+@pytest.mark.parametrize("first", ["hessian", "inference_mode"])
+def test_first_call_under_a_transform_or_inference_mode_leaves_the_chain_usable(
+    robot_name, first
+):
+    """A fresh chain whose first call runs under ``torch.func.hessian`` or
+    ``torch.inference_mode`` keeps no constants of that mode: afterwards ``jacrev``, ``jacfwd``
+    and a backward pass work and agree with a chain whose first call was eager."""
+    from torch.func import hessian, jacfwd, jacrev
+
+    ref = Chain.from_urdf(sample_robot(robot_name), dtype=F64)
+    chain = Chain.from_urdf(sample_robot(robot_name), dtype=F64)
+    q = ref.random_configuration(1, generator=torch.Generator().manual_seed(3))[0]
+    qd = torch.linspace(-1.0, 1.0, q.shape[-1], dtype=F64)
+    last = chain.link_names[-1]
+
+    def fk(c, x):
+        return c.forward_kinematics(x, links=[last])[last]
+
+    def calls(c, x):
+        return (fk(c, x).sum(), c.mass_matrix(x).sum(), c.inverse_dynamics(x, qd, qd).sum())
+
+    if first == "hessian":
+        for k in range(3):
+            hessian(lambda x, k=k: calls(chain, x)[k])(q)
+    else:
+        with torch.inference_mode():
+            calls(chain, q)
+    for k in range(3):
+        for jac in (jacrev, jacfwd):
+            torch.testing.assert_close(
+                jac(lambda x, k=k: calls(chain, x)[k])(q), jac(lambda x, k=k: calls(ref, x)[k])(q)
+            )
+        x = q.clone().requires_grad_()
+        calls(chain, x)[k].backward()
+        torch.testing.assert_close(x.grad, torch.func.grad(lambda x, k=k: calls(ref, x)[k])(q))

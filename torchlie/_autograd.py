@@ -37,7 +37,7 @@ are constants there); eager ``torch.func`` and eager double backward give them.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, MutableMapping, Sequence
 from typing import TypeVar
 
 import torch
@@ -69,6 +69,32 @@ def transforms_active() -> bool:
     no blocks).
     """
     return True if _TRANSFORMS_QUERY is None else bool(_TRANSFORMS_QUERY())
+
+
+_K = TypeVar("_K")
+_V = TypeVar("_V")
+
+
+def cached(cache: MutableMapping[_K, _V], key: _K, build: Callable[[], _V]) -> _V:
+    """``cache[key]``, built on first use, for constants that later calls share (plans,
+    index and coefficient tensors).
+
+    Stored only when what ``build`` makes is a plain tensor every later call can use: not while
+    dynamo traces (traced values), not under a ``torch.func`` transform (its tensors are wrapped
+    for that transform's level and fail outside it); under inference mode it is built as normal
+    tensors (an inference tensor cannot be saved for a later backward pass).
+    """
+    if key in cache:
+        return cache[key]
+    if _is_compiling() or transforms_active():
+        return build()
+    if torch.is_inference_mode_enabled():
+        with torch.inference_mode(False):
+            value = build()
+    else:
+        value = build()
+    cache[key] = value
+    return value
 
 
 def forward_ad_active() -> bool:

@@ -44,14 +44,14 @@ def constant(values: tuple[object, ...], like: Tensor, dims: int = 0) -> Tensor:
     with trailing dimensions of size one up to ``dims`` dimensions (to broadcast against a
     batch): built once per device, dtype and shape in eager mode, in the traced graph while
     compiling."""
-    key = (values, like.dtype, like.device, dims)
-    out = None if _is_compiling() else _CONSTANTS.get(key)
-    if out is None:
+
+    def build() -> Tensor:
         out = torch.tensor(values, dtype=like.dtype, device=like.device)
-        out = out.reshape(out.shape + (1,) * (dims - out.dim()))
-        if not _is_compiling():
-            _CONSTANTS[key] = out
-    return out
+        return out.reshape(out.shape + (1,) * (dims - out.dim()))
+
+    if _is_compiling():
+        return build()
+    return _autograd.cached(_CONSTANTS, (values, like.dtype, like.device, dims), build)
 
 
 def eager_cpu(x: Tensor) -> bool:

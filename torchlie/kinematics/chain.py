@@ -83,13 +83,14 @@ import math
 import operator
 import os
 import reprlib
-from collections.abc import Callable, Hashable, Mapping, Sequence
-from typing import TYPE_CHECKING, Any, TypeVar
+from collections.abc import Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any
 
 import torch
 from torch import Tensor
 
 from .. import _checks
+from .._autograd import cached
 from .._typing import Float
 from . import dynamics as _dyn
 from ._fk_plan import _build_plan, _Plan, _pose, _run
@@ -117,19 +118,6 @@ _NAME = "torchlie.kinematics.Chain."
 # Batch size up to which results are transposed back in one stacked copy (see
 # forward_kinematics).
 _SMALL_BATCH = 2048
-
-_V = TypeVar("_V")
-
-
-def _cached(cache: dict[Any, _V], key: Hashable, build: Callable[[], _V]) -> _V:
-    """``cache[key]``, built on first use; not stored while dynamo traces (what it builds then
-    is not reusable)."""
-    if key in cache:
-        return cache[key]
-    value = build()
-    if not torch.compiler.is_compiling():
-        cache[key] = value
-    return value
 
 
 class Chain:
@@ -224,7 +212,7 @@ class Chain:
         self._jac_plans: dict[int, _JacPlan] = {}
         # (link, DoFs) -> where the link's Jacobian columns go among those DoFs (None: in order).
         self._dof_maps: dict[tuple[int, tuple[int, ...]], Tensor | None] = {}
-        self._mimic_t: tuple[Tensor, Tensor, Tensor] | None = None
+        self._mimic_t: dict[torch.dtype, tuple[Tensor, Tensor, Tensor]] = {}
 
     # ------------------------------------------------------------------------------------------
     # Construction and conversion
@@ -449,7 +437,7 @@ class Chain:
     def _plan(self, targets: tuple[int, ...], relative: bool = False) -> _Plan:
         """The plan of ``targets`` (see :func:`_build_plan`; ``relative``: each subtree of the
         root about its own origin)."""
-        return _cached(
+        return cached(
             self._plans,
             (targets, relative),
             lambda: _build_plan(self._links, targets, self.dtype, self.device, relative),
@@ -461,13 +449,15 @@ class Chain:
         src, mult, off = self._mimic
         if not src:
             return qT
-        if self._mimic_t is None or self._mimic_t[1].dtype != q2.dtype:
-            self._mimic_t = (
+        s, m, o = cached(
+            self._mimic_t,
+            q2.dtype,
+            lambda: (
                 torch.tensor(src, dtype=torch.long, device=self.device),
                 torch.tensor(mult, dtype=q2.dtype, device=self.device).unsqueeze(-1),
                 torch.tensor(off, dtype=q2.dtype, device=self.device).unsqueeze(-1),
-            )
-        s, m, o = self._mimic_t
+            ),
+        )
         return torch.cat((qT, torch.addcmul(o, qT.index_select(0, s), m)), dim=0)
 
     def _run(self, plan: _Plan, q2: Tensor) -> list[list[Tensor]]:
@@ -591,7 +581,7 @@ class Chain:
     # ------------------------------------------------------------------------------------------
 
     def _jac_plan(self, target: int) -> _JacPlan:
-        return _cached(
+        return cached(
             self._jac_plans,
             target,
             lambda: _jacobian_plan(self._links, target, self.n_v, self.dtype, self.device),
@@ -616,7 +606,7 @@ class Chain:
         if dofs is None:
             index = None if jp.in_dof_order else jp.dof_index
         else:
-            index = _cached(self._dof_maps, (target, dofs), lambda: _dof_index(jp, dofs, C.device))
+            index = cached(self._dof_maps, (target, dofs), lambda: _dof_index(jp, dofs, C.device))
         if index is None:  # the link's columns are those DoFs, in order
             return C
         # Each column into its DoF's column (summed where mimic joints share one).

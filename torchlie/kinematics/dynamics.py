@@ -60,7 +60,7 @@ from torch import Tensor
 
 from .. import _checks, _coeffs, _components
 from .. import so3 as _so3
-from .._autograd import evaluate, fma, needs_graph, transforms_active
+from .._autograd import cached, evaluate, fma, needs_graph, transforms_active
 from .._typing import Float
 from ._dyn_plan import DEFAULT_GRAVITY, _build, _convert, _DynPlan
 from .urdf import _some
@@ -95,14 +95,13 @@ class Inertials(NamedTuple):
 
 
 def _plan(chain) -> _DynPlan:
-    plan = chain.__dict__.get("_dyn_plan")
-    if plan is None:
-        plan = _convert(
+    return cached(
+        chain.__dict__,
+        "_dyn_plan",
+        lambda: _convert(
             _build(chain.spec, chain._links, chain.velocity_names), chain.dtype, chain.device
-        )
-        if not torch.compiler.is_compiling():
-            chain.__dict__["_dyn_plan"] = plan
-    return plan
+        ),
+    )
 
 
 def _body_names(chain) -> tuple[str, ...]:
