@@ -868,3 +868,37 @@ def test_device(device):
     g = torch.Generator(device=device).manual_seed(0)
     X = se3_randn(se3.identity(dtype=F64, device=device), 0.1, sample_shape=(4,), generator=g)
     assert X.device.type == device and se3.is_valid(X).all()
+
+
+@pytest.mark.parametrize("spread", [0.5, 3.0, 5.0, 40.0])
+def test_sim3_geodesic_mean_at_any_spread_of_scales(spread):
+    """The Sim(3) barycenter of two similarities is their midpoint, and of a set it is
+    stationary, however far apart the scales are (the plain fixed-point step diverges once the
+    log-scales differ by a few units)."""
+    R = so3.exp(torch.tensor([[0.1, -0.2, 0.3], [0.4, 0.5, -0.6]], dtype=F64))
+    s = torch.tensor([spread, -spread], dtype=F64).exp()
+    T = sim3.from_srt(s, R, torch.tensor([[1.0, 0.0, 0.0], [0.0, 1.0, 2.0]], dtype=F64))
+    M = sim3_mean(T)
+    mid = sim3.interpolate(T[0], T[1], 0.5)
+    torch.testing.assert_close(M, mid, rtol=1e-13, atol=1e-13)
+    xi = torch.randn(9, 7, generator=gen(30), dtype=F64)
+    X = sim3.rplus(T[0], xi * torch.tensor([2.0] * 3 + [0.3] * 3 + [spread], dtype=F64))
+    w = torch.rand(9, generator=gen(31), dtype=F64) + 0.1
+    M = sim3_mean(X, w, iterations=20)
+    d = sim3.rminus(X, M)
+    res = (w[..., None] * d).sum(-2)  # relative to the terms summed
+    assert float(res.norm()) < 1e-14 * float((w[..., None] * d).norm(dim=-1).sum())
+
+
+@pytest.mark.parametrize(
+    ("core", "mean_fn", "rot_mean"),
+    [(se3, se3_mean, so3_mean), (se2, se2_mean, so2_mean), (sim3, sim3_mean, so3_mean)],
+)
+def test_geodesic_mean_rotation_is_the_rotations_karcher_mean(core, mean_fn, rot_mean):
+    """The rotation part of the barycenter equation does not involve the translations."""
+    X = cluster(core, 15, 0.8, 3, seed=32)
+    M = mean_fn(X)
+    d = X.shape[-1] - 1
+    if core is sim3:
+        X, M = sim3.to_srt(X)[1], sim3.to_srt(M)[1]
+    torch.testing.assert_close(M[..., :d, :d], rot_mean(X[..., :d, :d]), rtol=0, atol=1e-14)

@@ -69,13 +69,14 @@ class _Group(NamedTuple):
     core: ModuleType
     n: int  # matrix size
     dof: int  # tangent dimension
+    affine: bool  # [[L, t], [0, 1]] with a translation t
 
 
-_SO3 = _Group("so3", so3, 3, 3)
-_SE3 = _Group("se3", se3, 4, 6)
-_SIM3 = _Group("sim3", sim3, 4, 7)
-_SO2 = _Group("so2", so2, 2, 1)
-_SE2 = _Group("se2", se2, 3, 3)
+_SO3 = _Group("so3", so3, 3, 3, False)
+_SE3 = _Group("se3", se3, 4, 6, True)
+_SIM3 = _Group("sim3", sim3, 4, 7, True)
+_SO2 = _Group("so2", so2, 2, 1, False)
+_SE2 = _Group("se2", se2, 3, 3, True)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -290,12 +291,42 @@ def _mean(
     return _checks.out(M, dtype)
 
 
+def _with_translation(X: Tensor, t: Tensor) -> Tensor:
+    """``X`` (``(..., n, n)``, ``[[L, t], [0, 1]]``) with the translation ``t`` ``(..., n - 1)``."""
+    d = X.shape[-1] - 1
+    t = t.expand(*X.shape[:-2], d)
+    return torch.cat((X[..., :d], torch.cat((t, X[..., d:, d]), -1).unsqueeze(-1)), -1)
+
+
 def _karcher(g: _Group, M: Tensor, x: Tensor, w: Tensor, iterations: int) -> Tensor:
     # M <- M Exp(sum_i w_i Log(M^-1 X_i)): the Gauss-Newton step of sum_i w_i |Log(M^-1 X_i)|^2.
+    d = g.n - 1 if g.affine else 0  # the translation's dimension
+    x0 = x
+    if d:
+        # The rotation (and scale) part of Log(M^-1 X_i) does not depend on the translations:
+        # the steps run on the set with its translations zeroed (the mean's stays 0), and the
+        # translation then solves its own, linear, equation.  (The plain step multiplies the
+        # translation's error by I - A, A below: it diverges for Sim(3) sets whose log-scales
+        # are a few units apart.)
+        zero = x.new_zeros(d)
+        x0, M = _with_translation(x, zero), _with_translation(M, zero)
     for _ in range(iterations):
-        d = g.core.rminus(x, M.unsqueeze(-3))
-        M = g.core.rplus(M, _wsum(w, d, 1))
-    return M
+        M = g.core.rplus(M, _wsum(w, g.core.rminus(x0, M.unsqueeze(-3)), 1))
+    if not d:
+        return M
+    # M = [[L, L y], [0, 1]]: the translation part of Log(M^-1 X_i) is V_i^-1 (L^-1 t_i - y)
+    # (V_i: the translation's coefficients of the i-th relative rotation and scale), so
+    # sum_i w_i of it is a - A y, with a its value at y = 0 and A e_k = -(its value on the
+    # translation-free set at y = e_k, i.e. with L's k-th column as M's translation).
+    L = M[..., :d, :d]
+
+    def rho(X: Tensor, t: Tensor) -> Tensor:
+        return _wsum(w, g.core.rminus(X, _with_translation(M, t).unsqueeze(-3))[..., :d], 1)
+
+    a = rho(x, zero)
+    A = -torch.stack([rho(x0, L[..., k]) for k in range(d)], -1)
+    y = torch.linalg.solve_ex(A, a.unsqueeze(-1), check_errors=False)[0]
+    return _with_translation(M, _sum(L * y.mT, -1))
 
 
 @_checks.float32_exact
@@ -350,12 +381,12 @@ def se3_mean(
     multiplication by a pure rotation), not under right multiplication in general.
 
     ``method="geodesic"`` (default): the exponential barycenter, the pose ``M`` with
-    ``sum_i w_i Log(M^-1 T_i) = 0`` (twists in SE(3)'s own exponential coordinates), by
-    ``iterations`` fixed steps ``M <- M Exp(sum_i w_i Log(M^-1 T_i))`` from the chordal mean
-    (convergence as for :func:`so3_mean`, with the twists' rms norm in place of ``theta``).
-    It is equivariant under left and right multiplication; its rotation part is generally *not*
-    the rotations' Karcher mean (rotation and translation are coupled), and it coincides with
-    the chordal translation when all rotations are equal.
+    ``sum_i w_i Log(M^-1 T_i) = 0`` (twists in SE(3)'s own exponential coordinates).  The
+    rotation part of that equation does not involve the translations: ``M``'s rotation is the
+    rotations' Karcher mean, by ``iterations`` fixed steps from the chordal mean (as
+    :func:`so3_mean`); the translation part is linear in ``M``'s translation, which then solves
+    it (one 3x3 solve).  It is equivariant under left and right multiplication, and it
+    coincides with the chordal translation when all rotations are equal.
 
     Example:
         >>> T = se3.from_rt(torch.eye(3), torch.tensor([[0.0, 0.0, 0.0], [2.0, 4.0, 6.0]]))
@@ -378,8 +409,10 @@ def sim3_mean(
     ``method="chordal"``: rotation as :func:`so3_mean`'s chordal mean, scale the weighted
     geometric mean of the scales, translation the weighted mean of the translations.
     ``method="geodesic"`` (default): the exponential barycenter, ``sum_i w_i Log(M^-1 T_i) = 0``
-    in Sim(3)'s exponential coordinates, by ``iterations`` fixed steps from the chordal mean
-    (as :func:`se3_mean`); equivariant under left and right multiplication.
+    in Sim(3)'s exponential coordinates, computed as :func:`se3_mean`'s (its scale is the
+    weighted geometric mean of the scales, its rotation the rotations' Karcher mean, its
+    translation the solution of the linear translation part, at any spread of the scales);
+    equivariant under left and right multiplication.
 
     Example:
         >>> T = sim3.from_srt(torch.tensor([1.0, 4.0]), torch.eye(3), torch.zeros(2, 3))
@@ -427,9 +460,9 @@ def se2_mean(
 
     ``method="chordal"``: rotation as :func:`so2_mean`'s chordal mean, translation the weighted
     mean of the translations.  ``method="geodesic"`` (default): the exponential barycenter,
-    ``sum_i w_i Log(M^-1 T_i) = 0`` in SE(2)'s exponential coordinates, by ``iterations`` fixed
-    steps from the chordal mean (as :func:`se3_mean`); equivariant under left and right
-    multiplication.
+    ``sum_i w_i Log(M^-1 T_i) = 0`` in SE(2)'s exponential coordinates, computed as
+    :func:`se3_mean`'s (the rotation as :func:`so2_mean`'s geodesic mean); equivariant under
+    left and right multiplication.
 
     Example:
         >>> T = se2.from_xytheta(torch.tensor([[0.0, 0.0, 0.0], [2.0, 4.0, 0.0]]))
