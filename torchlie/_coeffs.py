@@ -819,9 +819,11 @@ def _sim3_v_scaled(
     if big is not None:
         # A e^-sigma = (1 - e^-sigma)/sigma: 1/sigma to float64's rounding above SIM3_BIG
         Ah = torch.where(big, 1.0 / torch.where(big, sl, 1.0), A)
-    inv = 1.0 / (sl * sl + tl)
-    B = fma(fma(sl * e * sc, e * tl, cc), sl, Ah, value=-1.0) * inv
-    C = fma(fma(Ah, sl * e, cc), e, sc, value=-1.0) * inv
+    # divided (not times a reciprocal): a reciprocal's partial, B (sigma^2 + t2), overflows
+    # in the backward pass above sigma about 703 where B is finite
+    den = sl * sl + tl
+    B = fma(fma(sl * e * sc, e * tl, cc), sl, Ah, value=-1.0) / den
+    C = fma(fma(Ah, sl * e, cc), e, sc, value=-1.0) / den
     return A, Ah, torch.where(small, q, B), torch.where(small, r, C), big
 
 
@@ -878,7 +880,8 @@ def sim3_v_inv(
     D = Ah - t2 * C
     det = D * D + t2 * B * B
     h = torch.exp(torch.where(big, -0.5 * sigma, 0.0))  # type: ignore[arg-type]
-    return 1.0 / A, -B * h / det * h, (B * B - C * D) * h / (Ah * det) * h
+    # a = 1/A as e^-sigma / Ah too: the reciprocal's derivative, -A'/A^2, squares A
+    return h / Ah * h, -B * h / det * h, (B * B - C * D) * h / (Ah * det) * h
 
 
 #: E1'(sigma) = sum_n (n + 1) sigma^n/(n + 2)!: the series below |sigma| = 1/2.
@@ -887,14 +890,21 @@ _DE1 = [(n + 1) / math.factorial(n + 2) for n in range(20)]
 
 def expc_prime(sigma: Tensor) -> Tensor:
     """d/dsigma of (exp(sigma) - 1)/sigma, ``(e^sigma (sigma - 1) + 1)/sigma^2``: its series
-    below ``|sigma| = 1/2`` (double where), where the closed form cancels."""
+    below ``|sigma| = 1/2`` (double where), where the closed form cancels; above
+    :data:`SIM3_BIG` ``e^sigma`` as two factors ``e^(sigma/2)`` around ``(sigma - 1)/sigma^2``
+    (``e^sigma (sigma - 1)`` overflows from about 703 in float64, where the value is finite)."""
     small = sigma.abs() < 0.5
     ss = torch.where(small, sigma, 0.0)
     s = torch.full_like(sigma, _DE1[-1])
     for c in _DE1[-2::-1]:
         s = fma(torch.full_like(sigma, c), s, ss)
     sl = torch.where(small, 1.0, sigma)
-    return torch.where(small, s, (torch.exp(sl) * (sl - 1.0) + 1.0) / (sl * sl))
+    big = sigma > SIM3_BIG
+    h = torch.exp(torch.where(big, 0.5 * sl, 0.0))
+    e = torch.exp(torch.where(big, 0.0, sl))
+    sl2 = sl * sl
+    closed = torch.where(big, h * ((sl - 1.0) / sl2) * h + 1.0 / sl2, (e * (sl - 1.0) + 1.0) / sl2)
+    return torch.where(small, s, closed)
 
 
 def sim3_v_partials(
@@ -946,13 +956,13 @@ def sim3_v_partials(
     Asf = torch.where(big, (sb - 1.0 + torch.exp(-sb)) / (sb * sb), As)  # A_s / f
     sc, cc, s3, c4 = sinc(tl), cosc(tl), sinc3(tl), cosc4(tl)
     dsc, dcc = 0.5 * (s3 - cc), c4 - 0.5 * s3
-    inv = 1.0 / (sl * sl + tl)
-    B = (sl * e * sc + e * tl * cc - em1) * inv
-    C = (Af + e * (sl * cc - sc)) * inv
-    Bs = (e * (sl * sc + tl * (cc - s3)) - 2.0 * sl * B) * inv
-    Cs = (Asf + e * ((1.0 + sl) * cc - sc) - 2.0 * sl * C) * inv
-    Bt = (e * (sl * dsc + cc + tl * dcc) - B) * inv
-    Ct = (e * (sl * dcc - dsc) - C) * inv
+    den = sl * sl + tl  # divided, as in _sim3_v_scaled
+    B = (sl * e * sc + e * tl * cc - em1) / den
+    C = (Af + e * (sl * cc - sc)) / den
+    Bs = (e * (sl * sc + tl * (cc - s3)) - 2.0 * sl * B) / den
+    Cs = (Asf + e * ((1.0 + sl) * cc - sc) - 2.0 * sl * C) / den
+    Bt = (e * (sl * dsc + cc + tl * dcc) - B) / den
+    Ct = (e * (sl * dcc - dsc) - C) / den
     h = torch.exp(torch.where(big, 0.5 * sigma, 0.0))
     w = torch.where
     return (

@@ -88,23 +88,38 @@ def _wide(x: Tensor) -> Tensor:
     return x.double() if x.dtype == torch.float32 else x
 
 
-def _log_scale2(M: Tensor) -> Tensor:
-    """``2 sigma = log(|M|_F^2 / 3)`` of the linear block ``M = s R``: near ``s = 1`` as
-    ``log1p`` of ``(sum (M_ii - 1)(M_ii + 1) + sum_(i != j) M_ij^2) / 3`` (exact at the
-    identity, where ``|M|^2 - 3`` cancels), elsewhere as ``log`` of the sum of squares (double
-    where: no branch sees an argument out of its range).  Entry by entry (planes).
-
-    Where the largest ``|M_ij|`` lies outside the range whose squares are normal and finite
-    (that of :func:`torchlie._coeffs.rescaled`), the squares are those of ``M / k`` with ``k`` a
-    power of two near it (an exact division; ``k`` detached) and ``2 log(k)`` is added back:
-    every finite scale has its log.  Elsewhere ``k = 1``, the same values as without it."""
+def _scaled_entries(M: Tensor) -> tuple[list[Tensor], Tensor, Tensor]:
+    """``(entries of M / k, k, out)``: ``k`` a power of two near the largest ``|M_ij|`` (an
+    exact division; detached) where that lies outside the range whose squares are normal and
+    finite (``out``; that of :func:`torchlie._coeffs.rescaled`), 1 elsewhere."""
     e = M.flatten(-2).unbind(-1)
     # the largest |M_ij| (a max is exact: the same in any order); planes while compiling
     m = _coeffs.largest(e) if torch.compiler.is_compiling() else M.detach().abs().amax((-2, -1))
     lo, hi = _coeffs._PLAIN[m.dtype]
     out = ((m < lo) & (m > 0.0)) | ((m > hi) & (m < float("inf")))
     k = torch.where(out, _coeffs.power_of_two(m), 1.0)
-    e = [x / k for x in e]
+    return [x / k for x in e], k, out
+
+
+def _scale(M: Tensor) -> tuple[Tensor, Tensor]:
+    """``(s, 1/s)`` of the linear block ``M = s R``, ``s = |M|_F / sqrt(3)``, from the squares of
+    ``M / k`` (:func:`_scaled_entries`): every finite scale, without the round trip through
+    :func:`_log_scale2` (``exp`` of a rounded log costs ``log2 |log s|`` bits)."""
+    e, k, _ = _scaled_entries(M)
+    r = torch.sqrt(_coeffs.dot(e, e) / 3.0)
+    return r * k, 1.0 / r / k
+
+
+def _log_scale2(M: Tensor) -> Tensor:
+    """``2 sigma = log(|M|_F^2 / 3)`` of the linear block ``M = s R``: near ``s = 1`` as
+    ``log1p`` of ``(sum (M_ii - 1)(M_ii + 1) + sum_(i != j) M_ij^2) / 3`` (exact at the
+    identity, where ``|M|^2 - 3`` cancels), elsewhere as ``log`` of the sum of squares (double
+    where: no branch sees an argument out of its range).  Entry by entry (planes).
+
+    Where the largest ``|M_ij|`` lies outside the range whose squares are normal and finite,
+    the squares are those of ``M / k`` (:func:`_scaled_entries`) and ``2 log(k)`` is added
+    back: every finite scale has its log.  Elsewhere ``k = 1``, the same values as without it."""
+    e, k, out = _scaled_entries(M)
     d, off = (e[0], e[4], e[8]), (e[1], e[2], e[3], e[5], e[6], e[7])
     o2 = _coeffs.dot(off, off)
     sq = o2 + _coeffs.dot(d, d)
@@ -182,7 +197,7 @@ _exp_blocked = blocked(_exp, (1,))
 def _inverse(T: Tensor) -> Tensor:
     """``[[M^-1, -M^-1 t], [0, 1]]`` with ``M^-1 = (M^T / s) / s`` (``s^2`` may not be
     representable where ``s`` is)."""
-    r = torch.exp(-0.5 * _log_scale2(_lin(T)))[..., None, None]
+    r = _scale(_lin(T))[1][..., None, None]
     Mi = _lin(T).transpose(-1, -2) * r * r
     return _components.homogeneous(Mi, -_components.mv(Mi, _trans(T)))
 
@@ -211,7 +226,7 @@ def _rows(*blocks: tuple[Tensor, ...]) -> Tensor:
 
 def _adjoint(T: Tensor) -> Tensor:
     M, t = _lin(T), _trans(T)
-    R = M * torch.exp(-0.5 * _log_scale2(M))[..., None, None]
+    R = M * _scale(M)[1][..., None, None]
     z31, z13 = torch.zeros_like(t).unsqueeze(-1), torch.zeros_like(t).unsqueeze(-2)
     one = torch.ones_like(t[..., :1]).unsqueeze(-1)
     return _rows(
@@ -649,7 +664,7 @@ def is_valid(T: Float[Tensor, "*b 4 4"], atol: float | None = None) -> Bool[Tens
     """
     x, _ = _checks.tensor(T, _NAME + "is_valid", "T", (4, 4))
     tol = _checks.tolerance(atol, _NAME + "is_valid", "atol", T.dtype)
-    s = torch.exp(0.5 * _log_scale2(_lin(x)))
+    s = _scale(_lin(x))[0]
     pos = s > 0
     R = _lin(x) / torch.where(pos, s, 1.0)[..., None, None]
     last = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=x.dtype, device=x.device)
@@ -693,7 +708,7 @@ def to_srt(
         tensor(2.)
     """
     x, dtype = _checks.tensor(T, _NAME + "to_srt", "T", (4, 4))
-    s = torch.exp(0.5 * _log_scale2(_lin(x)))
+    s = _scale(_lin(x))[0]
     R = _lin(x) / s[..., None, None]
     return _checks.out(s, dtype), _checks.out(R, dtype), _checks.out(_trans(x).clone(), dtype)
 
@@ -724,7 +739,7 @@ def scale(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b"]:
         tensor(2.7183)
     """
     x, dtype = _checks.tensor(T, _NAME + "scale", "T", (4, 4))
-    return _checks.out(torch.exp(0.5 * _log_scale2(_lin(x))), dtype)
+    return _checks.out(_scale(_lin(x))[0], dtype)
 
 
 # ----------------------------------------------------------------------------------------------
