@@ -8,7 +8,7 @@ import pytest
 import torch
 from planar_checks import *  # noqa: F403  (the shared tests, collected here for so2)
 
-from torchlie import so2
+from torchlie import se2, so2
 
 
 @pytest.fixture
@@ -216,3 +216,29 @@ def test_compiled_angle_gradient_at_large_and_small_magnitudes():
         for a, b in zip(got, want, strict=True):
             assert bool(a.isfinite().all())
             torch.testing.assert_close(a, b, rtol=4 * torch.finfo(dtype).eps, atol=0)
+
+
+@pytest.mark.parametrize(("dtype", "s"), [(torch.float32, 3e38), (torch.float64, 1e308)])
+def test_log_at_the_top_of_the_range(dtype, s):
+    """so2.log, se2.log and the planar parametrizations of ``s R`` where ``R00 + R11`` overflows:
+    the angle of ``R`` and its gradient, ``1 / s`` times the gradient at ``R``."""
+    from torchlie import nn as tnn
+
+    a = torch.tensor([[0.3], [2.0], [-1.2]], dtype=dtype)
+    R = so2.exp(a)
+    tol = {"rtol": 1e-5, "atol": 0.0}
+    for fn, X in (
+        (so2.log, R),
+        (lambda T: se2.log(T)[..., 2:], se2.from_rt(R, torch.ones(3, 2, dtype=dtype))),
+    ):
+        Xs = X.clone()
+        Xs[..., :2, :2] *= s
+        Xs.requires_grad_()
+        y = fn(Xs)
+        torch.testing.assert_close(y, a, rtol=2 * torch.finfo(dtype).eps, atol=0.0)
+        (g,) = torch.autograd.grad(y.sum(), Xs)
+        X1 = X.clone().requires_grad_()
+        (g1,) = torch.autograd.grad(fn(X1).sum(), X1)
+        torch.testing.assert_close((g[..., :2, :2].double() * s), g1[..., :2, :2].double(), **tol)
+    P = tnn.SO2Parametrization("matrix")
+    torch.testing.assert_close(P(R * s), R, rtol=2 * torch.finfo(dtype).eps, atol=1e-7)

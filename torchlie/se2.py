@@ -186,7 +186,7 @@ def _log_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:
     gx, gy, gt = g.unbind(-1)
     gt = gt + gx * (de * tx + 0.5 * ty) + gy * (de * ty - 0.5 * tx)
     # rotation block: so2.log's backward with the angle's gradient gt; bottom row 0
-    u, v = so2.angle_gradient(*so2.conformal(T[..., :2, :2]), gt)
+    u, v = so2.angle_gradient(*so2.conformal(T[..., :2, :2]), 0.5 * gt)
     o = so2.columns(u, 9)
     parts = (u, -v, e * gx - h * gy, v, u, h * gx + e * gy, 0.0, 0.0, 0.0)
     return (so2.assemble(parts, o).unflatten(-1, (3, 3)),)

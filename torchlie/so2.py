@@ -110,8 +110,14 @@ def angle(x: Tensor, y: Tensor) -> Tensor:
 
 
 def conformal(R: Tensor) -> tuple[Tensor, Tensor]:
-    """``(R00 + R11, R10 - R01)``: twice the cosine and sine of the polar factor's angle."""
-    return R[..., 0, 0] + R[..., 1, 1], R[..., 1, 0] - R[..., 0, 1]
+    """``((R00 + R11) / 2, (R10 - R01) / 2)``: the cosine and sine of the polar factor's angle
+    times its scale, halved term by term (the plain sums overflow from half the largest
+    float); the derivatives of the angle with respect to ``R`` are half those with respect to
+    these."""
+    return (
+        torch.add(R[..., 0, 0] * 0.5, R[..., 1, 1], alpha=0.5),
+        torch.sub(R[..., 1, 0] * 0.5, R[..., 0, 1], alpha=0.5),
+    )
 
 
 def _exp(theta: Tensor) -> Tensor:
@@ -186,7 +192,7 @@ def angle_tangent(x: Tensor, y: Tensor, dx: Tensor, dy: Tensor) -> Tensor:
 
 def _log_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:
     # d atan2(y, x) = (x dy - y dx) / (x^2 + y^2); 0 where x = y = 0 (no direction)
-    gx, gy = angle_gradient(*conformal(saved[0]), g[..., 0])
+    gx, gy = angle_gradient(*conformal(saved[0]), 0.5 * g[..., 0])
     o = columns(gx, 4)
     return (assemble((gx, torch.neg(gy, out=o[1]), gy, gx), o).unflatten(-1, (2, 2)),)
 
