@@ -14,6 +14,7 @@ import re
 import site
 import sysconfig
 
+import numpy as np
 import pytest
 import torch
 
@@ -698,8 +699,9 @@ def test_bad_arguments(arm):
         arm.inverse_dynamics(q, qd, qdd, f_ext={"link3": torch.zeros(3, dtype=F64)})
     with pytest.raises(ValueError, match=r"expected gravity of shape \(\.\.\., 3\)"):
         arm.inverse_dynamics(q, qd, qdd, gravity=torch.zeros(2, dtype=F64))
-    with pytest.raises(TypeError, match=rf"{fn}: expected gravity to be a \(3,\) or"):
-        arm.inverse_dynamics(q, qd, qdd, gravity="down")
+    for bad in ("down", [True, False, True], np.array([True, False, True])):
+        with pytest.raises(TypeError, match=rf"{fn}: expected gravity to be a \(3,\) or"):
+            arm.inverse_dynamics(q, qd, qdd, gravity=bad)
     # a wrench on a link fixed to the world acts on the world, and is checked all the same
     for link in ("world", "base"):
         with pytest.raises(ValueError, match=rf"f_ext\['{link}'\] of shape \(5, 6\) does not"):

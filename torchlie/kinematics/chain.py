@@ -863,7 +863,10 @@ class Chain:
     @property
     def body_names(self) -> tuple[str, ...]:
         """The bodies of the dynamics: the links moved by a joint with degrees of freedom, in
-        the order of :attr:`inertials` (links on fixed joints are merged into them).
+        the order of :attr:`inertials` (links on fixed joints are merged into them).  In MJCF
+        chains the frames between several joints of one body (``"{body}:{joint}"``, not in
+        :attr:`link_names`) are bodies too, with zero inertials; wrenches (``f_ext``) name the
+        MJCF body itself.
 
         Example:
             >>> from torchlie.kinematics import sample_robot

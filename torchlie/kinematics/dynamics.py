@@ -79,8 +79,8 @@ class Inertials(NamedTuple):
         inertia: ``(..., n_bodies, 3, 3)`` rotational inertia about the centre of mass, axes of
             the body's frame, kg m^2.
 
-    Leading batch dimensions are allowed (they broadcast with ``q``'s); the tensors may require
-    gradients (system identification).
+    Leading batch dimensions are allowed (they broadcast to ``q``'s batch shape); the tensors
+    may require gradients (system identification).
 
     Example:
         >>> from torchlie.kinematics import Chain, sample_robot
@@ -540,9 +540,9 @@ def _gravity(chain, gravity, fn: str, batch: tuple[int, ...], like: Tensor) -> T
     if gravity is None:
         return _plan(chain).gravity
     if not isinstance(gravity, Tensor):
-        try:
-            gravity = torch.as_tensor(gravity, dtype=like.dtype, device=like.device)
-        except (TypeError, ValueError, RuntimeError):
+        try:  # numbers (never bool), in the chain's dtype
+            gravity = _checks.real(gravity, _NAME + fn, "gravity", like, ("q", like))
+        except TypeError:
             raise TypeError(
                 f"{_NAME}{fn}: expected gravity to be a (3,) or (..., 3) tensor or a sequence "
                 f"of 3 numbers, got {type(gravity).__name__} {gravity!r:.60}"
