@@ -754,8 +754,13 @@ def sinhc(u: Tensor) -> Tensor:
 
 def expc(sigma: Tensor) -> Tensor:
     """(exp(sigma) - 1)/sigma as ``exp(sigma/2) sinhc(sigma**2/4)``: no cancellation and no
-    division by ``sigma``, smooth at 0 (value 1) with accurate derivatives of every order."""
-    return torch.exp(0.5 * sigma) * sinhc(0.25 * sigma * sigma)
+    division by ``sigma``, smooth at 0 (value 1) with accurate derivatives of every order;
+    below ``sigma = -1`` as ``expm1(sigma)/sigma`` (double where), whose derivatives do not
+    cancel there (those of the product lose ``log2 |sigma|`` bits: 195 ulp at -709)."""
+    neg = sigma < -1.0
+    sn = torch.where(neg, sigma, -1.0)
+    sp = torch.where(neg, 0.0, sigma)
+    return torch.where(neg, torch.expm1(sn) / sn, torch.exp(0.5 * sp) * sinhc(0.25 * sp * sp))
 
 
 #: E1(z) = (exp(z) - 1)/z = sum_n z^n/(n+1)!.
