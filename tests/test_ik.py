@@ -425,6 +425,8 @@ def test_bad_input_names_the_argument():
         arm.inverse_kinematics({"tool_tcp": torch.zeros(3, 3, 4, dtype=F64)})
     with pytest.raises(ValueError, match=rf"{fn}: unknown link 'hand'"):
         arm.inverse_kinematics(T, "hand")
+    with pytest.raises(TypeError, match=rf"{fn}: expected early_exit to be True or False"):
+        arm.inverse_kinematics(T, "tool_tcp", early_exit="no")
     with pytest.raises(TypeError, match=rf"{fn}: expected link to be a link name"):
         arm.inverse_kinematics(T)
     with pytest.raises(TypeError, match=rf"{fn}: targets is a dict .* link must be None"):

@@ -636,9 +636,7 @@ def test_mimic_jacobian_under_vmap(tree):
 
 @pytest.mark.parametrize("robot_name", ["arm7", "tree"])  # tree: mimic joints, floating base
 @pytest.mark.parametrize("first", ["hessian", "inference_mode"])
-def test_first_call_under_a_transform_or_inference_mode_leaves_the_chain_usable(
-    robot_name, first
-):
+def test_first_call_under_a_transform_or_inference_mode_leaves_the_chain_usable(robot_name, first):
     """A fresh chain whose first call runs under ``torch.func.hessian`` or
     ``torch.inference_mode`` keeps no constants of that mode: afterwards ``jacrev``, ``jacfwd``
     and a backward pass work and agree with a chain whose first call was eager."""

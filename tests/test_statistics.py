@@ -478,6 +478,8 @@ def test_keyframes_vmap_over_queries():
 
 def test_keyframes_errors():
     times, R = _keys(3)
+    with pytest.raises(TypeError, match=r"expected extrapolate to be True or False, got str"):
+        so3_interpolate_keyframes(times, R, 1.0, extrapolate="no")
     with pytest.raises(
         ValueError, match=r"expected keyframes of shape \(K, \.\.\., 3, 3\) with K = 3"
     ):
@@ -707,6 +709,11 @@ def test_align_sets_at_the_origin_keep_finite_gradients():
 
 def test_align_errors():
     P = torch.randn(5, 3)
+    for kw in ({"scale": "yes"}, {"translation": 0}, {"scale": torch.tensor(True)}):
+        with pytest.raises(
+            TypeError, match=rf"statistics.align: expected {next(iter(kw))} to be True or False"
+        ):
+            align(P, P, **kw)
     with pytest.raises(
         ValueError,
         match=r"statistics.align: expected P and Q of shape \(\.\.\., N, 3\) with the same N",

@@ -219,6 +219,16 @@ def real(x: object, fn: str, arg: str, like: Tensor, ref: tuple[str, Tensor]) ->
     )
 
 
+def flag(x: object, fn: str, arg: str) -> bool:
+    """A yes/no argument: ``bool`` (or numpy's); anything else is a ``TypeError`` (a string
+    such as ``"no"``, a number or a tensor would be read by its truth value)."""
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    raise TypeError(
+        f"{fn}: expected {arg} to be True or False, got {type(x).__name__} {reprlib.repr(x)}"
+    )
+
+
 def count(x: object, fn: str, arg: str, least: int) -> int:
     """An integer argument of at least ``least`` (``bool`` is not one; numpy and 0-d integer
     tensors are): ``TypeError`` for another type, ``ValueError`` below ``least``."""

@@ -879,6 +879,10 @@ class Sim3(_Group):
 
         With ``check=True``, raises ``ValueError`` unless every ``R`` is a valid rotation and
         every ``s`` positive.
+
+        Example:
+            >>> Sim3.from_srt(torch.tensor(3.0), SO3.identity(), torch.zeros(3)).scale
+            tensor(3.)
         """
         if isinstance(R, SO3):
             R = R.tensor
@@ -903,12 +907,24 @@ class Sim3(_Group):
     def to_srt(
         self,
     ) -> tuple[Float[Tensor, "*b"], Float[Tensor, "*b 3 3"], Float[Tensor, "*b 3"]]:
-        """``(s, R, t)``: scales ``(...)``, rotation matrices and translations."""
+        """``(s, R, t)``: scales ``(...)``, rotation matrices and translations.
+
+        Example:
+            >>> s, R, t = Sim3.from_srt(torch.tensor(2.0), torch.eye(3), torch.ones(3)).to_srt()
+            >>> s, t
+            (tensor(2.), tensor([1., 1., 1.]))
+        """
         return _sim3.to_srt(self.tensor)
 
     @_as_method("pose")
     def pose(self) -> SE3:
-        """The rigid part ``[[R, t], [0, 1]]`` as an :class:`SE3` (the scale dropped)."""
+        """The rigid part ``[[R, t], [0, 1]]`` as an :class:`SE3` (the scale dropped).
+
+        Example:
+            >>> S = Sim3.from_srt(torch.tensor(2.0), torch.eye(3), torch.tensor([1.0, 2.0, 3.0]))
+            >>> S.pose().translation
+            tensor([1., 2., 3.])
+        """
         _, R, t = _sim3.to_srt(self.tensor)
         return SE3._wrap(_se3.from_rt(R, t))
 
@@ -924,17 +940,32 @@ class Sim3(_Group):
 
     @property
     def rotation(self) -> SO3:
-        """The rotation ``R = M / s`` as an :class:`SO3`."""
+        """The rotation ``R = M / s`` as an :class:`SO3`.
+
+        Example:
+            >>> Sim3.from_srt(torch.tensor(5.0), torch.eye(3), torch.zeros(3)).rotation.log()
+            tensor([0., 0., 0.])
+        """
         return SO3._wrap(_sim3.to_srt(self.tensor)[1])
 
     @property
     def translation(self) -> Float[Tensor, "*b 3"]:
-        """The translation column ``(..., 3)`` (a copy)."""
+        """The translation column ``(..., 3)`` (a copy).
+
+        Example:
+            >>> Sim3.from_srt(torch.tensor(2.0), torch.eye(3), torch.ones(3)).translation
+            tensor([1., 1., 1.])
+        """
         return self.tensor[..., :3, 3].clone()
 
     @_as_method("quaternion")
     def quaternion(self) -> Float[Tensor, "*b 4"]:
-        """Canonical wxyz quaternion of the rotation ``(..., 4)``."""
+        """Canonical wxyz quaternion of the rotation ``(..., 4)``.
+
+        Example:
+            >>> Sim3.from_srt(torch.tensor(2.0), torch.eye(3), torch.zeros(3)).quaternion()
+            tensor([1., 0., 0., 0.])
+        """
         return _quat.from_matrix(_sim3.to_srt(self.tensor)[1])
 
 

@@ -354,7 +354,8 @@ def so3_mean(
     raise ``iterations`` for wider sets.  Gradients flow through the unrolled steps.
 
     Both are equivariant: ``mean(A R_i B) = A mean(R_i) B``.  Weights ``(..., N)`` (non-negative,
-    positive sum; normalised here) broadcast with the set; default uniform.
+    positive sum; normalised here; not checked, which would read their values: a sum of 0 gives
+    NaN) broadcast with the set; default uniform.  The other means take weights alike.
 
     Example:
         >>> R = so3.exp(torch.tensor([[0.0, 0.0, 0.2], [0.0, 0.0, 0.6]]))
@@ -481,6 +482,7 @@ def _keyframes(
     g: _Group, times: Tensor, keyframes: Tensor, query: Tensor | float, extrapolate: bool
 ) -> Tensor:
     fn = _NAME + g.name + "_interpolate_keyframes"
+    extrapolate = _checks.flag(extrapolate, fn, "extrapolate")
     kf, dtype = _checks.tensor(keyframes, fn, "keyframes", (g.n, g.n))
     ts = _checks.real(times, fn, "times", kf, ("keyframes", keyframes))
     if ts.dim() != 1 or ts.shape[0] == 0:
@@ -624,7 +626,8 @@ def align(
     ``H = sum_i w_i (q_i - q_bar)(p_i - p_bar)^T``, ``R = so3.project(H)`` (the SVD solution
     with the determinant fixed), ``s = tr(R^T H) / sum_i w_i |p_i - p_bar|^2`` and
     ``t = q_bar - s R p_bar``.  Batch shapes of ``P``, ``Q`` and ``weights`` broadcast; weights
-    are non-negative with a positive sum.  Differentiable (through :func:`torchlie.so3.project`)
+    are non-negative with a positive sum (not checked, which would read their values: others
+    give the minimiser of the weighted sum as written, a sum of 0 gives NaN).  Differentiable (through :func:`torchlie.so3.project`)
     wherever the rotation is unique, i.e. the centred points are not all collinear; with fewer
     than three points or collinear points the rotation is one of many minimisers and its
     gradient is not finite.  When ``H = 0``, because the points of ``P`` all coincide or those
@@ -655,6 +658,8 @@ def align(
     p, dtype = _checks.tensor(P, fn, "P", (3,))
     q, _ = _checks.tensor(Q, fn, "Q", (3,))
     _checks.same_dtype(fn, P=P, Q=Q)
+    scale = _checks.flag(scale, fn, "scale")
+    translation = _checks.flag(translation, fn, "translation")
     if p.dim() < 2 or q.dim() < 2 or p.shape[-2] != q.shape[-2] or p.shape[-2] == 0:
         raise ValueError(
             f"{fn}: expected P and Q of shape (..., N, 3) with the same N >= 1, got "

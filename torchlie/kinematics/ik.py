@@ -553,6 +553,7 @@ def inverse_kinematics(
     if max_iterations is None:
         max_iterations = _BUDGET[restarts >= _MANY_STARTS]
     max_iterations = _checks.count(max_iterations, _FN, "max_iterations", 0)
+    early_exit = _checks.flag(early_exit, _FN, "early_exit")
     if restart_after is None:
         restart_after = max(1, max_iterations // 3)
     restart_after = _checks.count(restart_after, _FN, "restart_after", 0) or None  # None: never
