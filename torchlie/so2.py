@@ -523,10 +523,9 @@ def complex_to_angle(z: Float[Tensor, "*b 2"]) -> Float[Tensor, "*b 1"]:
         tensor([3.1416])
     """
     x, dtype = _checks.tensor(z, _NAME + "complex_to_angle", "z", (2,))
-    # [[re, 0], [im, 0]]: its conformal part is z itself (no doubling that could overflow)
+    # [[re, -im], [im, re]]: its conformal part is z itself, exactly (the halves of each pair)
     re, im = x[..., 0], x[..., 1]
-    zero = torch.zeros_like(re)
-    return _checks.out(_LogFn(torch.stack((re, zero, im, zero), -1).unflatten(-1, (2, 2))), dtype)
+    return _checks.out(_LogFn(torch.stack((re, -im, im, re), -1).unflatten(-1, (2, 2))), dtype)
 
 
 # ----------------------------------------------------------------------------------------------
