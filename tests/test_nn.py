@@ -555,6 +555,27 @@ def test_map_under_vmap(rep, gen):
     x[2] = 0.0  # the fallback branch inside vmap too
     y = torch.func.vmap(lambda v: representation_to_matrix(v, rep))(x)
     torch.testing.assert_close(y, representation_to_matrix(x, rep), atol=0, rtol=0)
+    # per-sample derivatives (vmap of jacrev / jacfwd), the fallback branch included
+    for jac in (torch.func.jacrev, torch.func.jacfwd):
+        J = torch.func.vmap(jac(lambda v: representation_to_matrix(v, rep)))(x)
+        J1 = torch.stack([jac(lambda v: representation_to_matrix(v, rep))(v) for v in x])
+        torch.testing.assert_close(J, J1, atol=1e-15, rtol=1e-12)
+
+
+def test_head_per_sample_gradients():
+    from torch.func import functional_call, grad
+
+    head = RotationHead(8)
+    params = {k: v.detach() for k, v in head.named_parameters()}
+
+    def loss(p, f):
+        return functional_call(head, p, (f,)).sum()
+
+    f = torch.randn(4, 8)
+    g = torch.func.vmap(grad(loss), in_dims=(None, 0))(params, f)
+    one = [grad(loss)(params, fi) for fi in f]
+    for k in params:
+        torch.testing.assert_close(g[k], torch.stack([o[k] for o in one]))
 
 
 class _Net(torch.nn.Module):

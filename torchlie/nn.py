@@ -89,8 +89,9 @@ def _check_choice(fn: str, arg: str, value: object, choices) -> None:
 
 
 def _basis(k: Tensor, like: Tensor) -> Tensor:
-    """Unit coordinate vectors ``e_k`` (``k`` integer, shape ``(...)``) as ``(..., 3)``."""
-    return torch.nn.functional.one_hot(k, 3).to(like.dtype)
+    """Unit coordinate vectors ``e_k`` (``k`` integer, shape ``(...)``) as ``(..., 3)`` (a
+    comparison, not ``one_hot``, which reads ``k``'s values: no ``torch.func`` transform)."""
+    return (k.unsqueeze(-1) == torch.arange(3, device=k.device)).to(like.dtype)
 
 
 def _scaled(v: Tensor) -> Tensor:
@@ -359,8 +360,8 @@ def geodesic_loss(
     ``[0, pi]`` (:func:`torchlie.so3.distance`).  It is not differentiable at 0 (a cone) or at
     pi (a ridge); the gradient there is the zero subgradient, so it is always finite.
     ``kind="chordal"``: the squared chordal distance ``|R_pred - R_target|_F^2``, equal to
-    ``8 sin^2(angle / 2)`` for rotations; smooth everywhere, its gradient vanishes at 0 and at
-    pi.
+    ``8 sin^2(angle / 2)`` for rotations; smooth everywhere, its derivative along rotations
+    vanishes at 0 and at pi (the gradient on the raw matrix is ``2 (R_pred - R_target)``).
 
     Args:
         R_pred, R_target: rotation matrices ``(..., 3, 3)``.
