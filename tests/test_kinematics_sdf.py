@@ -65,22 +65,28 @@ def _pose(el) -> np.ndarray:
 def reference_poses(xml: str, values: dict[str, object]) -> dict[str, np.ndarray]:
     """Every link's pose in the model frame; ``values``: joint name -> angle, displacement
     or quaternion ``(w, x, y, z)`` (missing: zero / identity).  Loop joints: first supported
-    parent joint of each link in document order."""
+    parent joint of each link in document order.  The axis frame by ``<sdf version>``: 1.4
+    the model frame, 1.5-1.6 the joint frame or the model frame by ``use_parent_model_frame``,
+    1.7+ the joint frame or ``expressed_in``; before 1.7 a joint and a link may share a name."""
     root = ET.fromstring(xml)
+    version = tuple(int(x) for x in root.get("version", "1.7").split("."))
     model = root.find("model")
     if model is None:
         model = root.find("world").find("model")
-    rel, pose = {}, {}
+    rel, pose, joint_rel, joint_pose = {}, {}, {}, {}
     for el in model.findall("link"):
         p = el.find("pose")
         rel[el.get("name")] = (p.get("relative_to") if p is not None else None) or "__model__"
         pose[el.get("name")] = _pose(p)
     for el in model.findall("joint"):
         p = el.find("pose")
-        rel[el.get("name")] = (p.get("relative_to") if p is not None else None) or el.findtext(
-            "child"
-        ).strip()
-        pose[el.get("name")] = _pose(p)
+        joint_rel[el.get("name")] = (
+            p.get("relative_to") if p is not None else None
+        ) or el.findtext("child").strip()
+        joint_pose[el.get("name")] = _pose(p)
+        if el.get("name") not in rel:
+            rel[el.get("name")] = joint_rel[el.get("name")]
+            pose[el.get("name")] = joint_pose[el.get("name")]
     for el in model.findall("frame"):
         p = el.find("pose")
         rel[el.get("name")] = (p.get("relative_to") if p is not None else None) or (
@@ -111,7 +117,7 @@ def reference_poses(xml: str, values: dict[str, object]) -> dict[str, np.ndarray
             return out[link]
         name, jtype = el.get("name"), el.get("type")
         parent = el.findtext("parent").strip()
-        XP0, XJ0, XC0 = X0(parent), X0(name), X0(link)
+        XP0, XJ0, XC0 = X0(parent), X0(joint_rel[name]) @ joint_pose[name], X0(link)
         M = np.eye(4)
         if jtype in ("revolute", "continuous", "prismatic"):
             axis_el = el.find("axis")
@@ -121,15 +127,19 @@ def reference_poses(xml: str, values: dict[str, object]) -> dict[str, np.ndarray
                 if xyz_el is not None
                 else [0, 0, 1]
             )
-            frame = (xyz_el.get("expressed_in") if xyz_el is not None else None) or name
-            if axis_el is not None and (
-                axis_el.findtext("use_parent_model_frame") or ""
-            ).strip() in (
-                "1",
-                "true",
-            ):
-                frame = "__model__"
-            a_J = XJ0[:3, :3].T @ X0(frame)[:3, :3] @ a
+            expressed = xyz_el.get("expressed_in") if xyz_el is not None else None
+            upm = axis_el.findtext("use_parent_model_frame") if axis_el is not None else None
+            if upm is not None and version < (1, 7):
+                model_frame = upm.strip() in ("1", "true")
+            else:
+                model_frame = version < (1, 5) and not expressed
+            if model_frame:
+                R_MF = np.eye(3)
+            elif expressed:
+                R_MF = X0(expressed)[:3, :3]
+            else:
+                R_MF = XJ0[:3, :3]
+            a_J = XJ0[:3, :3].T @ R_MF @ a
             a_J = a_J / np.linalg.norm(a_J)
             v = float(values.get(name, 0.0))
             if jtype == "prismatic":
@@ -468,3 +478,86 @@ def test_old_frame_attribute_is_relative_to():
     torch.testing.assert_close(
         a.forward_kinematics(q, stacked=True), b.forward_kinematics(q, stacked=True)
     )
+
+
+# ----------------------------------------------------------------------------------------------
+# SDFormat versions, limits, encodings
+# ----------------------------------------------------------------------------------------------
+
+
+def _rotated_child(version: str, axis: str = "<xyz>1 0 0</xyz>") -> str:
+    """A prismatic joint whose child link (and so joint frame) is turned 90 degrees about z."""
+    head = f'<sdf version="{version}">' if version else "<sdf>"
+    return (
+        f'{head}<model name="m"><link name="a"/>'
+        '<link name="b"><pose>0 0 0 0 0 1.5707963267948966</pose></link>'
+        '<joint name="j" type="prismatic"><parent>a</parent><child>b</child>'
+        f"<axis>{axis}<limit><lower>-1</lower><upper>1</upper></limit></axis></joint>"
+        "</model></sdf>"
+    )
+
+
+UPM = "<xyz>1 0 0</xyz><use_parent_model_frame>{}</use_parent_model_frame>"
+
+
+@pytest.mark.parametrize(
+    "version, axis, along_model_x",
+    [
+        ("1.4", "<xyz>1 0 0</xyz>", True),  # 1.4: the axis is in the model frame
+        ("1.4", UPM.format("false"), False),
+        ("1.5", "<xyz>1 0 0</xyz>", False),  # 1.5-1.6: the joint frame ...
+        ("1.6", "<xyz>1 0 0</xyz>", False),
+        ("1.6", UPM.format("true"), True),  # ... unless use_parent_model_frame
+        ("1.7", "<xyz>1 0 0</xyz>", False),  # 1.7+: the joint frame ...
+        ("1.9", '<xyz expressed_in="__model__">1 0 0</xyz>', True),  # ... unless expressed_in
+        ("1.7", UPM.format("false"), False),
+        ("", "<xyz>1 0 0</xyz>", False),  # no version: the 1.7+ rules
+    ],
+)
+def test_axis_frame_follows_the_sdf_version(version, axis, along_model_x):
+    from torchlie.kinematics._sdf_validate import sdf_reference_poses
+
+    xml = _rotated_child(version, axis)
+    chain = Chain.from_sdf(xml, dtype=torch.float64)
+    p = chain.forward_kinematics(torch.tensor([0.5], dtype=torch.float64), "b")["b"][:3, 3]
+    want = [0.5, 0.0, 0.0] if along_model_x else [0.0, 0.5, 0.0]
+    np.testing.assert_allclose(p.numpy(), want, atol=1e-15)
+    for ref in (reference_poses, sdf_reference_poses):  # both references apply the same rule
+        np.testing.assert_allclose(ref(xml, {"j": 0.5})["b"][:3, 3], want, atol=1e-15)
+
+
+def test_old_sdf_versions_against_reference(tmp_path, capsys):
+    from torchlie.kinematics.validate import main
+
+    old = OLD_STYLE.replace("<use_parent_model_frame>1</use_parent_model_frame>", "")
+    for version in ("1.4", "1.5", "1.6"):
+        xml = old.replace('version="1.6"', f'version="{version}"')
+        assert compare(xml, n=4) <= 1e-12
+        path = tmp_path / f"m{version}.sdf"
+        path.write_text(xml)
+        assert main([str(path), "--samples", "4"]) == 0
+    assert "PASS" in capsys.readouterr().out
+
+
+def test_use_parent_model_frame_is_refused_from_sdf_1_7():
+    with pytest.raises(SDFError, match=r"<joint name='j'> <axis> <use_parent_model_frame>.*1\.7"):
+        Chain.from_sdf(_rotated_child("1.7", UPM.format("true")))
+    with pytest.raises(SDFError, match=r"<sdf version='one'>"):
+        Chain.from_sdf(_rotated_child("one"))
+
+
+def test_link_and_joint_may_share_a_name_before_sdf_1_7():
+    xml = (
+        '<sdf version="1.6"><model name="m"><link name="a"/>'
+        '<link name="b"><pose>1 0 0 0 0 0.5</pose></link>'
+        '<joint name="b" type="revolute"><parent>a</parent><child>b</child>'
+        "<pose>0 0.2 0 0 0 0</pose><axis><xyz>0 1 0</xyz>"
+        "<limit><lower>-1</lower><upper>1</upper></limit></axis></joint></model></sdf>"
+    )
+    chain = Chain.from_sdf(xml, dtype=torch.float64)
+    assert chain.joint_names == ("b",) and chain.link_names[-1] == "b"
+    assert compare(xml, n=4) <= 1e-12
+    with pytest.raises(SDFError, match="<joint name='b'>: the name 'b' is already taken"):
+        Chain.from_sdf(xml.replace('version="1.6"', 'version="1.7"'))
+    with pytest.raises(SDFError, match="<link name='a'>: the name 'a' is already taken"):
+        Chain.from_sdf(xml.replace('<link name="b">', '<link name="a">'))  # same type
