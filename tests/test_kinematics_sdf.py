@@ -561,3 +561,90 @@ def test_link_and_joint_may_share_a_name_before_sdf_1_7():
         Chain.from_sdf(xml.replace('version="1.6"', 'version="1.7"'))
     with pytest.raises(SDFError, match="<link name='a'>: the name 'a' is already taken"):
         Chain.from_sdf(xml.replace('<link name="b">', '<link name="a">'))  # same type
+
+
+def test_world_include_next_to_a_model_raises():
+    xml = (
+        '<sdf version="1.7"><world name="w"><include><uri>model://robot</uri></include>'
+        '<model name="ground"><static>true</static><link name="g"/></model></world></sdf>'
+    )
+    with pytest.raises(SDFError, match=r"<world name='w'> <include>: models included by URI"):
+        parse_sdf(xml)
+
+
+def _one_joint(jtype: str, limit: str) -> str:
+    return (
+        '<sdf version="1.7"><model name="m"><link name="a"/><link name="b"/>'
+        f'<joint name="j" type="{jtype}"><parent>a</parent><child>b</child>'
+        f"<axis><xyz>0 0 1</xyz><limit>{limit}</limit></axis></joint></model></sdf>"
+    )
+
+
+@pytest.mark.parametrize("jtype", ["revolute", "prismatic"])
+def test_one_sided_limit_is_kept(jtype):
+    chain = Chain.from_sdf(_one_joint(jtype, "<lower>-0.5</lower>"), dtype=torch.float64)
+    assert parse_sdf(_one_joint(jtype, "<lower>-0.5</lower>")).joint("j").type == jtype
+    assert float(chain.lower[0]) == -0.5 and chain.upper[0] == math.inf
+    q = chain.random_configuration(200, generator=torch.Generator().manual_seed(0))
+    assert bool((q >= -0.5).all()) and bool((q <= -0.5 + 2 * math.pi).all())
+    chain = Chain.from_sdf(_one_joint(jtype, "<upper>0.5</upper><lower>-1e16</lower>"))
+    assert chain.lower[0] == -math.inf and float(chain.upper[0]) == 0.5
+    q = chain.random_configuration(200, generator=torch.Generator().manual_seed(0))
+    assert bool((q <= 0.5).all()) and bool((q >= 0.5 - 2 * math.pi).all())
+    assert parse_sdf(_one_joint(jtype, "")).joint("j").type == (
+        "continuous" if jtype == "revolute" else "prismatic"
+    )
+
+
+@pytest.mark.parametrize(
+    "limit, match",
+    [
+        ("<lower>1</lower><upper>-1</upper>", r"<lower> 1\.0 is above <upper> -1\.0"),
+        ("<lower>1 2</lower><upper>3</upper>", "<lower> must be one number, got '1 2'"),
+        ("<lower>0</lower><upper>1 2</upper>", "<upper> must be one number"),
+    ],
+)
+def test_bad_limits_raise_naming_the_joint(limit, match):
+    with pytest.raises(SDFError, match=r"<joint name='j'> <axis> <limit>: " + match):
+        parse_sdf(_one_joint("prismatic", limit))
+
+
+def test_zero_quaternion_pose_raises():
+    xml = (
+        '<sdf version="1.7"><model name="m"><link name="a"/><link name="b"/>'
+        '<joint name="j" type="revolute"><parent>a</parent><child>b</child>'
+        '<pose rotation_format="quat_xyzw">0 0 0 0 0 0 0</pose></joint></model></sdf>'
+    )
+    with pytest.raises(SDFError, match=r"<joint name='j'> <pose>: the quaternion .* is zero"):
+        parse_sdf(xml)
+
+
+def test_joint_with_one_link_as_parent_and_child_is_named():
+    xml = (
+        '<sdf version="1.7"><model name="m"><link name="a"/><link name="b"/>'
+        '<joint name="j" type="revolute"><parent>a</parent><child>a</child></joint>'
+        "</model></sdf>"
+    )
+    with pytest.raises(SDFError, match=r"<joint name='j'>: link 'a' is both its <parent>"):
+        parse_sdf(xml)
+
+
+def test_byte_order_mark_and_declared_encodings(tmp_path):
+    xml = '<sdf version="1.7"><model name="m\xe9"><link name="a"/></model></sdf>'
+    assert parse_sdf(("\ufeff" + xml).encode("utf-8")).name == "m\xe9"
+    assert parse_sdf("\ufeff" + xml).name == "m\xe9"  # open(f).read() of such a file
+    latin = '<?xml version="1.0" encoding="ISO-8859-1"?>\n' + xml
+    path = tmp_path / "latin.sdf"
+    path.write_bytes(latin.encode("latin-1"))
+    assert parse_sdf(path).name == parse_sdf(latin.encode("latin-1")).name == "m\xe9"
+    from torchlie.kinematics.validate import main
+
+    assert main([str(path), "--samples", "2"]) == 0  # its reference reads the file alike
+    bom = tmp_path / "bom.sdf"
+    bom.write_bytes(("\ufeff" + xml).encode("utf-8"))
+    assert parse_sdf(bom).name == "m\xe9"
+    with pytest.raises(SDFError, match="unknown encoding: nope"):
+        parse_sdf(latin.replace("ISO-8859-1", "nope").encode("latin-1"))
+    path.write_bytes(xml.encode("latin-1"))  # undeclared, not UTF-8
+    with pytest.raises(SDFError, match=f"{re.escape(str(path))}: <sdf>: not well-formed"):
+        parse_sdf(path)

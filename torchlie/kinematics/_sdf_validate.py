@@ -75,7 +75,7 @@ def _strip(root: ET.Element) -> ET.Element:
     return root
 
 
-def sdf_reference_poses(xml: str, values: dict[str, object]) -> dict[str, np.ndarray]:
+def sdf_reference_poses(xml: str | bytes, values: dict[str, object]) -> dict[str, np.ndarray]:
     """Every link's pose ``(4, 4)`` in the model frame for the joint values ``values``: joint
     name -> angle, displacement or quaternion ``(w, x, y, z)`` (missing: zero / identity).
     Each link's tree joint is its first parent joint of a supported type (document order).
@@ -201,10 +201,11 @@ def validate_sdf(
     within ``1e-12`` (float64) or ``1e-5`` (float32), times ``1 + size`` for positions
     (``size``: the largest distance of a link from the model origin, m); prints the report and
     returns whether everything is within tolerance."""
-    if source.lstrip().startswith("<"):
+    xml: str | bytes
+    if source.lstrip("\ufeff \t\r\n").startswith("<"):
         xml, label = source, "<string>"
     else:
-        with open(source, encoding="utf-8") as f:
+        with open(source, "rb") as f:  # the XML declaration names the encoding
             xml, label = f.read(), source
     chain = Chain.from_sdf(source, loops=loops, dtype=dtype)  # errors name the file
     tol = 1e-12 if dtype == torch.float64 else 1e-5

@@ -14,8 +14,9 @@ Frames, as SDFormat 1.7+ defines them: a link's pose is relative to the model fr
 ``relative_to`` names another frame; a joint's pose (its frame) is relative to its child link;
 a ``<frame>``'s to the frame it is attached to (the model frame by default).  ``__model__``
 names the model frame.  A pose is ``x y z roll pitch yaw`` with ``R = Rz(yaw) Ry(pitch)
-Rx(roll)``; ``degrees="true"`` and ``rotation_format="quat_xyzw"`` (``x y z qx qy qz qw``)
-are read, and the ``frame`` attribute of SDFormat 1.5-1.6 poses as ``relative_to``.
+Rx(roll)``; ``degrees="true"`` and
+``rotation_format="quat_xyzw"`` (``x y z qx qy qz qw``, not all zero) are read, and the
+``frame`` attribute of SDFormat 1.5-1.6 poses as ``relative_to``.
 
 What depends on ``<sdf version>`` (a file without one is read by the 1.7+ rules):
 
@@ -28,6 +29,14 @@ What depends on ``<sdf version>`` (a file without one is read by the 1.7+ rules)
 - names: from 1.7 the links, joints and frames of a model share one namespace; before, a joint
   may take the name of a link or frame (a ``relative_to`` naming both means the link or frame).
 
+Limits: ``<limit>`` ``<lower>``/``<upper>`` of a revolute or prismatic joint, one number each;
+a side that is absent or beyond ``+-1e15`` (SDF's default is ``+-1e16``) is unlimited
+(``-inf``/``inf``): a revolute joint without either is ``continuous``, one with a single side
+keeps that side.  ``lower > upper`` is an error.
+
+The file's encoding is the one its XML declaration names (UTF-8 by default, with or without a
+byte-order mark); bytes and paths are given to the XML parser undecoded.
+
 The chain: its root is the model frame, called ``"__model__"`` (or ``"world"`` when a joint
 has ``<parent>world</parent>``: the world is then taken to be the model frame), and every pose
 it returns is in the model's frame.  The model's own ``<pose>`` (where it stands in its world)
@@ -35,11 +44,11 @@ is not applied: pre-multiply the chain's poses by it for world poses.  A link th
 moves is attached to the root by a fixed joint.  A joint turns about its own frame's origin and
 axis; the joint frame need not coincide with the child link's.
 
-Not supported, with an error naming it: several models, nested models, ``<include>``, joint
-types other than those above, and kinematic loops (a link that is the child of several
-joints), unless ``loops="skip"``: then each link keeps the first of its parent joints (in
-document order) of a supported type, the others (loop closures: gearbox, ball, ... joints) are
-left out, as a tree of the robot's links needs.
+Not supported, with an error naming it: several models, nested models, ``<include>`` (also
+next to a ``<model>`` in a ``<world>``), joint types other than those above, and kinematic
+loops (a link that is the child of several joints), unless ``loops="skip"``: then each link
+keeps the first of its parent joints (in document order) of a supported type, the others (loop
+closures: gearbox, ball, ... joints) are left out, as a tree of the robot's links needs.
 """
 
 from __future__ import annotations
@@ -119,6 +128,8 @@ class _Reader:
                     where, f"<pose rotation_format='quat_xyzw'> needs 7 numbers, got {len(v)}"
                 )
             qx, qy, qz, qw = v[3:]
+            if qx == qy == qz == qw == 0.0:
+                raise self.fail(where, "the quaternion (qx qy qz qw) is zero: not a rotation")
             R = _quaternion.to_matrix(torch.tensor([qw, qx, qy, qz], dtype=torch.float64))
         elif fmt == "euler_rpy":
             if len(v) != 6:
@@ -166,7 +177,7 @@ def _the_model(r: _Reader, root: ET.Element) -> ET.Element:
         raise r.fail(f"<{root.tag}>", "the root element must be <sdf>")
     models = root.findall("model")
     for world in root.findall("world"):
-        if world.find("include") is not None and not world.findall("model"):
+        if world.find("include") is not None:  # with or without local models: not read
             raise r.fail(
                 f"<world name={world.get('name')!r}> <include>",
                 "models included by URI are not supported: put the <model> in the file",
@@ -198,7 +209,8 @@ def parse_sdf(source: str | os.PathLike[str] | bytes, *, loops: str = "error") -
     about the child's frame.
 
     Args:
-        source: a path to an ``.sdf`` file, or the XML text (a string starting with ``<``).
+        source: a path to an ``.sdf`` file, or the XML text (a string or bytes starting with
+            ``<``, after a byte-order mark and whitespace).
         loops: ``"error"`` (default): a link that is the child of several joints is an error;
             ``"skip"``: keep the first supported joint of each link, leave the others out.
 
@@ -219,19 +231,22 @@ def parse_sdf(source: str | os.PathLike[str] | bytes, *, loops: str = "error") -
         raise ValueError(
             f"torchlie.kinematics.parse_sdf: loops must be 'error' or 'skip', got {loops!r}"
         )
-    if isinstance(source, bytes):
-        source = source.decode()
-    if isinstance(source, str) and source.lstrip().startswith("<"):
-        label, text = "<string>", source
+    data: str | bytes
+    if isinstance(source, bytes) and source.lstrip(b"\xef\xbb\xbf \t\r\n").startswith(b"<"):
+        label, data = "<string>", source  # the XML declaration names the encoding
+    elif isinstance(source, str) and source.lstrip("\ufeff \t\r\n").startswith("<"):
+        label, data = "<string>", source
     else:
-        label = os.fspath(source)
-        with open(label, encoding="utf-8") as f:
-            text = f.read()
+        label = os.fsdecode(source)
+        with open(label, "rb") as f:
+            data = f.read()
     r = _Reader(label)
     try:
-        root = ET.fromstring(text)
+        root = ET.fromstring(data)
     except ET.ParseError as e:
         raise r.fail("<sdf>", f"not well-formed XML: {e}") from None
+    except LookupError as e:  # an encoding Python does not know
+        raise r.fail("<?xml encoding?>", f"cannot decode the file: {e}") from None
     _strip_namespaces(root)
     version = _version(r, root)
     model = _the_model(r, root)
@@ -304,6 +319,8 @@ def parse_sdf(source: str | os.PathLike[str] | bytes, *, loops: str = "error") -
         name = el.get("name", "")
         where = f"<joint name={name!r}>"
         parent, child = r.text(el, "parent", where), r.text(el, "child", where)
+        if parent == child:
+            raise r.fail(where, f"link {child!r} is both its <parent> and its <child>")
         if child not in links:
             raise r.fail(where + " <child>", f"{child!r} is not a link of the model")
         if parent not in links and parent != "world":
@@ -414,10 +431,7 @@ def _joint(  # noqa: ANN001
             parent_model_frame = on if version < (1, 7) else None
         lim = axis_el.find("limit")
         if lim is not None and jtype != "continuous":
-            lo = r.numbers(lim.findtext("lower"), where + " <limit>", "lower")
-            hi = r.numbers(lim.findtext("upper"), where + " <limit>", "upper")
-            lower = lo[0] if lo and abs(lo[0]) < _NO_LIMIT else None
-            upper = hi[0] if hi and abs(hi[0]) < _NO_LIMIT else None
+            lower, upper = _limits(r, lim, where + " <axis> <limit>")
     if parent_model_frame or (parent_model_frame is None and version < (1, 5) and not expressed_in):
         R_MF = torch.eye(3, dtype=torch.float64)  # the model frame (SDFormat 1.4's default)
     elif expressed_in:
@@ -426,10 +440,8 @@ def _joint(  # noqa: ANN001
         R_MF = X_MJ[:3, :3]
     axis = R_MC.mT @ (R_MF @ torch.tensor(a, dtype=torch.float64))
     anchor = R_MC.mT @ (X_MJ[:3, 3] - X_MC[:3, 3])
-    if jtype == "revolute" and (lower is None or upper is None):  # SDF's default: no limit
-        jtype, lower, upper = "continuous", None, None
-    if jtype == "prismatic" and (lower is None or upper is None):
-        lower = upper = None
+    if jtype == "revolute" and lower is None and upper is None:  # SDF's default: no limit
+        jtype = "continuous"
     return [
         JointSpec(
             name,
@@ -445,6 +457,21 @@ def _joint(  # noqa: ANN001
             anchor=tuple(float(x) for x in anchor) if jtype != "prismatic" else (0.0, 0.0, 0.0),  # type: ignore[arg-type]
         )
     ]
+
+
+def _limits(r: _Reader, lim: ET.Element, where: str) -> tuple[float | None, float | None]:
+    """``<lower>``, ``<upper>`` of a ``<limit>``; ``None`` where absent or SDF's default
+    (``+-1e16``, beyond ``+-1e15``: no limit on that side)."""
+    out: list[float | None] = []
+    for tag in ("lower", "upper"):
+        v = r.numbers(lim.findtext(tag), where, tag)
+        if len(v) > 1:
+            raise r.fail(where, f"<{tag}> must be one number, got {lim.findtext(tag)!r}")
+        out.append(v[0] if v and abs(v[0]) < _NO_LIMIT else None)
+    lower, upper = out
+    if lower is not None and upper is not None and lower > upper:
+        raise r.fail(where, f"<lower> {lower!r} is above <upper> {upper!r}")
+    return lower, upper
 
 
 def _check_acyclic(r: _Reader, root: str, links: list[str], joints: list[JointSpec]) -> None:
