@@ -648,3 +648,24 @@ def test_byte_order_mark_and_declared_encodings(tmp_path):
     path.write_bytes(xml.encode("latin-1"))  # undeclared, not UTF-8
     with pytest.raises(SDFError, match=f"{re.escape(str(path))}: <sdf>: not well-formed"):
         parse_sdf(path)
+
+
+def test_degrees_are_exact_at_multiples_of_90():
+    xml = (
+        '<sdf version="1.7"><model name="m">'
+        '<link name="a"><pose degrees="true">0 0 0 90 -180 450</pose></link>'
+        '<link name="b"><pose degrees="true">0 0 0 30 0 0</pose></link></model></sdf>'
+    )
+    chain = Chain.from_sdf(xml, dtype=torch.float64)
+    T = chain.forward_kinematics(torch.zeros(0, dtype=torch.float64))
+    R = T["a"][:3, :3]
+    assert set(R.flatten().tolist()) <= {0.0, 1.0, -1.0}
+    torch.testing.assert_close(
+        R, torch.tensor(Rotation.from_euler("xyz", [90, -180, 450], degrees=True).as_matrix())
+    )
+    torch.testing.assert_close(
+        T["b"][:3, :3],
+        torch.tensor(Rotation.from_euler("x", 30, degrees=True).as_matrix()),
+        rtol=0,
+        atol=2e-16,
+    )

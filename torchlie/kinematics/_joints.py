@@ -79,6 +79,13 @@ def rpy_rows(roll: float, pitch: float, yaw: float) -> list[list[float]]:
     cr, sr = math.cos(roll), math.sin(roll)
     cp, sp = math.cos(pitch), math.sin(pitch)
     cy, sy = math.cos(yaw), math.sin(yaw)
+    return rpy_rows_cos_sin(cr, sr, cp, sp, cy, sy)
+
+
+def rpy_rows_cos_sin(
+    cr: float, sr: float, cp: float, sp: float, cy: float, sy: float
+) -> list[list[float]]:
+    """The rows of :func:`rpy_matrix` from the cosines and sines of roll, pitch and yaw."""
     return [
         [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
         [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],

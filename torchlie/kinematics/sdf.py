@@ -14,7 +14,7 @@ Frames, as SDFormat 1.7+ defines them: a link's pose is relative to the model fr
 ``relative_to`` names another frame; a joint's pose (its frame) is relative to its child link;
 a ``<frame>``'s to the frame it is attached to (the model frame by default).  ``__model__``
 names the model frame.  A pose is ``x y z roll pitch yaw`` with ``R = Rz(yaw) Ry(pitch)
-Rx(roll)``; ``degrees="true"`` and
+Rx(roll)``; ``degrees="true"`` (exact at multiples of 90 degrees) and
 ``rotation_format="quat_xyzw"`` (``x y z qx qy qz qw``, not all zero) are read, and the
 ``frame`` attribute of SDFormat 1.5-1.6 poses as ``relative_to``.
 
@@ -62,7 +62,7 @@ import torch
 from torch import Tensor
 
 from .. import quaternion as _quaternion
-from ._joints import rpy_matrix
+from ._joints import rpy_matrix, rpy_rows_cos_sin
 from .urdf import JointSpec, RobotSpec, _local, _some
 
 __all__ = ["SDFError", "parse_sdf", "SDF_JOINT_TYPES"]
@@ -136,10 +136,11 @@ class _Reader:
                 raise self.fail(
                     where, f"<pose> needs 6 numbers (x y z roll pitch yaw), got {len(v)}"
                 )
-            angles = v[3:]
             if el.get("degrees", "false").strip().lower() in ("true", "1"):
-                angles = [math.radians(a) for a in angles]
-            R = rpy_matrix(*angles)
+                cos_sin = [x for a in v[3:] for x in _cos_sin_degrees(a)]
+                R = torch.tensor(rpy_rows_cos_sin(*cos_sin), dtype=torch.float64)
+            else:
+                R = rpy_matrix(*v[3:])
         else:
             raise self.fail(where, f"unknown <pose rotation_format={fmt!r}>")
         T[:3, :3] = R
@@ -151,6 +152,25 @@ class _Reader:
         if sub is None or not (sub.text or "").strip():
             raise self.fail(where, f"missing <{tag}>")
         return (sub.text or "").strip()
+
+
+# Cosine and sine at the multiples of 90 degrees, exactly.
+_RIGHT_ANGLES = {
+    0.0: (1.0, 0.0),
+    90.0: (0.0, 1.0),
+    -90.0: (0.0, -1.0),
+    180.0: (-1.0, 0.0),
+    -180.0: (-1.0, 0.0),
+}
+
+
+def _cos_sin_degrees(a: float) -> tuple[float, float]:
+    """``cos`` and ``sin`` of ``a`` degrees, exact at multiples of 90 (the angle reduced to
+    ``[-180, 180]`` first: exact in floating point)."""
+    a = math.remainder(a, 360.0)
+    if a in _RIGHT_ANGLES:
+        return _RIGHT_ANGLES[a]
+    return math.cos(math.radians(a)), math.sin(math.radians(a))
 
 
 def _strip_namespaces(root: ET.Element) -> None:
