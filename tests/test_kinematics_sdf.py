@@ -65,22 +65,28 @@ def _pose(el) -> np.ndarray:
 def reference_poses(xml: str, values: dict[str, object]) -> dict[str, np.ndarray]:
     """Every link's pose in the model frame; ``values``: joint name -> angle, displacement
     or quaternion ``(w, x, y, z)`` (missing: zero / identity).  Loop joints: first supported
-    parent joint of each link in document order."""
+    parent joint of each link in document order.  The axis frame by ``<sdf version>``: 1.4
+    the model frame, 1.5-1.6 the joint frame or the model frame by ``use_parent_model_frame``,
+    1.7+ the joint frame or ``expressed_in``; before 1.7 a joint and a link may share a name."""
     root = ET.fromstring(xml)
+    version = tuple(int(x) for x in root.get("version", "1.7").split("."))
     model = root.find("model")
     if model is None:
         model = root.find("world").find("model")
-    rel, pose = {}, {}
+    rel, pose, joint_rel, joint_pose = {}, {}, {}, {}
     for el in model.findall("link"):
         p = el.find("pose")
         rel[el.get("name")] = (p.get("relative_to") if p is not None else None) or "__model__"
         pose[el.get("name")] = _pose(p)
     for el in model.findall("joint"):
         p = el.find("pose")
-        rel[el.get("name")] = (p.get("relative_to") if p is not None else None) or el.findtext(
-            "child"
-        ).strip()
-        pose[el.get("name")] = _pose(p)
+        joint_rel[el.get("name")] = (
+            p.get("relative_to") if p is not None else None
+        ) or el.findtext("child").strip()
+        joint_pose[el.get("name")] = _pose(p)
+        if el.get("name") not in rel:
+            rel[el.get("name")] = joint_rel[el.get("name")]
+            pose[el.get("name")] = joint_pose[el.get("name")]
     for el in model.findall("frame"):
         p = el.find("pose")
         rel[el.get("name")] = (p.get("relative_to") if p is not None else None) or (
@@ -111,7 +117,7 @@ def reference_poses(xml: str, values: dict[str, object]) -> dict[str, np.ndarray
             return out[link]
         name, jtype = el.get("name"), el.get("type")
         parent = el.findtext("parent").strip()
-        XP0, XJ0, XC0 = X0(parent), X0(name), X0(link)
+        XP0, XJ0, XC0 = X0(parent), X0(joint_rel[name]) @ joint_pose[name], X0(link)
         M = np.eye(4)
         if jtype in ("revolute", "continuous", "prismatic"):
             axis_el = el.find("axis")
@@ -121,15 +127,19 @@ def reference_poses(xml: str, values: dict[str, object]) -> dict[str, np.ndarray
                 if xyz_el is not None
                 else [0, 0, 1]
             )
-            frame = (xyz_el.get("expressed_in") if xyz_el is not None else None) or name
-            if axis_el is not None and (
-                axis_el.findtext("use_parent_model_frame") or ""
-            ).strip() in (
-                "1",
-                "true",
-            ):
-                frame = "__model__"
-            a_J = XJ0[:3, :3].T @ X0(frame)[:3, :3] @ a
+            expressed = xyz_el.get("expressed_in") if xyz_el is not None else None
+            upm = axis_el.findtext("use_parent_model_frame") if axis_el is not None else None
+            if upm is not None and version < (1, 7):
+                model_frame = upm.strip() in ("1", "true")
+            else:
+                model_frame = version < (1, 5) and not expressed
+            if model_frame:
+                R_MF = np.eye(3)
+            elif expressed:
+                R_MF = X0(expressed)[:3, :3]
+            else:
+                R_MF = XJ0[:3, :3]
+            a_J = XJ0[:3, :3].T @ R_MF @ a
             a_J = a_J / np.linalg.norm(a_J)
             v = float(values.get(name, 0.0))
             if jtype == "prismatic":
@@ -467,4 +477,195 @@ def test_old_frame_attribute_is_relative_to():
     q = a.random_configuration(3, generator=torch.Generator().manual_seed(2))
     torch.testing.assert_close(
         a.forward_kinematics(q, stacked=True), b.forward_kinematics(q, stacked=True)
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# SDFormat versions, limits, encodings
+# ----------------------------------------------------------------------------------------------
+
+
+def _rotated_child(version: str, axis: str = "<xyz>1 0 0</xyz>") -> str:
+    """A prismatic joint whose child link (and so joint frame) is turned 90 degrees about z."""
+    head = f'<sdf version="{version}">' if version else "<sdf>"
+    return (
+        f'{head}<model name="m"><link name="a"/>'
+        '<link name="b"><pose>0 0 0 0 0 1.5707963267948966</pose></link>'
+        '<joint name="j" type="prismatic"><parent>a</parent><child>b</child>'
+        f"<axis>{axis}<limit><lower>-1</lower><upper>1</upper></limit></axis></joint>"
+        "</model></sdf>"
+    )
+
+
+UPM = "<xyz>1 0 0</xyz><use_parent_model_frame>{}</use_parent_model_frame>"
+
+
+@pytest.mark.parametrize(
+    "version, axis, along_model_x",
+    [
+        ("1.4", "<xyz>1 0 0</xyz>", True),  # 1.4: the axis is in the model frame
+        ("1.4", UPM.format("false"), False),
+        ("1.5", "<xyz>1 0 0</xyz>", False),  # 1.5-1.6: the joint frame ...
+        ("1.6", "<xyz>1 0 0</xyz>", False),
+        ("1.6", UPM.format("true"), True),  # ... unless use_parent_model_frame
+        ("1.7", "<xyz>1 0 0</xyz>", False),  # 1.7+: the joint frame ...
+        ("1.9", '<xyz expressed_in="__model__">1 0 0</xyz>', True),  # ... unless expressed_in
+        ("1.7", UPM.format("false"), False),
+        ("", "<xyz>1 0 0</xyz>", False),  # no version: the 1.7+ rules
+    ],
+)
+def test_axis_frame_follows_the_sdf_version(version, axis, along_model_x):
+    from torchlie.kinematics._sdf_validate import sdf_reference_poses
+
+    xml = _rotated_child(version, axis)
+    chain = Chain.from_sdf(xml, dtype=torch.float64)
+    p = chain.forward_kinematics(torch.tensor([0.5], dtype=torch.float64), "b")["b"][:3, 3]
+    want = [0.5, 0.0, 0.0] if along_model_x else [0.0, 0.5, 0.0]
+    np.testing.assert_allclose(p.numpy(), want, atol=1e-15)
+    for ref in (reference_poses, sdf_reference_poses):  # both references apply the same rule
+        np.testing.assert_allclose(ref(xml, {"j": 0.5})["b"][:3, 3], want, atol=1e-15)
+
+
+def test_old_sdf_versions_against_reference(tmp_path, capsys):
+    from torchlie.kinematics.validate import main
+
+    old = OLD_STYLE.replace("<use_parent_model_frame>1</use_parent_model_frame>", "")
+    for version in ("1.4", "1.5", "1.6"):
+        xml = old.replace('version="1.6"', f'version="{version}"')
+        assert compare(xml, n=4) <= 1e-12
+        path = tmp_path / f"m{version}.sdf"
+        path.write_text(xml)
+        assert main([str(path), "--samples", "4"]) == 0
+    assert "PASS" in capsys.readouterr().out
+
+
+def test_use_parent_model_frame_is_refused_from_sdf_1_7():
+    with pytest.raises(SDFError, match=r"<joint name='j'> <axis> <use_parent_model_frame>.*1\.7"):
+        Chain.from_sdf(_rotated_child("1.7", UPM.format("true")))
+    with pytest.raises(SDFError, match=r"<sdf version='one'>"):
+        Chain.from_sdf(_rotated_child("one"))
+
+
+def test_link_and_joint_may_share_a_name_before_sdf_1_7():
+    xml = (
+        '<sdf version="1.6"><model name="m"><link name="a"/>'
+        '<link name="b"><pose>1 0 0 0 0 0.5</pose></link>'
+        '<joint name="b" type="revolute"><parent>a</parent><child>b</child>'
+        "<pose>0 0.2 0 0 0 0</pose><axis><xyz>0 1 0</xyz>"
+        "<limit><lower>-1</lower><upper>1</upper></limit></axis></joint></model></sdf>"
+    )
+    chain = Chain.from_sdf(xml, dtype=torch.float64)
+    assert chain.joint_names == ("b",) and chain.link_names[-1] == "b"
+    assert compare(xml, n=4) <= 1e-12
+    with pytest.raises(SDFError, match="<joint name='b'>: the name 'b' is already taken"):
+        Chain.from_sdf(xml.replace('version="1.6"', 'version="1.7"'))
+    with pytest.raises(SDFError, match="<link name='a'>: the name 'a' is already taken"):
+        Chain.from_sdf(xml.replace('<link name="b">', '<link name="a">'))  # same type
+
+
+def test_world_include_next_to_a_model_raises():
+    xml = (
+        '<sdf version="1.7"><world name="w"><include><uri>model://robot</uri></include>'
+        '<model name="ground"><static>true</static><link name="g"/></model></world></sdf>'
+    )
+    with pytest.raises(SDFError, match=r"<world name='w'> <include>: models included by URI"):
+        parse_sdf(xml)
+
+
+def _one_joint(jtype: str, limit: str) -> str:
+    return (
+        '<sdf version="1.7"><model name="m"><link name="a"/><link name="b"/>'
+        f'<joint name="j" type="{jtype}"><parent>a</parent><child>b</child>'
+        f"<axis><xyz>0 0 1</xyz><limit>{limit}</limit></axis></joint></model></sdf>"
+    )
+
+
+@pytest.mark.parametrize("jtype", ["revolute", "prismatic"])
+def test_one_sided_limit_is_kept(jtype):
+    chain = Chain.from_sdf(_one_joint(jtype, "<lower>-0.5</lower>"), dtype=torch.float64)
+    assert parse_sdf(_one_joint(jtype, "<lower>-0.5</lower>")).joint("j").type == jtype
+    assert float(chain.lower[0]) == -0.5 and chain.upper[0] == math.inf
+    q = chain.random_configuration(200, generator=torch.Generator().manual_seed(0))
+    assert bool((q >= -0.5).all()) and bool((q <= -0.5 + 2 * math.pi).all())
+    chain = Chain.from_sdf(_one_joint(jtype, "<upper>0.5</upper><lower>-1e16</lower>"))
+    assert chain.lower[0] == -math.inf and float(chain.upper[0]) == 0.5
+    q = chain.random_configuration(200, generator=torch.Generator().manual_seed(0))
+    assert bool((q <= 0.5).all()) and bool((q >= 0.5 - 2 * math.pi).all())
+    assert parse_sdf(_one_joint(jtype, "")).joint("j").type == (
+        "continuous" if jtype == "revolute" else "prismatic"
+    )
+
+
+@pytest.mark.parametrize(
+    "limit, match",
+    [
+        ("<lower>1</lower><upper>-1</upper>", r"<lower> 1\.0 is above <upper> -1\.0"),
+        ("<lower>1 2</lower><upper>3</upper>", "<lower> must be one number, got '1 2'"),
+        ("<lower>0</lower><upper>1 2</upper>", "<upper> must be one number"),
+    ],
+)
+def test_bad_limits_raise_naming_the_joint(limit, match):
+    with pytest.raises(SDFError, match=r"<joint name='j'> <axis> <limit>: " + match):
+        parse_sdf(_one_joint("prismatic", limit))
+
+
+def test_zero_quaternion_pose_raises():
+    xml = (
+        '<sdf version="1.7"><model name="m"><link name="a"/><link name="b"/>'
+        '<joint name="j" type="revolute"><parent>a</parent><child>b</child>'
+        '<pose rotation_format="quat_xyzw">0 0 0 0 0 0 0</pose></joint></model></sdf>'
+    )
+    with pytest.raises(SDFError, match=r"<joint name='j'> <pose>: the quaternion .* is zero"):
+        parse_sdf(xml)
+
+
+def test_joint_with_one_link_as_parent_and_child_is_named():
+    xml = (
+        '<sdf version="1.7"><model name="m"><link name="a"/><link name="b"/>'
+        '<joint name="j" type="revolute"><parent>a</parent><child>a</child></joint>'
+        "</model></sdf>"
+    )
+    with pytest.raises(SDFError, match=r"<joint name='j'>: link 'a' is both its <parent>"):
+        parse_sdf(xml)
+
+
+def test_byte_order_mark_and_declared_encodings(tmp_path):
+    xml = '<sdf version="1.7"><model name="m\xe9"><link name="a"/></model></sdf>'
+    assert parse_sdf(("\ufeff" + xml).encode("utf-8")).name == "m\xe9"
+    assert parse_sdf("\ufeff" + xml).name == "m\xe9"  # open(f).read() of such a file
+    latin = '<?xml version="1.0" encoding="ISO-8859-1"?>\n' + xml
+    path = tmp_path / "latin.sdf"
+    path.write_bytes(latin.encode("latin-1"))
+    assert parse_sdf(path).name == parse_sdf(latin.encode("latin-1")).name == "m\xe9"
+    from torchlie.kinematics.validate import main
+
+    assert main([str(path), "--samples", "2"]) == 0  # its reference reads the file alike
+    bom = tmp_path / "bom.sdf"
+    bom.write_bytes(("\ufeff" + xml).encode("utf-8"))
+    assert parse_sdf(bom).name == "m\xe9"
+    with pytest.raises(SDFError, match="unknown encoding: nope"):
+        parse_sdf(latin.replace("ISO-8859-1", "nope").encode("latin-1"))
+    path.write_bytes(xml.encode("latin-1"))  # undeclared, not UTF-8
+    with pytest.raises(SDFError, match=f"{re.escape(str(path))}: <sdf>: not well-formed"):
+        parse_sdf(path)
+
+
+def test_degrees_are_exact_at_multiples_of_90():
+    xml = (
+        '<sdf version="1.7"><model name="m">'
+        '<link name="a"><pose degrees="true">0 0 0 90 -180 450</pose></link>'
+        '<link name="b"><pose degrees="true">0 0 0 30 0 0</pose></link></model></sdf>'
+    )
+    chain = Chain.from_sdf(xml, dtype=torch.float64)
+    T = chain.forward_kinematics(torch.zeros(0, dtype=torch.float64))
+    R = T["a"][:3, :3]
+    assert set(R.flatten().tolist()) <= {0.0, 1.0, -1.0}
+    torch.testing.assert_close(
+        R, torch.tensor(Rotation.from_euler("xyz", [90, -180, 450], degrees=True).as_matrix())
+    )
+    torch.testing.assert_close(
+        T["b"][:3, :3],
+        torch.tensor(Rotation.from_euler("x", 30, degrees=True).as_matrix()),
+        rtol=0,
+        atol=2e-16,
     )

@@ -79,6 +79,13 @@ def rpy_rows(roll: float, pitch: float, yaw: float) -> list[list[float]]:
     cr, sr = math.cos(roll), math.sin(roll)
     cp, sp = math.cos(pitch), math.sin(pitch)
     cy, sy = math.cos(yaw), math.sin(yaw)
+    return rpy_rows_cos_sin(cr, sr, cp, sp, cy, sy)
+
+
+def rpy_rows_cos_sin(
+    cr: float, sr: float, cp: float, sp: float, cy: float, sy: float
+) -> list[list[float]]:
+    """The rows of :func:`rpy_matrix` from the cosines and sines of roll, pitch and yaw."""
     return [
         [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
         [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
@@ -294,11 +301,17 @@ def _check_representable(
         j = spec.joints[k // 3]
         raise fail(j, "origin", f"attribute 'xyz' value {j.xyz[k % 3]!r} overflows {big}")
     # The limits of the DoFs (a mimic joint's own limits are not stored: it has no DoF).
-    limited = [j for j in spec.joints if j.lower is not None and j.mimic is None]
-    k = first_overflow([x for j in limited for x in (j.lower, j.upper)])  # type: ignore[misc]
+    # A side may be None (SDF limits a joint on one side only).
+    bounds = [
+        (j, key, v)
+        for j in spec.joints
+        if j.mimic is None
+        for key, v in (("lower", j.lower), ("upper", j.upper))
+        if v is not None
+    ]
+    k = first_overflow([v for _, _, v in bounds])
     if k is not None:
-        j = limited[k // 2]
-        key, value = ("lower", j.lower) if k % 2 == 0 else ("upper", j.upper)
+        j, key, value = bounds[k]
         raise fail(j, "limit", f"attribute {key!r} value {value!r} overflows {big}")
     mimics = [j for j in spec.joints if j.mimic is not None]
     for what, values in (("multiplier", mimic_mult), ("offset", mimic_off)):
@@ -325,7 +338,8 @@ def _uniform_within(lo: Tensor, hi: Tensor, u: Tensor) -> Tensor:
 
 def _sampling_ranges(names: Sequence[str], lower: Tensor, upper: Tensor) -> tuple[Tensor, Tensor]:
     """The limits, with the free ranges of :meth:`Chain.random_configuration` where a
-    coordinate has none (by the suffix of its DoF name)."""
+    coordinate has none (by the suffix of its DoF name); a coordinate limited on one side
+    only gets a range of the same width on its limited side."""
     lo, hi = lower.clone(), upper.clone()
     for i, name in enumerate(names):
         if math.isfinite(lo[i]) and math.isfinite(hi[i]):
@@ -339,7 +353,12 @@ def _sampling_ranges(names: Sequence[str], lower: Tensor, upper: Tensor) -> tupl
             r = _FREE_ROTVEC
         else:
             r = _FREE_ANGLE
-        lo[i], hi[i] = -r, r
+        if math.isfinite(lo[i]):  # limited on one side only (SDF): the free range's width
+            hi[i] = lo[i] + 2.0 * r
+        elif math.isfinite(hi[i]):
+            lo[i] = hi[i] - 2.0 * r
+        else:
+            lo[i], hi[i] = -r, r
     return lo, hi
 
 

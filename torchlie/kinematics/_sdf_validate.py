@@ -75,19 +75,28 @@ def _strip(root: ET.Element) -> ET.Element:
     return root
 
 
-def sdf_reference_poses(xml: str, values: dict[str, object]) -> dict[str, np.ndarray]:
+def sdf_reference_poses(xml: str | bytes, values: dict[str, object]) -> dict[str, np.ndarray]:
     """Every link's pose ``(4, 4)`` in the model frame for the joint values ``values``: joint
     name -> angle, displacement or quaternion ``(w, x, y, z)`` (missing: zero / identity).
-    Each link's tree joint is its first parent joint of a supported type (document order)."""
+    Each link's tree joint is its first parent joint of a supported type (document order).
+
+    The joint axis frame by ``<sdf version>`` (absent: 1.7): up to 1.4 the model frame; 1.5
+    and 1.6 the joint frame, the model frame where ``<use_parent_model_frame>`` is true; from
+    1.7 the joint frame or the one ``expressed_in`` names.  Before 1.7 a joint may share its
+    name with a link (a ``relative_to`` then names the link)."""
     root = _strip(ET.fromstring(xml))
+    major, minor = (int(x) for x in root.get("version", "1.7").split("."))
+    version = (major, minor)
     model = root.find("model")
     if model is None:
         model = root.find("world/model")
     assert model is not None
     rel: dict[str, str] = {}
     pose: dict[str, np.ndarray] = {}
+    joint_rel: dict[str, str] = {}
+    joint_pose: dict[str, np.ndarray] = {}
 
-    def read(el: ET.Element, default: str) -> None:
+    def read(el: ET.Element, default: str, rel: dict, pose: dict) -> None:  # noqa: ANN001
         p = el.find("pose")
         given = ""
         if p is not None:
@@ -96,14 +105,21 @@ def sdf_reference_poses(xml: str, values: dict[str, object]) -> dict[str, np.nda
         pose[el.get("name", "")] = _pose(p)
 
     for el in model.findall("link"):
-        read(el, "__model__")
-    for el in model.findall("joint"):
-        read(el, (el.findtext("child") or "").strip())
+        read(el, "__model__", rel, pose)
     for el in model.findall("frame"):
-        read(el, (el.get("attached_to") or "").strip() or "__model__")
+        read(el, (el.get("attached_to") or "").strip() or "__model__", rel, pose)
+    for el in model.findall("joint"):
+        read(el, (el.findtext("child") or "").strip(), joint_rel, joint_pose)
+    for name in joint_rel:
+        if name not in rel:
+            rel[name], pose[name] = joint_rel[name], joint_pose[name]
 
     def X0(name: str) -> np.ndarray:
         return np.eye(4) if name in ("__model__", "world") else X0(rel[name]) @ pose[name]
+
+    def XJ(name: str) -> np.ndarray:
+        """The joint frame (its name may also be a link's before 1.7)."""
+        return X0(joint_rel[name]) @ joint_pose[name]
 
     tree: dict[str, ET.Element] = {}
     for el in model.findall("joint"):
@@ -116,7 +132,9 @@ def sdf_reference_poses(xml: str, values: dict[str, object]) -> dict[str, np.nda
             return np.eye(4)
         if link not in out:
             el = tree.get(link)
-            out[link] = X0(link) if el is None else X(_parent(el)) @ _motion(el, values, X0)
+            out[link] = (
+                X0(link) if el is None else X(_parent(el)) @ _motion(el, values, X0, XJ, version)
+            )
         return out[link]
 
     return {el.get("name", ""): X(el.get("name", "")) for el in model.findall("link")}
@@ -126,25 +144,31 @@ def _parent(el: ET.Element) -> str:
     return (el.findtext("parent") or "").strip()
 
 
-def _motion(el: ET.Element, values: dict[str, object], X0) -> np.ndarray:  # noqa: ANN001
+def _motion(el: ET.Element, values: dict[str, object], X0, XJ, version) -> np.ndarray:  # noqa: ANN001
     """``X_PJ M(q) X_JC`` of joint ``el``."""
     name, jtype = el.get("name", ""), (el.get("type") or "").strip()
     child = (el.findtext("child") or "").strip()
-    XP0, XJ0, XC0 = X0(_parent(el)), X0(name), X0(child)
+    XP0, XJ0, XC0 = X0(_parent(el)), XJ(name), X0(child)
     M = np.eye(4)
     if jtype in ("revolute", "continuous", "prismatic"):
         axis_el = el.find("axis")
         xyz_el = axis_el.find("xyz") if axis_el is not None else None
         a = np.array([0.0, 0.0, 1.0])
-        frame = name
         if xyz_el is not None:
             a = np.array([float(x) for x in (xyz_el.text or "").split()])
-            frame = (xyz_el.get("expressed_in") or "").strip() or name
-        if axis_el is not None:
-            upm = (axis_el.findtext("use_parent_model_frame") or "").strip().lower()
-            if upm in ("1", "true"):
-                frame = "__model__"
-        a_J = XJ0[:3, :3].T @ X0(frame)[:3, :3] @ a
+        upm = axis_el.findtext("use_parent_model_frame") if axis_el is not None else None
+        expressed = (xyz_el.get("expressed_in") or "").strip() if xyz_el is not None else ""
+        if version >= (1, 7) or upm is None:  # 1.4 and older: the model frame by default
+            in_model = version < (1, 5) and not expressed
+        else:
+            in_model = upm.strip().lower() in ("1", "true")
+        if in_model:
+            R_JF = XJ0[:3, :3].T
+        elif expressed:
+            R_JF = XJ0[:3, :3].T @ X0(expressed)[:3, :3]
+        else:  # the joint frame
+            R_JF = np.eye(3)
+        a_J = R_JF @ a
         a_J = a_J / np.linalg.norm(a_J)
         v = float(values.get(name, 0.0))  # type: ignore[arg-type]
         if jtype == "prismatic":
@@ -177,10 +201,11 @@ def validate_sdf(
     within ``1e-12`` (float64) or ``1e-5`` (float32), times ``1 + size`` for positions
     (``size``: the largest distance of a link from the model origin, m); prints the report and
     returns whether everything is within tolerance."""
-    if source.lstrip().startswith("<"):
+    xml: str | bytes
+    if source.lstrip("\ufeff \t\r\n").startswith("<"):
         xml, label = source, "<string>"
     else:
-        with open(source, encoding="utf-8") as f:
+        with open(source, "rb") as f:  # the XML declaration names the encoding
             xml, label = f.read(), source
     chain = Chain.from_sdf(source, loops=loops, dtype=dtype)  # errors name the file
     tol = 1e-12 if dtype == torch.float64 else 1e-5

@@ -397,7 +397,9 @@ class Chain:
 
         Coordinates without limits are drawn from ``[-pi, pi]`` (continuous joints, planar
         rotation), ``[-1, 1]`` m (planar and floating translations) and
-        ``[-pi/sqrt(3), pi/sqrt(3)]`` per rotation-vector component (floating rotations).
+        ``[-pi/sqrt(3), pi/sqrt(3)]`` per rotation-vector component (floating rotations); a
+        coordinate limited on one side only (SDF) from a range of the same width on that side,
+        e.g. ``[lower, lower + 2 pi]``.
         Drawn on the CPU in float64 (with ``generator`` if given), then converted; the values are
         finite for every pair of limits, those near the float64 range included.  Each batch
         size is a non-negative integer (0 gives an empty batch), at most 60 of them (the batch
