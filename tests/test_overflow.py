@@ -447,3 +447,29 @@ def test_compiled_gradients_are_finite_and_eager(dtype):
         (want,) = torch.autograd.grad(eager(leaf), leaf, c)
         scale = want[exact].abs().amax(-1, keepdim=True).clamp_min(1.0)
         assert ((grad[exact] - want[exact]).abs() <= 64 * torch.finfo(dtype).eps * scale).all()
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_norms_and_small_vector_parts_at_every_magnitude(dtype):
+    """Lengths whose squares overflow or underflow: translation distances, rotation angles
+    read from a matrix's skew part, the axis of ``matrix_to_axis_angle`` and the vector part
+    of a quaternion next to the negative real axis (it lay on the cut: axis x, or a wrong
+    angle)."""
+    eps = torch.finfo(dtype).eps
+    big = 1e300 if dtype == torch.float64 else 1e36
+    small = (1e-160, 1e-200, 1e-300) if dtype == torch.float64 else (1e-20, 1e-25, 1e-30)
+    for s in (big, 3e19 if dtype == torch.float32 else 3e160, *small):
+        t = torch.tensor([3.0, 4.0, 0.0], dtype=dtype) * s
+        T = se3.from_rt(torch.eye(3, dtype=dtype), t)
+        d = se3.distance(se3.identity(dtype=dtype), T)[1]
+        assert abs(float(d) / (5 * s) - 1) <= 2 * eps, (s, float(d))
+    u = torch.tensor([0.36, -0.48, 0.8], dtype=torch.float64)  # a unit axis
+    for a in small:
+        R = so3.exp((u * a).to(dtype))
+        assert abs(float(so3.distance(torch.eye(3, dtype=dtype), R)) / a - 1) <= 4 * eps
+        axis, angle = conversions.matrix_to_axis_angle(R)
+        torch.testing.assert_close(axis.double(), u, rtol=0, atol=4 * eps)
+        assert abs(float(angle) / a - 1) <= 4 * eps
+        q = torch.cat((torch.tensor([-1.0], dtype=torch.float64), u * a)).to(dtype)
+        want = (math.pi - a) * u  # the angle times the unit axis of the vector part
+        torch.testing.assert_close(quaternion.log(q)[1:].double(), want, rtol=0, atol=4 * eps)

@@ -265,9 +265,15 @@ def sqrt0(x: Tensor) -> Tensor:
 
 
 def norm(v: Tensor, keepdim: bool = False) -> Tensor:
-    """Euclidean norm over the last dimension whose gradient at v = 0 is 0 (a subgradient)
-    instead of NaN; NaN stays."""
-    return sqrt0(sum_squares(v, keepdim))
+    """Euclidean norm over the last dimension, at every finite magnitude, whose gradient at
+    v = 0 is 0 (a subgradient) instead of NaN; NaN stays.
+
+    From the squares of ``v / k`` (``k`` of :func:`rescaled`, detached: 1 where the squares of
+    ``v`` neither overflow nor underflow, so the same bits there; 1 for the zero vector)."""
+    k = _scale(v)
+    k = torch.where(k == 0.0, 1.0, k)
+    out = sqrt0(sum_squares(v / k, True)) * k
+    return out if keepdim else out.squeeze(-1)
 
 
 def sum_squares(v: Tensor, keepdim: bool = False) -> Tensor:

@@ -331,10 +331,9 @@ def matrix_to_axis_angle(
     """
     x, dtype = _checks.tensor(R, _NAME + "matrix_to_axis_angle", "R", (3, 3))
     w = _so3._LogFn(x)
-    n2 = (w * w).sum(-1, keepdim=True)
-    zero = n2 == 0
+    n = _coeffs.norm(w, keepdim=True)  # at every magnitude (the squares of tiny angles vanish)
+    zero = n == 0
     # Double where: the zero-angle branch never sees 1/|w|; a NaN element stays NaN.
-    n = _coeffs.sqrt0(n2)
     axis = torch.where(zero, w.new_tensor([1.0, 0.0, 0.0]), w / torch.where(zero, 1.0, n))
     angle = torch.clamp(n[..., 0], max=math.pi)  # |w| may round one ulp above pi
     return _checks.out(axis, dtype), _checks.out(angle, dtype)

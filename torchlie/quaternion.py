@@ -440,8 +440,15 @@ def _log(q: Tensor) -> Tensor:
     # atan_ratio is smooth at n = 0 for w > 0 and returns 0 (finite, with a finite gradient)
     # where n = 0 and w <= 0; those points are fixed below.
     vec = _coeffs.atan_ratio(n, w) * v
+    # w <= 0 with |v|'s squares below the normal range (|v| under about 1e-154 |w| in float64,
+    # 1e-19 in float32): |v| from v scaled by its own largest component and the angle times
+    # the unit vector (n was 0 or lost bits there: the axis came out x, or the angle wrong)
+    ns = _coeffs.norm(v, keepdim=True)
+    tiny = (w <= 0) & (ns > 0) & (ns * ns < 4.0 * torch.finfo(ns.dtype).tiny)
+    ne = torch.where(tiny, ns, 1.0)
+    vec = torch.where(tiny, _coeffs.atan2(ne, w) * (v / ne), vec)
     cut = torch.cat((torch.full_like(w, torch.pi), torch.zeros_like(v[..., 1:])), dim=-1)
-    vec = torch.where((n == 0) & (w < 0), cut, vec)
+    vec = torch.where((ns == 0) & (w < 0), cut, vec)
     out = torch.cat((0.5 * torch.log(w * w + n2) + k.log(), vec), dim=-1)
     zero = (n == 0) & (w == 0)
     return torch.where(zero, torch.full_like(out, float("nan")), out)
