@@ -167,3 +167,25 @@ def test_compiled_op_given_one_tensor_twice(module, name, make):
     (g_got,) = torch.autograd.grad((got * W).sum(), X)
     (g_want,) = torch.autograd.grad((want * W).sum(), X)
     torch.testing.assert_close(g_got, g_want)
+
+
+def test_new_float_values_and_many_variants():
+    """A new float (``t``) does not count as a variant to compile, and past torch's limit of
+    recompilations a function runs eagerly with a warning instead of raising (the limit
+    lowered to 2 here, for speed)."""
+    import warnings
+
+    from torchlie import so2
+
+    torch._dynamo.reset()
+    ns = compiled._CompiledNamespace(so2)  # fresh wrappers
+    R0, R1 = so2.identity(), so2.exp(torch.tensor([1.0]))
+    with torch._dynamo.config.patch(recompile_limit=2), warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        for t in (0.1, 0.2, 0.3, 0.4):
+            torch.testing.assert_close(ns.interpolate(R0, R1, t), so2.interpolate(R0, R1, t))
+        assert not any("runs eagerly" in str(x.message) for x in w)
+        for rank in (1, 2, 3, 4):
+            theta = torch.ones((2,) * (rank - 1) + (1,))
+            torch.testing.assert_close(ns.exp(theta), so2.exp(theta))
+        assert any("runs eagerly" in str(x.message) for x in w)

@@ -8,9 +8,12 @@ functions mirror the eager ones name for name, with the same conventions, errors
     R = so3.exp(omega)      # first call compiles (seconds); later calls run the fused kernel
 
 Each function is compiled on its first call and kept; a call with a new batch shape or dtype may
-compile once more (torch's automatic dynamic shapes take over after the second shape).  Nothing
-global changes: ``torchlie.so3`` stays eager.  Constructors that take a ``torch.Generator`` or
-only shapes (``identity``, ``random``) are passed through uncompiled.
+compile once more (torch's automatic dynamic shapes take over after the second shape), as does
+each new string argument (an Euler sequence, a frame) and rank.  Python floats (``t``, angles)
+are passed as 0-dim tensors of the operands' dtype, so new values do not compile again.  Past
+torch's limit of recompilations of one function (8) that function runs eagerly, with a
+warning.  Nothing global changes: ``torchlie.so3`` stays eager.  Constructors that take a
+``torch.Generator`` or only shapes (``identity``, ``random``) are passed through uncompiled.
 
 Vectorised CPU loops.  Inductor's C++ code generator leaves a fused loop scalar when strided
 loads and stores are many against its arithmetic (its ``cpp.enable_tiling_heuristics``); the ops
@@ -36,6 +39,7 @@ from __future__ import annotations
 
 import functools
 import types
+import warnings
 from collections.abc import Callable
 
 import torch
@@ -103,13 +107,44 @@ def inductor_options(module: str, name: str) -> dict[str, bool | int]:
     return {**FUSION, "cpp.enable_tiling_heuristics": False}
 
 
+def _numbers_as_tensors(args: tuple, kwargs: dict) -> tuple[tuple, dict]:
+    """Python floats (``t``, angles) as 0-dim tensors of the first tensor argument's dtype and
+    device: Dynamo compiles a new graph for each new float value, not for a tensor's."""
+    like = next((a for a in (*args, *kwargs.values()) if isinstance(a, torch.Tensor)), None)
+    if like is None or not like.is_floating_point():
+        return args, kwargs
+
+    def conv(a):
+        if isinstance(a, float):
+            return torch.tensor(a, dtype=like.dtype, device=like.device)
+        return a
+
+    return tuple(conv(a) for a in args), {k: conv(v) for k, v in kwargs.items()}
+
+
 def _compile(fn: Callable, options: dict[str, bool | int]) -> Callable:
     compiled = torch.compile(fn, fullgraph=True, options=options)
+    eager = False  # set once torch's limit of compiled variants is reached
 
     @functools.wraps(fn)
     def call(*args, **kwargs):
+        nonlocal eager
+        if eager:
+            return fn(*args, **kwargs)
+        args, kwargs = _numbers_as_tensors(args, kwargs)
         try:
             return compiled(*args, **kwargs)
+        except torch._dynamo.exc.FailOnRecompileLimitHit:
+            # Each string argument (an Euler sequence, a frame), rank and dtype is a variant
+            # of its own; past torch's limit of them the function runs eagerly (same results).
+            warnings.warn(
+                f"torchlie.compiled: {fn.__qualname__} reached torch.compile's limit of "
+                "recompilations (one per string argument, rank and dtype); it runs eagerly "
+                "from now on",
+                stacklevel=2,
+            )
+            eager = True
+            return fn(*args, **kwargs)
         except torch._dynamo.exc.TorchDynamoException:
             # Bad input raises inside the traced code, where Dynamo re-wraps it: the eager
             # function raises the library's own error for it.  If the eager call succeeds, the
