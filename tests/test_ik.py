@@ -286,6 +286,43 @@ def test_a_chain_without_dofs_reports_whether_its_links_are_at_the_targets(optio
     assert bool(fixed.inverse_kinematics(T, "b").converged)
 
 
+def _three_hinges(first: str) -> str:
+    """Three continuous joints about z, the first one named ``first``."""
+    return (
+        '<robot name="r"><link name="a"/><link name="b"/><link name="c"/><link name="t"/>'
+        f'<joint name="{first}" type="continuous"><parent link="a"/><child link="b"/>'
+        '<axis xyz="0 0 1"/></joint><joint name="j2" type="continuous"><parent link="b"/>'
+        '<child link="c"/><origin xyz="1 0 0"/><axis xyz="0 0 1"/></joint>'
+        '<joint name="j3" type="continuous"><parent link="c"/><child link="t"/>'
+        '<origin xyz="1 0 0"/><axis xyz="0 0 1"/></joint></robot>'
+    )
+
+
+@pytest.mark.parametrize("name", ["wrist:rx", "x:rx", "arm:x", "j:qw"])
+def test_a_joint_named_like_a_coordinate_is_solved_as_the_joint_it_is(name):
+    """What a DoF is comes from its joint: a continuous joint named 'wrist:rx' is not the
+    start of a floating joint's rotation vector (three hinges were wrapped as one)."""
+    plain = Chain.from_urdf(_three_hinges("wrist"), dtype=F64)
+    named = Chain.from_urdf(_three_hinges(name), dtype=F64)
+    q = torch.tensor([[2.5, 2.0, 2.9], [-2.8, 2.2, -2.5]], dtype=F64)
+    T = _fk(plain, q, "t")
+    a = plain.inverse_kinematics(T, "t", q0=0.9 * q, generator=torch.Generator().manual_seed(0))
+    b = named.inverse_kinematics(T, "t", q0=0.9 * q, generator=torch.Generator().manual_seed(0))
+    assert bool(a.converged.all()) and bool(b.converged.all())
+    assert torch.equal(a.q, b.q)
+    # One such joint alone (so3.exp of one value raised).
+    one = Chain.from_urdf(
+        f'<robot name="r"><link name="a"/><link name="b"/><link name="t"/><joint name="{name}" '
+        'type="continuous"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/></joint>'
+        '<joint name="f" type="fixed"><parent link="b"/><child link="t"/><origin xyz="1 0 0"/>'
+        "</joint></robot>",
+        dtype=F64,
+    )
+    res = one.inverse_kinematics(torch.tensor([0.0, 1.0, 0.0], dtype=F64), "t")
+    assert bool(res.converged) and abs(math.remainder(float(res.q) - math.pi / 2, math.tau)) < 1e-4
+    assert named.dof_joints[0] == one.dof_joints[0] == (name, "continuous", "")
+
+
 # ----------------------------------------------------------------------------------------------
 # The derivative used by the solver, and the implicit gradients
 # ----------------------------------------------------------------------------------------------

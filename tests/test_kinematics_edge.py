@@ -184,6 +184,72 @@ def test_validate_counts_nan_as_outside_tolerance(monkeypatch):
 
 
 # ----------------------------------------------------------------------------------------------
+# Names and roles of the degrees of freedom
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("floating_first", [True, False])
+def test_a_joint_named_like_another_joints_coordinate_is_an_error_naming_both(floating_first):
+    floating = joint("base", "floating", "a", "b")
+    revolute = joint("base:x", "revolute", "b", "c")
+    body = floating + revolute if floating_first else revolute + floating
+    with pytest.raises(URDFError, match=r"<string>: <joint name='base:x'>: 'base:x' would name a "
+                       r"degree of freedom of this joint and one of the floating joint 'base' "
+                       r"\(whose degrees of freedom are 'base:x', 'base:y', .*'base:rz'\); "
+                       r"rename one of the two joints"):  # fmt: skip
+        Chain.from_urdf(robot(body, ("a", "b", "c")))
+    # A ball joint's velocity coordinates are named too (J:wx, J:wy, J:wz).
+    sdf = (
+        '<sdf version="1.7"><model name="m"><link name="a"/><link name="b"/><link name="c"/>'
+        '<joint name="b0" type="ball"><parent>a</parent><child>b</child></joint>'
+        '<joint name="b0:wy" type="revolute"><parent>b</parent><child>c</child>'
+        "<axis><xyz>0 0 1</xyz></axis></joint></model></sdf>"
+    )
+    with pytest.raises(URDFError, match=r"<joint name='b0:wy'>: 'b0:wy' would name a velocity "
+                       r"coordinate of this joint and one of the ball joint 'b0'"):  # fmt: skip
+        Chain.from_sdf(sdf)
+    # Other names with ':' are fine.
+    body = joint("base", "floating", "a", "b") + joint("base:elbow", "revolute", "b", "c")
+    ok = Chain.from_urdf(robot(body, ("a", "b", "c")))
+    assert ok.joint_names[-1] == "base:elbow" and len(set(ok.joint_names)) == 7
+
+
+def test_dof_joints_say_what_each_dof_is(tree):
+    roles = dict(zip(tree.joint_names, tree.dof_joints, strict=True))
+    assert roles["puck_slide:theta"] == ("puck_slide", "planar", "theta")
+    assert roles["drone_free:rx"] == ("drone_free", "floating", "rx")
+    assert all(r == (n, t, "") for n, r in roles.items() for t in [r[1]] if ":" not in n)
+
+
+def test_sampling_ranges_come_from_the_joint_types_not_the_names():
+    """Unlimited coordinates: [-pi, pi] for one-DoF joints (continuous, and prismatic: in m),
+    [-1, 1] per quaternion component, whatever the joints are named."""
+    text = robot(
+        joint("wheel:x", "continuous", "a", "b") + joint("arm:rz", "continuous", "b", "c")
+        + joint("c:qw", "continuous", "c", "d"),
+        ("a", "b", "c", "d"),
+    )  # fmt: skip
+    lo, hi = Chain.from_urdf(text).sampling_bounds()
+    assert torch.equal(hi, torch.full((3,), math.pi, dtype=F64)) and torch.equal(lo, -hi)
+    sdf = (
+        '<sdf version="1.7"><model name="m"><link name="a"/><link name="b"/><link name="c"/>'
+        '<link name="d"/><joint name="ball" type="ball"><parent>a</parent><child>b</child>'
+        '</joint><joint name="h:y" type="revolute"><parent>b</parent><child>c</child>'
+        '<axis><xyz>0 0 1</xyz></axis></joint><joint name="s" type="prismatic"><parent>c'
+        "</parent><child>d</child><axis><xyz>1 0 0</xyz></axis></joint></model></sdf>"
+    )
+    chain = Chain.from_sdf(sdf, dtype=F64)
+    lo, hi = chain.sampling_bounds()
+    pi = math.pi
+    assert hi.tolist() == [1.0, 1.0, 1.0, 1.0, pi, pi] and torch.equal(lo, -hi)
+    q = chain.random_configuration(1000, generator=torch.Generator().manual_seed(0))
+    assert float(q[:, 5].abs().max()) > 3.0  # the slide over [-pi, pi] m
+    # moving_dofs indexes the velocity coordinates (the Jacobian's columns).
+    assert chain.moving_dofs("d") == (0, 1, 2, 3, 4)
+    assert chain.velocity_names[4] == "s" and chain.joint_names[4] == "h:y"
+
+
+# ----------------------------------------------------------------------------------------------
 # Bad arguments
 # ----------------------------------------------------------------------------------------------
 

@@ -34,6 +34,10 @@ Conventions
 * ``q`` has shape ``(..., n_dof)`` in :attr:`Chain.joint_names` order: one entry per degree of
   freedom, joints in document order, fixed and mimic joints excluded; a planar or floating
   joint ``J`` contributes ``J:x, J:y, J:theta`` or ``J:x, J:y, J:z, J:rx, J:ry, J:rz``.
+  These names are unique: a joint named like another joint's coordinate (``base:x`` beside a
+  floating ``base``) raises :class:`~torchlie.kinematics.URDFError` naming both joints when
+  the chain is built.  What each DoF is comes from its joint (:attr:`Chain.dof_joints`),
+  never from its name.
 * :meth:`Chain.jacobian` is the geometric Jacobian ``(..., 6, n_dof)``, rows (linear; angular),
   columns in ``q``'s order; by default in world coordinates at the link's origin: column ``i``
   holds ``(dp/dq_i, w_i)`` where ``dR/dq_i = hat(w_i) R``, the same meaning as
@@ -139,6 +143,11 @@ class Chain:
         root: the root link (its frame is the world frame).
         link_names: every link, in document order.
         joint_names: the ``n_dof`` degrees of freedom, in the order of ``q``'s last dimension.
+        dof_joints: per degree of freedom, ``(joint, type, coordinate)``: the joint it belongs
+            to, that joint's type (``"revolute"``, ``"floating"``, ...) and which of its
+            coordinates it is (``""`` for a one-DoF joint, else ``"x"``, ``"theta"``,
+            ``"rx"``, ``"qw"``, ...).  What a DoF is comes from here, not from its name (a
+            joint may be named like a coordinate, ``"base:x"``).
         velocity_names: the ``n_v`` velocity coordinates, the Jacobian's columns (the same as
             ``joint_names`` unless the chain has MJCF ball or free joints).
         leaf_links: links without children (end effectors, tool frames), in document order.
@@ -171,15 +180,16 @@ class Chain:
         self.link_names: tuple[str, ...] = spec.links
 
         # Degrees of freedom, in document order.
-        dof_of, names, lower, upper = _dof_layout(spec)
+        dof_of, names, roles, lower, upper = _dof_layout(spec)
         self.joint_names: tuple[str, ...] = tuple(names)
+        self.dof_joints: tuple[tuple[str, str, str], ...] = tuple(roles)
         self.n_dof = len(names)
         self._limits64 = (
             torch.tensor(lower, dtype=torch.float64),
             torch.tensor(upper, dtype=torch.float64),
         )
         self.lower = self._limits64[0].to(dtype=dtype, device=self.device)
-        self._sample64 = _sampling_ranges(names, *self._limits64)
+        self._sample64 = _sampling_ranges(roles, *self._limits64)
         self.upper = self._limits64[1].to(dtype=dtype, device=self.device)
         # Velocity coordinates (the Jacobian's columns): the DoFs, except that a quaternion
         # (MJCF ball and free joints) has three.

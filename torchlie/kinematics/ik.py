@@ -155,7 +155,10 @@ class SolverChain(Protocol):
         dtype, device: of the chain's constants (the targets, ``q0`` and bounds must match).
         n_dof, n_v: joint values and velocity coordinates (the solver steps the values, so it
             needs ``n_v == n_dof``: no quaternion joints).
-        joint_names: the DoFs; a floating joint's rotation vector is named ``J:rx, J:ry, J:rz``.
+        joint_names: the DoFs' names (for messages).
+        dof_joints: per DoF ``(joint, joint type, coordinate)`` (:attr:`Chain.dof_joints
+            <torchlie.kinematics.Chain.dof_joints>`): a floating joint's rotation vector is the
+            DoFs of coordinates ``rx, ry, rz`` of a ``"floating"`` joint.
         link_names: the links targets may name.
         lower, upper: ``(n_dof,)`` limits (``-inf``/``inf`` where there are none).
     """
@@ -165,6 +168,7 @@ class SolverChain(Protocol):
     n_dof: int
     n_v: int
     joint_names: tuple[str, ...]
+    dof_joints: tuple[tuple[str, str, str], ...]
     link_names: tuple[str, ...]
     lower: Tensor
     upper: Tensor
@@ -549,7 +553,7 @@ def inverse_kinematics(
             name.
     """
     if chain.n_v != chain.n_dof:  # the steps below add velocities to the values
-        quats = sorted({nm.rsplit(":", 1)[0] for nm in chain.joint_names if nm.endswith(":qw")})
+        quats = sorted({j for j, jtype, _ in chain.dof_joints if jtype in ("ball", "free")})
         raise ValueError(
             f"{_FN}: the chain has ball or free joints ({', '.join(map(repr, quats[:5]))}), "
             "whose quaternion values the solver does not step; it solves for hinge, slide "
@@ -668,7 +672,9 @@ def _solve(
     tol_p, tol_r = tols
     n_seeds, n, N = seeds.shape
     dtype, device = seeds.dtype, seeds.device
-    rot_dofs = [i for i, name in enumerate(chain.joint_names) if name.endswith(":rx")]
+    rot_dofs = [
+        i for i, (_, jtype, c) in enumerate(chain.dof_joints) if (jtype, c) == ("floating", "rx")
+    ]
     sel = None if dofs is None else dofs.index
     lo_a, hi_a = (lo, hi) if sel is None else (lo.index_select(0, sel), hi.index_select(0, sel))
     targets = [t.target for t in tasks]  # per target (..., P)
