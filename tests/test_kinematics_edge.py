@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import math
+import re
 
 import pytest
 import torch
@@ -247,6 +248,40 @@ def test_sampling_ranges_come_from_the_joint_types_not_the_names():
     # moving_dofs indexes the velocity coordinates (the Jacobian's columns).
     assert chain.moving_dofs("d") == (0, 1, 2, 3, 4)
     assert chain.velocity_names[4] == "s" and chain.joint_names[4] == "h:y"
+
+
+# ----------------------------------------------------------------------------------------------
+# Subsets of Jacobian columns, and points
+# ----------------------------------------------------------------------------------------------
+
+
+def test_poses_and_jacobians_gives_the_columns_of_any_dofs(tree):
+    arm = Chain.from_urdf(sample_robot("arm7"), dtype=F64)
+    q = arm.random_configuration(3, generator=torch.Generator().manual_seed(0))
+    J = arm.jacobian(q, "tool_tcp")
+    for dofs in [(1, 3), (6,), (0, 1, 2, 3, 4, 5, 6), ()]:
+        (_,), (Jd,) = arm.poses_and_jacobians(q.mT, ["tool_tcp"], dofs=dofs)
+        assert torch.equal(Jd.permute(2, 1, 0), J[..., list(dofs)])
+    (_,), (Jd,) = arm.poses_and_jacobians(q.mT, ["link2"], dofs=[1, 4])  # 4 does not move it
+    assert torch.equal(Jd.permute(2, 1, 0), arm.jacobian(q, "link2")[..., [1, 4]])
+    assert bool((Jd[1] == 0).all())
+    # A tree with mimic joints (columns summed into the DoF they follow).
+    q = tree.random_configuration(2, generator=torch.Generator().manual_seed(1))
+    links = list(tree.leaf_links)
+    Js = tree.jacobian(q, links)
+    for dofs in [(0, 2, 5), tuple(range(1, tree.n_dof, 2)), tree.moving_dofs(links)[1:]]:
+        _, Jd = tree.poses_and_jacobians(q.mT, links, dofs=dofs)
+        for name, Jk in zip(links, Jd, strict=True):
+            assert torch.equal(Jk.permute(2, 1, 0), Js[name][..., list(dofs)]), (name, dofs)
+    fn = r"torchlie\.kinematics\.Chain\.poses_and_jacobians"
+    for bad in [(9,), (-1,), (3, 1), (2, 2)]:
+        with pytest.raises(ValueError, match=rf"{fn}: expected dofs to be strictly increasing "
+                           rf"indices in \[0, 7\) .*got {re.escape(repr(bad))}"):  # fmt: skip
+            arm.poses_and_jacobians(q[:, :7].mT, ["tool_tcp"], dofs=bad)
+    for bad in [3, "01", (1.0,), (True,)]:
+        with pytest.raises(TypeError, match=rf"{fn}: expected dofs to be None or a sequence of "
+                           "integer DoF indices"):  # fmt: skip
+            arm.poses_and_jacobians(q[:, :7].mT, ["tool_tcp"], dofs=bad)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -220,8 +220,10 @@ class Chain:
         )
         self._plans: dict[tuple[tuple[int, ...], bool], _Plan] = {}
         self._jac_plans: dict[int, _JacPlan] = {}
-        # (link, DoFs) -> where the link's Jacobian columns go among those DoFs (None: in order).
-        self._dof_maps: dict[tuple[int, tuple[int, ...]], Tensor | None] = {}
+        # (link, DoFs) -> which of the link's Jacobian columns feed those DoFs and where they go
+        # among them (see _dof_index).
+        self._dof_maps: dict[tuple[int, tuple[int, ...]], tuple[Tensor | None, Tensor | None]]
+        self._dof_maps = {}
         self._mimic_t: dict[torch.dtype, tuple[Tensor, Tensor, Tensor]] = {}
 
     # ------------------------------------------------------------------------------------------
@@ -616,7 +618,11 @@ class Chain:
         if dofs is None:
             index = None if jp.in_dof_order else jp.dof_index
         else:
-            index = cached(self._dof_maps, (target, dofs), lambda: _dof_index(jp, dofs, C.device))
+            keep, index = cached(
+                self._dof_maps, (target, dofs), lambda: _dof_index(jp, dofs, C.device)
+            )
+            if keep is not None:  # columns of DoFs not asked for
+                C = C.index_select(0, keep)
         if index is None:  # the link's columns are those DoFs, in order
             return C
         # Each column into its DoF's column (summed where mimic joints share one).
@@ -649,8 +655,10 @@ class Chain:
             q_t: ``(n_dof, B)`` joint values, the batch last (``q.mT`` for ``q (B, n_dof)``),
                 in the chain's dtype and on its device.
             links: a link name or a sequence of names.
-            dofs: sorted DoF indices (see :meth:`moving_dofs`): only their Jacobian columns
-                are returned; ``None`` for all ``n_v`` columns.
+            dofs: strictly increasing indices into :attr:`velocity_names` (the Jacobian's
+                columns; see :meth:`moving_dofs`), any of them: only their Jacobian columns are
+                returned (zero for a DoF that does not move the link); ``None`` for all
+                ``n_v`` columns.
 
         Returns:
             Per link, its pose transposed, ``(4, 4, B)`` with entry ``[c, r, b]`` the pose
@@ -677,7 +685,35 @@ class Chain:
             )
         self._check_like(q_t, _NAME + fn, "q_t", q_t.dtype)
         targets = self._targets(links, fn)
-        return self._poses_and_jacobians(q_t.mT, targets, None if dofs is None else tuple(dofs))
+        return self._poses_and_jacobians(q_t.mT, targets, self._dof_subset(dofs, fn))
+
+    def _dof_subset(self, dofs: Sequence[int] | None, fn: str) -> tuple[int, ...] | None:
+        """``dofs`` of :meth:`poses_and_jacobians` checked, as a tuple (None stays None)."""
+        if dofs is None:
+            return None
+
+        def index(d: object) -> int:
+            if isinstance(d, bool):
+                raise TypeError
+            return operator.index(d)  # ints, numpy integers, integer 0-d tensors
+
+        try:
+            if isinstance(dofs, (str, bytes, bytearray)) or not isinstance(dofs, Sequence):
+                raise TypeError
+            out = tuple(index(d) for d in dofs)
+        except TypeError:
+            raise TypeError(
+                f"{_NAME}{fn}: expected dofs to be None or a sequence of integer DoF indices, "
+                f"got {type(dofs).__name__} {reprlib.repr(dofs)}"
+            ) from None
+        increasing = all(a < b for a, b in zip(out, out[1:], strict=False))
+        if not increasing or any(not 0 <= d < self.n_v for d in out):
+            raise ValueError(
+                f"{_NAME}{fn}: expected dofs to be strictly increasing indices in "
+                f"[0, {self.n_v}) (into velocity_names; see moving_dofs), got "
+                f"{reprlib.repr(dofs)}"
+            )
+        return out
 
     def _poses_and_jacobians(
         self, q2: Tensor, targets: tuple[int, ...], dofs: tuple[int, ...] | None = None
