@@ -284,6 +284,19 @@ def test_poses_and_jacobians_gives_the_columns_of_any_dofs(tree):
             arm.poses_and_jacobians(q[:, :7].mT, ["tool_tcp"], dofs=bad)
 
 
+def test_jacobian_point_must_broadcast_with_q():
+    arm = Chain.from_urdf(sample_robot("arm7"))
+    fn = r"torchlie\.kinematics\.Chain\.jacobian"
+    for frame in ("world", "link"):
+        with pytest.raises(ValueError, match=rf"{fn}: batch shapes do not broadcast: q batch "
+                           r"\(4,\), point batch \(5,\)"):  # fmt: skip
+            arm.jacobian(torch.zeros(4, 7), "tool_tcp", point=torch.zeros(5, 3), frame=frame)
+    with pytest.raises(ValueError, match=rf"{fn}: .* point\['link2'\] batch \(5,\)"):
+        arm.jacobian(torch.zeros(4, 7), ["tool_tcp", "link2"], point={"link2": torch.zeros(5, 3)})
+    J = arm.jacobian(torch.zeros(4, 7), "tool_tcp", point=torch.zeros(2, 1, 3))
+    assert J.shape == (2, 4, 6, 7)
+
+
 # ----------------------------------------------------------------------------------------------
 # Bad arguments
 # ----------------------------------------------------------------------------------------------

@@ -818,7 +818,7 @@ class Chain:
                 f"{_NAME}{fn}: expected frame to be 'world', 'link' or 'spatial', got "
                 f"{reprlib.repr(frame)}"
             )
-        points = self._jacobian_points(point, names, frame, q2.dtype)
+        points = self._jacobian_points(point, names, frame, q2.dtype, batch)
         poses, jacs = self._poses_and_jacobians(q2, targets) if targets else ([], [])
         out: dict[str, Tensor] = {}
         for name, P, Jd in zip(names, poses, jacs, strict=True):
@@ -838,8 +838,10 @@ class Chain:
         names: tuple[str, ...],
         frame: str,
         dtype: torch.dtype,
+        batch: tuple[int, ...],
     ) -> dict[str, Tensor]:
-        """``point`` of :meth:`jacobian` checked, as a dict link -> ``(..., 3)`` point."""
+        """``point`` of :meth:`jacobian` checked (its batch shape broadcasts with ``q``'s,
+        ``batch``), as a dict link -> ``(..., 3)`` point."""
         fn = _NAME + "jacobian"
         if point is None:
             return {}
@@ -866,6 +868,7 @@ class Chain:
                     f"{fn}: {what} has dtype {x.dtype} on {x.device}, expected {dtype} on "
                     f"{self.device} (like q)"
                 )
+            _checks.batch_broadcast(fn, (torch.Size(batch), "q"), (x.shape[:-1], what))
             out[k] = x
         return out
 
