@@ -408,8 +408,12 @@ class Chain:
         """Uniform joint values within the limits, shape ``(*batch, n_dof)``.
 
         Coordinates without limits are drawn from ``[-pi, pi]`` (continuous joints, planar
-        rotation), ``[-1, 1]`` m (planar and floating translations) and
-        ``[-pi/sqrt(3), pi/sqrt(3)]`` per rotation-vector component (floating rotations).
+        rotation, and prismatic joints without limits, SDF prismatic joints or MJCF slides: in
+        m), ``[-1, 1]`` m (planar, floating and free translations),
+        ``[-pi/sqrt(3), pi/sqrt(3)]`` per rotation-vector component (floating rotations) and
+        ``[-1, 1]`` per quaternion component (ball and free joints; the forward kinematics
+        normalises them, and the rotations are not uniformly distributed).  What a coordinate
+        is comes from its joint (:attr:`dof_joints`).
         Drawn on the CPU in float64 (with ``generator`` if given), then converted; the values are
         finite for every pair of limits, those near the float64 range included.  Each batch
         size is a non-negative integer (0 gives an empty batch), at most 60 of them (the batch
@@ -629,8 +633,10 @@ class Chain:
         return C.new_zeros(n_out, 6, B).index_add(0, index, C)
 
     def moving_dofs(self, links: str | Sequence[str]) -> tuple[int, ...]:
-        """The DoFs (indices into :attr:`joint_names`, sorted) that move at least one of
-        ``links``: the others have zero Jacobian columns for them.
+        """The DoFs that move at least one of ``links``, sorted: the others have zero Jacobian
+        columns for them.  They are indices into :attr:`velocity_names` (the Jacobian's
+        columns), which are those into :attr:`joint_names` unless the chain has ball or free
+        joints (a quaternion has four values but three velocity coordinates).
 
         Example:
             >>> from torchlie.kinematics import sample_robot
