@@ -233,6 +233,97 @@ def test_unreachable_targets_give_the_best_finite_point(dtype):
 
 
 # ----------------------------------------------------------------------------------------------
+# Targets that no DoF moves, and what a DoF is
+# ----------------------------------------------------------------------------------------------
+
+FIXED_ONLY = (
+    '<robot name="r"><link name="a"/><link name="b"/><joint name="f" type="fixed">'
+    '<parent link="a"/><child link="b"/><origin xyz="1 0 0"/></joint></robot>'
+)
+
+
+def test_a_link_no_dof_moves_keeps_the_first_start():
+    """The root, a link fixed to it, or any link of a chain without DoFs: nothing is solved
+    for; q is the first start as it is, converged says whether the link is at its target."""
+    arm = ARM
+    q0 = arm.upper + 1.0  # clamped into the limits
+    for link in ("world", "base"):
+        T = _fk(arm, torch.zeros(7, dtype=F64), link).expand(2, 4, 4).clone()
+        T[1, :3, 3] += torch.tensor([0.0, 0.0, 0.5], dtype=F64)  # 0.5 m away: not reachable
+        res = arm.inverse_kinematics(T, link, q0=q0, restarts=3)
+        assert torch.equal(res.q, arm.upper.expand(2, 7))
+        assert res.converged.tolist() == [True, False]
+        assert res.iterations.tolist() == [0, 40]  # as for an unreachable target
+        torch.testing.assert_close(res.position_error, torch.tensor([0.0, 0.5], dtype=F64))
+        assert torch.equal(res.rotation_error, torch.zeros(2, dtype=F64))
+    # Without q0: a uniform start within the limits.
+    res = arm.inverse_kinematics(torch.zeros(3, 3, dtype=F64), "world", max_iterations=7,
+                                 generator=torch.Generator().manual_seed(0))  # fmt: skip
+    assert res.q.shape == (3, 7) and _within_limits(arm, res.q)
+    assert bool(res.converged.all()) and torch.equal(res.iterations, torch.zeros(3).long())
+    # The derivative with respect to the targets is zero (and q carries a graph).
+    p = torch.tensor([[0.0, 0.0, 0.0]], dtype=F64, requires_grad=True)
+    res = arm.inverse_kinematics(p, "world", q0=torch.zeros(7, dtype=F64))
+    res.q.sum().backward()
+    assert torch.equal(p.grad, torch.zeros(1, 3, dtype=F64))
+
+
+@pytest.mark.parametrize("options", [{}, {"restarts": 4, "early_exit": True},
+                                     {"max_iterations": 0}])  # fmt: skip
+def test_a_chain_without_dofs_reports_whether_its_links_are_at_the_targets(options):
+    fixed = Chain.from_urdf(FIXED_ONLY, dtype=F64)
+    p = torch.tensor([[1.0, 0.0, 0.0], [1.0, 0.0, 0.25]], dtype=F64, requires_grad=True)
+    res = fixed.inverse_kinematics(p, "b", **options)
+    budget = options.get("max_iterations", 24 if options else 40)
+    assert res.q.shape == (2, 0)
+    assert res.converged.tolist() == [True, False]
+    assert res.iterations.tolist() == [0, budget]
+    torch.testing.assert_close(res.position_error, torch.tensor([0.0, 0.25], dtype=F64))
+    (g,) = torch.autograd.grad(res.q.sum(), p)
+    assert torch.equal(g, torch.zeros(2, 3, dtype=F64))
+    T = torch.eye(4, dtype=F64)
+    T[0, 3] = 1.0
+    assert bool(fixed.inverse_kinematics(T, "b").converged)
+
+
+def _three_hinges(first: str) -> str:
+    """Three continuous joints about z, the first one named ``first``."""
+    return (
+        '<robot name="r"><link name="a"/><link name="b"/><link name="c"/><link name="t"/>'
+        f'<joint name="{first}" type="continuous"><parent link="a"/><child link="b"/>'
+        '<axis xyz="0 0 1"/></joint><joint name="j2" type="continuous"><parent link="b"/>'
+        '<child link="c"/><origin xyz="1 0 0"/><axis xyz="0 0 1"/></joint>'
+        '<joint name="j3" type="continuous"><parent link="c"/><child link="t"/>'
+        '<origin xyz="1 0 0"/><axis xyz="0 0 1"/></joint></robot>'
+    )
+
+
+@pytest.mark.parametrize("name", ["wrist:rx", "x:rx", "arm:x", "j:qw"])
+def test_a_joint_named_like_a_coordinate_is_solved_as_the_joint_it_is(name):
+    """What a DoF is comes from its joint: a continuous joint named 'wrist:rx' is not the
+    start of a floating joint's rotation vector (three hinges were wrapped as one)."""
+    plain = Chain.from_urdf(_three_hinges("wrist"), dtype=F64)
+    named = Chain.from_urdf(_three_hinges(name), dtype=F64)
+    q = torch.tensor([[2.5, 2.0, 2.9], [-2.8, 2.2, -2.5]], dtype=F64)
+    T = _fk(plain, q, "t")
+    a = plain.inverse_kinematics(T, "t", q0=0.9 * q, generator=torch.Generator().manual_seed(0))
+    b = named.inverse_kinematics(T, "t", q0=0.9 * q, generator=torch.Generator().manual_seed(0))
+    assert bool(a.converged.all()) and bool(b.converged.all())
+    assert torch.equal(a.q, b.q)
+    # One such joint alone (so3.exp of one value raised).
+    one = Chain.from_urdf(
+        f'<robot name="r"><link name="a"/><link name="b"/><link name="t"/><joint name="{name}" '
+        'type="continuous"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/></joint>'
+        '<joint name="f" type="fixed"><parent link="b"/><child link="t"/><origin xyz="1 0 0"/>'
+        "</joint></robot>",
+        dtype=F64,
+    )
+    res = one.inverse_kinematics(torch.tensor([0.0, 1.0, 0.0], dtype=F64), "t")
+    assert bool(res.converged) and abs(math.remainder(float(res.q) - math.pi / 2, math.tau)) < 1e-4
+    assert named.dof_joints[0] == one.dof_joints[0] == (name, "continuous", "")
+
+
+# ----------------------------------------------------------------------------------------------
 # The derivative used by the solver, and the implicit gradients
 # ----------------------------------------------------------------------------------------------
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import math
+import re
 
 import pytest
 import torch
@@ -181,6 +182,119 @@ def test_validate_counts_nan_as_outside_tolerance(monkeypatch):
     (bad,) = [r for r in report.links if not r.ok]
     assert bad.link == "tool_tcp" and math.isnan(bad.ref_position)
     assert "FAIL: outside tolerance: tool_tcp" in text.getvalue()
+
+
+# ----------------------------------------------------------------------------------------------
+# Names and roles of the degrees of freedom
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("floating_first", [True, False])
+def test_a_joint_named_like_another_joints_coordinate_is_an_error_naming_both(floating_first):
+    floating = joint("base", "floating", "a", "b")
+    revolute = joint("base:x", "revolute", "b", "c")
+    body = floating + revolute if floating_first else revolute + floating
+    with pytest.raises(URDFError, match=r"<string>: <joint name='base:x'>: 'base:x' would name a "
+                       r"degree of freedom of this joint and one of the floating joint 'base' "
+                       r"\(whose degrees of freedom are 'base:x', 'base:y', .*'base:rz'\); "
+                       r"rename one of the two joints"):  # fmt: skip
+        Chain.from_urdf(robot(body, ("a", "b", "c")))
+    # A ball joint's velocity coordinates are named too (J:wx, J:wy, J:wz).
+    sdf = (
+        '<sdf version="1.7"><model name="m"><link name="a"/><link name="b"/><link name="c"/>'
+        '<joint name="b0" type="ball"><parent>a</parent><child>b</child></joint>'
+        '<joint name="b0:wy" type="revolute"><parent>b</parent><child>c</child>'
+        "<axis><xyz>0 0 1</xyz></axis></joint></model></sdf>"
+    )
+    with pytest.raises(URDFError, match=r"<joint name='b0:wy'>: 'b0:wy' would name a velocity "
+                       r"coordinate of this joint and one of the ball joint 'b0'"):  # fmt: skip
+        Chain.from_sdf(sdf)
+    # Other names with ':' are fine.
+    body = joint("base", "floating", "a", "b") + joint("base:elbow", "revolute", "b", "c")
+    ok = Chain.from_urdf(robot(body, ("a", "b", "c")))
+    assert ok.joint_names[-1] == "base:elbow" and len(set(ok.joint_names)) == 7
+
+
+def test_dof_joints_say_what_each_dof_is(tree):
+    roles = dict(zip(tree.joint_names, tree.dof_joints, strict=True))
+    assert roles["puck_slide:theta"] == ("puck_slide", "planar", "theta")
+    assert roles["drone_free:rx"] == ("drone_free", "floating", "rx")
+    assert all(r == (n, t, "") for n, r in roles.items() for t in [r[1]] if ":" not in n)
+
+
+def test_sampling_ranges_come_from_the_joint_types_not_the_names():
+    """Unlimited coordinates: [-pi, pi] for one-DoF joints (continuous, and prismatic: in m),
+    [-1, 1] per quaternion component, whatever the joints are named."""
+    text = robot(
+        joint("wheel:x", "continuous", "a", "b") + joint("arm:rz", "continuous", "b", "c")
+        + joint("c:qw", "continuous", "c", "d"),
+        ("a", "b", "c", "d"),
+    )  # fmt: skip
+    lo, hi = Chain.from_urdf(text).sampling_bounds()
+    assert torch.equal(hi, torch.full((3,), math.pi, dtype=F64)) and torch.equal(lo, -hi)
+    sdf = (
+        '<sdf version="1.7"><model name="m"><link name="a"/><link name="b"/><link name="c"/>'
+        '<link name="d"/><joint name="ball" type="ball"><parent>a</parent><child>b</child>'
+        '</joint><joint name="h:y" type="revolute"><parent>b</parent><child>c</child>'
+        '<axis><xyz>0 0 1</xyz></axis></joint><joint name="s" type="prismatic"><parent>c'
+        "</parent><child>d</child><axis><xyz>1 0 0</xyz></axis></joint></model></sdf>"
+    )
+    chain = Chain.from_sdf(sdf, dtype=F64)
+    lo, hi = chain.sampling_bounds()
+    pi = math.pi
+    assert hi.tolist() == [1.0, 1.0, 1.0, 1.0, pi, pi] and torch.equal(lo, -hi)
+    q = chain.random_configuration(1000, generator=torch.Generator().manual_seed(0))
+    assert float(q[:, 5].abs().max()) > 3.0  # the slide over [-pi, pi] m
+    # moving_dofs indexes the velocity coordinates (the Jacobian's columns).
+    assert chain.moving_dofs("d") == (0, 1, 2, 3, 4)
+    assert chain.velocity_names[4] == "s" and chain.joint_names[4] == "h:y"
+
+
+# ----------------------------------------------------------------------------------------------
+# Subsets of Jacobian columns, and points
+# ----------------------------------------------------------------------------------------------
+
+
+def test_poses_and_jacobians_gives_the_columns_of_any_dofs(tree):
+    arm = Chain.from_urdf(sample_robot("arm7"), dtype=F64)
+    q = arm.random_configuration(3, generator=torch.Generator().manual_seed(0))
+    J = arm.jacobian(q, "tool_tcp")
+    for dofs in [(1, 3), (6,), (0, 1, 2, 3, 4, 5, 6), ()]:
+        (_,), (Jd,) = arm.poses_and_jacobians(q.mT, ["tool_tcp"], dofs=dofs)
+        assert torch.equal(Jd.permute(2, 1, 0), J[..., list(dofs)])
+    (_,), (Jd,) = arm.poses_and_jacobians(q.mT, ["link2"], dofs=[1, 4])  # 4 does not move it
+    assert torch.equal(Jd.permute(2, 1, 0), arm.jacobian(q, "link2")[..., [1, 4]])
+    assert bool((Jd[1] == 0).all())
+    # A tree with mimic joints (columns summed into the DoF they follow).
+    q = tree.random_configuration(2, generator=torch.Generator().manual_seed(1))
+    links = list(tree.leaf_links)
+    Js = tree.jacobian(q, links)
+    for dofs in [(0, 2, 5), tuple(range(1, tree.n_dof, 2)), tree.moving_dofs(links)[1:]]:
+        _, Jd = tree.poses_and_jacobians(q.mT, links, dofs=dofs)
+        for name, Jk in zip(links, Jd, strict=True):
+            assert torch.equal(Jk.permute(2, 1, 0), Js[name][..., list(dofs)]), (name, dofs)
+    fn = r"torchlie\.kinematics\.Chain\.poses_and_jacobians"
+    for bad in [(9,), (-1,), (3, 1), (2, 2)]:
+        with pytest.raises(ValueError, match=rf"{fn}: expected dofs to be strictly increasing "
+                           rf"indices in \[0, 7\) .*got {re.escape(repr(bad))}"):  # fmt: skip
+            arm.poses_and_jacobians(q[:, :7].mT, ["tool_tcp"], dofs=bad)
+    for bad in [3, "01", (1.0,), (True,)]:
+        with pytest.raises(TypeError, match=rf"{fn}: expected dofs to be None or a sequence of "
+                           "integer DoF indices"):  # fmt: skip
+            arm.poses_and_jacobians(q[:, :7].mT, ["tool_tcp"], dofs=bad)
+
+
+def test_jacobian_point_must_broadcast_with_q():
+    arm = Chain.from_urdf(sample_robot("arm7"))
+    fn = r"torchlie\.kinematics\.Chain\.jacobian"
+    for frame in ("world", "link"):
+        with pytest.raises(ValueError, match=rf"{fn}: batch shapes do not broadcast: q batch "
+                           r"\(4,\), point batch \(5,\)"):  # fmt: skip
+            arm.jacobian(torch.zeros(4, 7), "tool_tcp", point=torch.zeros(5, 3), frame=frame)
+    with pytest.raises(ValueError, match=rf"{fn}: .* point\['link2'\] batch \(5,\)"):
+        arm.jacobian(torch.zeros(4, 7), ["tool_tcp", "link2"], point={"link2": torch.zeros(5, 3)})
+    J = arm.jacobian(torch.zeros(4, 7), "tool_tcp", point=torch.zeros(2, 1, 3))
+    assert J.shape == (2, 4, 6, 7)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -452,7 +452,7 @@ def test_validate_command_takes_sdf(tmp_path, capsys):
     # The validation's reference agrees with this file's (scipy) one.
     chain = Chain.from_sdf(FRAMES, dtype=torch.float64)
     q = chain.random_configuration(generator=torch.Generator().manual_seed(6)).numpy()
-    ours = sdf_reference_poses(FRAMES, joint_values(chain.joint_names, q))
+    ours = sdf_reference_poses(FRAMES, joint_values(chain.dof_joints, q))
     theirs = reference_poses(FRAMES, values_of(chain, torch.from_numpy(q)))
     assert max(float(np.abs(ours[n] - theirs[n]).max()) for n in theirs) <= 1e-13
     loop = tmp_path / "loop.sdf"
@@ -467,6 +467,24 @@ def test_validate_command_takes_sdf(tmp_path, capsys):
     err = capsys.readouterr().err
     assert str(loop) in err and "kinematic loop" in err
     assert main([str(loop), "--loops", "skip", "--samples", "3"]) == 0
+
+
+def test_validate_reads_the_joints_values_by_their_types_not_their_names(tmp_path, capsys):
+    """A revolute joint named 'w:qw' is one value, not a ball joint's quaternion."""
+    from torchlie.kinematics.validate import main
+
+    path = tmp_path / "named.sdf"
+    path.write_text(
+        '<sdf version="1.7"><model name="m"><link name="a"/><link name="b"/><link name="c"/>'
+        '<link name="d"/><joint name="w:qw" type="revolute"><parent>a</parent><child>b</child>'
+        '<axis><xyz>0 0 1</xyz></axis></joint><joint name="k" type="ball"><parent>b</parent>'
+        '<child>c</child></joint><link name="e"><pose>1 0 0 0 0 0</pose></link>'
+        '<joint name="m:x" type="prismatic"><parent>c</parent><child>d</child>'
+        '<axis><xyz>1 0 0</xyz></axis></joint><joint name="f" type="fixed"><parent>d'
+        "</parent><child>e</child></joint></model></sdf>"
+    )
+    assert main([str(path), "--samples", "10"]) == 0
+    assert "PASS" in capsys.readouterr().out
 
 
 def test_old_frame_attribute_is_relative_to():

@@ -283,3 +283,28 @@ def test_without_pinocchio_columns():
     with contextlib.redirect_stdout(out):
         assert V.main(["arm7", "--samples", "10", "--no-progress", "--no-pk", "--no-pin"]) == 0
     assert "pin |dp|" not in out.getvalue()
+
+
+def test_joint_names_with_colons():
+    """The float64 reference takes each joint's DoFs from the joints' types and order, not
+    from their names ('arm:shoulder' was read as a coordinate of a joint 'arm')."""
+    from torchlie.kinematics import Chain
+    from torchlie.kinematics.reference import reference_forward_kinematics
+
+    text = (
+        '<robot name="r"><link name="a"/><link name="b"/><link name="c"/><link name="d"/>'
+        '<joint name="arm" type="planar"><parent link="a"/><child link="b"/>'
+        '<axis xyz="0 0 1"/></joint>'
+        '<joint name="arm:shoulder" type="revolute"><parent link="b"/><child link="c"/>'
+        '<axis xyz="0 0 1"/><limit lower="-1" upper="1"/></joint>'
+        '<joint name="arm:elbow" type="revolute"><parent link="c"/><child link="d"/>'
+        '<origin xyz="1 0 0"/><axis xyz="0 1 0"/><limit lower="-1" upper="1"/></joint></robot>'
+    )
+    chain = Chain.from_urdf(text, dtype=torch.float64)
+    q = chain.random_configuration(5, generator=torch.Generator().manual_seed(0))
+    ref = reference_forward_kinematics(chain.spec, q)
+    T = chain.forward_kinematics(q)
+    for link in chain.link_names:
+        torch.testing.assert_close(T[link], ref[link], atol=1e-14, rtol=0)
+    report, out = run(text, samples=20)
+    assert report.ok and "PASS" in out

@@ -162,8 +162,9 @@ def exp(xi: Float[Tensor, "*b 6"]) -> Float[Tensor, "*b 4 4"]:
     """Pose of the twist ``xi = (rho, phi)``: ``[[so3.exp(phi), so3.jac_left(phi) rho], [0, 1]]``.
 
     Exact to a few ulp as :func:`torchlie.so3.exp` (one set of half-angle coefficients for both
-    blocks, no cancellation at 0 or near pi).  The backward pass is closed-form, ``g_rho = Jr(phi) g_t``
-    and ``g_phi = Jl(phi) vee(R^T G_R - G_R^T R) + Jr(phi)(t x g_t) + Q(-rho, -phi) g_t``, with
+    blocks, no cancellation at 0 or near pi).  The backward pass is closed-form,
+    ``g_rho = Jr(phi) g_t`` and
+    ``g_phi = Jl(phi) vee(R^T G_R - G_R^T R) + Jr(phi)(t x g_t) + Q(-rho, -phi) g_t``, with
     series-safe coefficients, so every derivative is finite, at 0 and pi included; double
     backward and forward mode are supported.
 

@@ -170,11 +170,12 @@ def vee(Omega: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3"]:
 def exp(omega: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
     """Rotation matrix of the rotation vector ``omega`` (Rodrigues' formula).
 
-    ``R = cos(t) I + sin(t)/t hat(w) + (1 - cos t)/t^2 w w^T`` with ``t = |w|``, exact to a few
-    ulp for angles up to a few radians (half-angle forms, no cancellation; float32 input takes
-    its coefficients in float64, and is exact at every angle).  Beyond that, in float64, the
-    error is that of ``t`` rounded to float64, about ``t / 3`` ulp (333 at 1000 rad).  The backward pass is the closed form ``dL/dw = Jl(w) vee(R^T G - G^T R)``;
-    double backward and forward mode are supported.
+    ``R = cos(t) I + sin(t)/t hat(w) + (1 - cos t)/t^2 w w^T`` with ``t = |w|``, exact to a few ulp
+    for angles up to a few radians (half-angle forms, no cancellation; float32 input takes its
+    coefficients in float64, and is exact at every angle).  Beyond that, in float64, the error is
+    that of ``t`` rounded to float64, about ``t / 3`` ulp (333 at 1000 rad).  The backward pass is
+    the closed form ``dL/dw = Jl(w) vee(R^T G - G^T R)``; double backward and forward mode are
+    supported.
 
     Example:
         >>> exp(torch.tensor([0.0, 0.0, torch.pi / 2])).round(decimals=6) + 0.0

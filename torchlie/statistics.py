@@ -627,14 +627,14 @@ def align(
     with the determinant fixed), ``s = tr(R^T H) / sum_i w_i |p_i - p_bar|^2`` and
     ``t = q_bar - s R p_bar``.  Batch shapes of ``P``, ``Q`` and ``weights`` broadcast; weights
     are non-negative with a positive sum (not checked, which would read their values: others
-    give the minimiser of the weighted sum as written, a sum of 0 gives NaN).  Differentiable (through :func:`torchlie.so3.project`)
-    wherever the rotation is unique, i.e. the centred points are not all collinear; with fewer
-    than three points or collinear points the rotation is one of many minimisers and its
-    gradient is not finite.  When ``H = 0``, because the points of ``P`` all coincide or those
-    of ``Q`` do (all lie at the origin, with ``translation=False``), every rotation fits
-    equally: the identity is returned, with zero gradient.  With ``scale=True``, when those of
-    ``P`` coincide every scale fits equally too: ``s = 1``, with zero gradient (never NaN); when
-    only those of ``Q`` do, ``s = 0``.
+    give the minimiser of the weighted sum as written, a sum of 0 gives NaN).  Differentiable
+    (through :func:`torchlie.so3.project`) wherever the rotation is unique, i.e. the centred
+    points are not all collinear; with fewer than three points or collinear points the rotation
+    is one of many minimisers and its gradient is not finite.  When ``H = 0``, because the
+    points of ``P`` all coincide or those of ``Q`` do (all lie at the origin, with
+    ``translation=False``), every rotation fits equally: the identity is returned, with zero
+    gradient.  With ``scale=True``, when those of ``P`` coincide every scale fits equally too:
+    ``s = 1``, with zero gradient (never NaN); when only those of ``Q`` do, ``s = 0``.
     ``weights`` is a tensor of the dtype of ``P`` or numbers (a list, a numpy array), converted
     to it.  Points of any finite magnitude: each set is scaled by a power of two before the
     products are formed, and the factors are undone exactly.

@@ -142,14 +142,21 @@ def _link_columns(
     return C
 
 
-def _dof_index(jp: _JacPlan, dofs: tuple[int, ...], device: torch.device) -> Tensor | None:
-    """Where each column of ``jp`` goes among the sorted DoFs ``dofs``, or None when the
-    columns are those DoFs, in order."""
+def _dof_index(
+    jp: _JacPlan, dofs: tuple[int, ...], device: torch.device
+) -> tuple[Tensor | None, Tensor | None]:
+    """``(keep, where)`` for the Jacobian columns of the sorted DoFs ``dofs``: ``keep``, the
+    columns of ``jp`` that feed one of them (None: all do), and ``where``, the place of each
+    kept column among ``dofs`` (None: the kept columns are those DoFs, in order)."""
     pos = {d: i for i, d in enumerate(dofs)}
-    where = [pos[d] for d in jp.col_dofs]
+    kept = [k for k, d in enumerate(jp.col_dofs) if d in pos]
+    where = [pos[jp.col_dofs[k]] for k in kept]
+    keep = None
+    if len(kept) < len(jp.col_dofs):
+        keep = torch.tensor(kept, dtype=torch.long, device=device)
     if where == list(range(len(dofs))):
-        return None
-    return torch.tensor(where, dtype=torch.long, device=device)
+        return keep, None
+    return keep, torch.tensor(where, dtype=torch.long, device=device)
 
 
 def _frame_jacobian(

@@ -336,22 +336,24 @@ def _uniform_within(lo: Tensor, hi: Tensor, u: Tensor) -> Tensor:
     return torch.minimum(torch.maximum(lo * (1.0 - u) + hi * u, lo), hi)
 
 
-def _sampling_ranges(names: Sequence[str], lower: Tensor, upper: Tensor) -> tuple[Tensor, Tensor]:
+def _sampling_ranges(
+    dofs: Sequence[tuple[str, str, str]], lower: Tensor, upper: Tensor
+) -> tuple[Tensor, Tensor]:
     """The limits, with the free ranges of :meth:`Chain.random_configuration` where a
-    coordinate has none (by the suffix of its DoF name); a coordinate limited on one side
-    only gets a range of the same width on its limited side."""
+    coordinate has none, chosen by what the coordinate is (``dofs``: per DoF its joint, the
+    joint's type and the coordinate, as :attr:`Chain.dof_joints`); a coordinate limited on one
+    side only gets a range of the same width on its limited side."""
     lo, hi = lower.clone(), upper.clone()
-    for i, name in enumerate(names):
+    for i, (_, _, coord) in enumerate(dofs):
         if math.isfinite(lo[i]) and math.isfinite(hi[i]):
             continue
-        suffix = name.rsplit(":", 1)[-1] if ":" in name else ""
-        if suffix in ("x", "y", "z"):
+        if coord in ("x", "y", "z"):  # planar, floating and free translations
             r = _FREE_TRANSLATION
-        elif suffix in _QUAT:  # normalised by the forward kinematics
+        elif coord in _QUAT:  # normalised by the forward kinematics
             r = 1.0
-        elif suffix in ("rx", "ry", "rz"):
+        elif coord in ("rx", "ry", "rz"):
             r = _FREE_ROTVEC
-        else:
+        else:  # one-DoF joints (prismatic ones too) and a planar joint's angle
             r = _FREE_ANGLE
         if math.isfinite(lo[i]):  # limited on one side only (SDF): the free range's width
             hi[i] = lo[i] + 2.0 * r
@@ -385,12 +387,17 @@ class _Link:
     anchor: tuple[float, float, float] | None = None
 
 
-def _dof_layout(spec: RobotSpec) -> tuple[dict[str, int], list[str], list[float], list[float]]:
+def _dof_layout(
+    spec: RobotSpec,
+) -> tuple[dict[str, int], list[str], list[tuple[str, str, str]], list[float], list[float]]:
     """Degrees of freedom in document order: joint -> its first DoF (for the joints that have
-    their own: not fixed, not mimic), and per DoF its name and limits (``-inf``/``inf`` where
-    there are none)."""
+    their own: not fixed, not mimic), and per DoF its name, its role ``(joint, joint type,
+    coordinate)`` (``""`` for a one-DoF joint) and its limits (``-inf``/``inf`` where there are
+    none).  Raises :class:`URDFError` where two DoFs would have the same name (see
+    :func:`_check_unique`)."""
     dof_of: dict[str, int] = {}
     names: list[str] = []
+    roles: list[tuple[str, str, str]] = []
     lower: list[float] = []
     upper: list[float] = []
     for j in spec.joints:
@@ -400,23 +407,54 @@ def _dof_layout(spec: RobotSpec) -> tuple[dict[str, int], list[str], list[float]
         dof_of[j.name] = len(names)
         if n == 1:
             names.append(j.name)
+            roles.append((j.name, j.type, ""))
             lo, hi = (j.lower, j.upper) if j.type != "continuous" else (None, None)
             lower.append(-math.inf if lo is None else lo)
             upper.append(math.inf if hi is None else hi)
         else:
             names.extend(f"{j.name}:{s}" for s in _SUFFIXES[j.type])
+            roles.extend((j.name, j.type, s) for s in _SUFFIXES[j.type])
             lower.extend([-math.inf] * n)
             upper.extend([math.inf] * n)
-    return dof_of, names, lower, upper
+    _check_unique(spec, names, roles, ("degree of freedom", "degrees of freedom"))
+    return dof_of, names, roles, lower, upper
+
+
+def _check_unique(
+    spec: RobotSpec,
+    names: list[str],
+    roles: list[tuple[str, str, str]],
+    what: tuple[str, str],
+) -> None:
+    """Raise :class:`URDFError` naming both joints where two coordinates have the same name:
+    a joint ``J`` with several coordinates names them ``J:x``, ``J:qw``, ..., which another
+    joint may be named (a revolute ``base:x`` beside a floating ``base``)."""
+    first: dict[str, int] = {}
+    for k, name in enumerate(names):
+        if name not in first:
+            first[name] = k
+            continue
+        (a, a_type, _), (b, b_type, _) = roles[first[name]], roles[k]
+        # The element is the joint with one coordinate (its own name), or the later one.
+        own, other, other_type = (b, a, a_type) if b == name else (a, b, b_type)
+        theirs = ", ".join(repr(n) for n, r in zip(names, roles, strict=True) if r[0] == other)
+        raise URDFError(
+            spec.source,
+            _describe("joint", own, 0),
+            f"{name!r} would name a {what[0]} of this joint and one of the {other_type} joint "
+            f"{other!r} (whose {what[1]} are {theirs}); rename one of the two joints",
+        )
 
 
 def _velocity_layout(spec: RobotSpec) -> tuple[dict[str, int], list[str]]:
     """Velocity coordinates (the Jacobian's columns): joint -> its first one, and their names.
 
     The same as the degrees of freedom of :func:`_dof_layout` except for quaternion joints
-    (``ball``: 3 angular velocities, ``free``: 3 linear, then 3 angular)."""
+    (``ball``: 3 angular velocities, ``free``: 3 linear, then 3 angular).  Raises
+    :class:`URDFError` where two have the same name."""
     vel_of: dict[str, int] = {}
     names: list[str] = []
+    roles: list[tuple[str, str, str]] = []
     for j in spec.joints:
         n = _NDOF[j.type]
         if n == 0 or j.mimic is not None:
@@ -424,9 +462,12 @@ def _velocity_layout(spec: RobotSpec) -> tuple[dict[str, int], list[str]]:
         vel_of[j.name] = len(names)
         if n == 1:
             names.append(j.name)
+            roles.append((j.name, j.type, ""))
         else:
             sfx = _VEL_SUFFIXES.get(j.type, _SUFFIXES[j.type])
             names.extend(f"{j.name}:{x}" for x in sfx)
+            roles.extend((j.name, j.type, x) for x in sfx)
+    _check_unique(spec, names, roles, ("velocity coordinate", "velocity coordinates"))
     return vel_of, names
 
 

@@ -180,16 +180,16 @@ def _motion(el: ET.Element, values: dict[str, object], X0, XJ, version) -> np.nd
     return np.linalg.solve(XP0, XJ0) @ M @ np.linalg.solve(XJ0, XC0)
 
 
-def joint_values(joint_names: tuple[str, ...], q: np.ndarray) -> dict[str, object]:
+def joint_values(dof_joints: tuple[tuple[str, str, str], ...], q: np.ndarray) -> dict[str, object]:
     """A chain's ``q`` (one configuration) as joint name -> value, quaternions for ball
-    joints (``J:qw, J:qx, J:qy, J:qz``)."""
+    joints, by the chain's :attr:`~torchlie.kinematics.Chain.dof_joints` (what each DoF is,
+    whatever the joints are named)."""
     out: dict[str, object] = {}
-    for k, n in enumerate(joint_names):
-        base, _, sfx = n.rpartition(":")
-        if sfx == "qw":
-            out[base] = tuple(float(x) for x in q[k : k + 4])
-        elif sfx not in ("qx", "qy", "qz"):
-            out[n] = float(q[k])
+    for k, (joint, _, coord) in enumerate(dof_joints):
+        if coord == "qw":
+            out[joint] = tuple(float(x) for x in q[k : k + 4])
+        elif coord == "":
+            out[joint] = float(q[k])
     return out
 
 
@@ -221,7 +221,7 @@ def validate_sdf(
     q64 = q.to(torch.float64).numpy()
     links = list(chain.link_names)
     refs = [
-        sdf_reference_poses(xml, joint_values(chain.joint_names, q64[b])) for b in range(samples)
+        sdf_reference_poses(xml, joint_values(chain.dof_joints, q64[b])) for b in range(samples)
     ]
     scale = 1.0 + max(float(np.abs(r[n][:3, 3]).max()) for r in refs for n in r)
     w(f"tolerance {tol:g} rad, {tol * scale:.1e} m (1 + size = {scale:.2f} m)\n\n")

@@ -34,6 +34,10 @@ Conventions
 * ``q`` has shape ``(..., n_dof)`` in :attr:`Chain.joint_names` order: one entry per degree of
   freedom, joints in document order, fixed and mimic joints excluded; a planar or floating
   joint ``J`` contributes ``J:x, J:y, J:theta`` or ``J:x, J:y, J:z, J:rx, J:ry, J:rz``.
+  These names are unique: a joint named like another joint's coordinate (``base:x`` beside a
+  floating ``base``) raises :class:`~torchlie.kinematics.URDFError` naming both joints when
+  the chain is built.  What each DoF is comes from its joint (:attr:`Chain.dof_joints`),
+  never from its name.
 * :meth:`Chain.jacobian` is the geometric Jacobian ``(..., 6, n_dof)``, rows (linear; angular),
   columns in ``q``'s order; by default in world coordinates at the link's origin: column ``i``
   holds ``(dp/dq_i, w_i)`` where ``dR/dq_i = hat(w_i) R``, the same meaning as
@@ -139,6 +143,11 @@ class Chain:
         root: the root link (its frame is the world frame).
         link_names: every link, in document order.
         joint_names: the ``n_dof`` degrees of freedom, in the order of ``q``'s last dimension.
+        dof_joints: per degree of freedom, ``(joint, type, coordinate)``: the joint it belongs
+            to, that joint's type (``"revolute"``, ``"floating"``, ...) and which of its
+            coordinates it is (``""`` for a one-DoF joint, else ``"x"``, ``"theta"``,
+            ``"rx"``, ``"qw"``, ...).  What a DoF is comes from here, not from its name (a
+            joint may be named like a coordinate, ``"base:x"``).
         velocity_names: the ``n_v`` velocity coordinates, the Jacobian's columns (the same as
             ``joint_names`` unless the chain has MJCF ball or free joints).
         leaf_links: links without children (end effectors, tool frames), in document order.
@@ -171,15 +180,16 @@ class Chain:
         self.link_names: tuple[str, ...] = spec.links
 
         # Degrees of freedom, in document order.
-        dof_of, names, lower, upper = _dof_layout(spec)
+        dof_of, names, roles, lower, upper = _dof_layout(spec)
         self.joint_names: tuple[str, ...] = tuple(names)
+        self.dof_joints: tuple[tuple[str, str, str], ...] = tuple(roles)
         self.n_dof = len(names)
         self._limits64 = (
             torch.tensor(lower, dtype=torch.float64),
             torch.tensor(upper, dtype=torch.float64),
         )
         self.lower = self._limits64[0].to(dtype=dtype, device=self.device)
-        self._sample64 = _sampling_ranges(names, *self._limits64)
+        self._sample64 = _sampling_ranges(roles, *self._limits64)
         self.upper = self._limits64[1].to(dtype=dtype, device=self.device)
         # Velocity coordinates (the Jacobian's columns): the DoFs, except that a quaternion
         # (MJCF ball and free joints) has three.
@@ -210,8 +220,10 @@ class Chain:
         )
         self._plans: dict[tuple[tuple[int, ...], bool], _Plan] = {}
         self._jac_plans: dict[int, _JacPlan] = {}
-        # (link, DoFs) -> where the link's Jacobian columns go among those DoFs (None: in order).
-        self._dof_maps: dict[tuple[int, tuple[int, ...]], Tensor | None] = {}
+        # (link, DoFs) -> which of the link's Jacobian columns feed those DoFs and where they go
+        # among them (see _dof_index).
+        self._dof_maps: dict[tuple[int, tuple[int, ...]], tuple[Tensor | None, Tensor | None]]
+        self._dof_maps = {}
         self._mimic_t: dict[torch.dtype, tuple[Tensor, Tensor, Tensor]] = {}
 
     # ------------------------------------------------------------------------------------------
@@ -396,10 +408,14 @@ class Chain:
         """Uniform joint values within the limits, shape ``(*batch, n_dof)``.
 
         Coordinates without limits are drawn from ``[-pi, pi]`` (continuous joints, planar
-        rotation), ``[-1, 1]`` m (planar and floating translations) and
-        ``[-pi/sqrt(3), pi/sqrt(3)]`` per rotation-vector component (floating rotations); a
-        coordinate limited on one side only (SDF) from a range of the same width on that side,
-        e.g. ``[lower, lower + 2 pi]``.
+        rotation, and prismatic joints without limits, SDF prismatic joints or MJCF slides: in
+        m), ``[-1, 1]`` m (planar, floating and free translations),
+        ``[-pi/sqrt(3), pi/sqrt(3)]`` per rotation-vector component (floating rotations) and
+        ``[-1, 1]`` per quaternion component (ball and free joints; the forward kinematics
+        normalises them, and the rotations are not uniformly distributed); a coordinate limited
+        on one side only (SDF) from a range of the same width on that side, e.g.
+        ``[lower, lower + 2 pi]``.  What a coordinate is comes from its joint
+        (:attr:`dof_joints`).
         Drawn on the CPU in float64 (with ``generator`` if given), then converted; the values are
         finite for every pair of limits, those near the float64 range included.  Each batch
         size is a non-negative integer (0 gives an empty batch), at most 60 of them (the batch
@@ -608,15 +624,21 @@ class Chain:
         if dofs is None:
             index = None if jp.in_dof_order else jp.dof_index
         else:
-            index = cached(self._dof_maps, (target, dofs), lambda: _dof_index(jp, dofs, C.device))
+            keep, index = cached(
+                self._dof_maps, (target, dofs), lambda: _dof_index(jp, dofs, C.device)
+            )
+            if keep is not None:  # columns of DoFs not asked for
+                C = C.index_select(0, keep)
         if index is None:  # the link's columns are those DoFs, in order
             return C
         # Each column into its DoF's column (summed where mimic joints share one).
         return C.new_zeros(n_out, 6, B).index_add(0, index, C)
 
     def moving_dofs(self, links: str | Sequence[str]) -> tuple[int, ...]:
-        """The DoFs (indices into :attr:`joint_names`, sorted) that move at least one of
-        ``links``: the others have zero Jacobian columns for them.
+        """The DoFs that move at least one of ``links``, sorted: the others have zero Jacobian
+        columns for them.  They are indices into :attr:`velocity_names` (the Jacobian's
+        columns), which are those into :attr:`joint_names` unless the chain has ball or free
+        joints (a quaternion has four values but three velocity coordinates).
 
         Example:
             >>> from torchlie.kinematics import sample_robot
@@ -641,8 +663,10 @@ class Chain:
             q_t: ``(n_dof, B)`` joint values, the batch last (``q.mT`` for ``q (B, n_dof)``),
                 in the chain's dtype and on its device.
             links: a link name or a sequence of names.
-            dofs: sorted DoF indices (see :meth:`moving_dofs`): only their Jacobian columns
-                are returned; ``None`` for all ``n_v`` columns.
+            dofs: strictly increasing indices into :attr:`velocity_names` (the Jacobian's
+                columns; see :meth:`moving_dofs`), any of them: only their Jacobian columns are
+                returned (zero for a DoF that does not move the link); ``None`` for all
+                ``n_v`` columns.
 
         Returns:
             Per link, its pose transposed, ``(4, 4, B)`` with entry ``[c, r, b]`` the pose
@@ -669,7 +693,35 @@ class Chain:
             )
         self._check_like(q_t, _NAME + fn, "q_t", q_t.dtype)
         targets = self._targets(links, fn)
-        return self._poses_and_jacobians(q_t.mT, targets, None if dofs is None else tuple(dofs))
+        return self._poses_and_jacobians(q_t.mT, targets, self._dof_subset(dofs, fn))
+
+    def _dof_subset(self, dofs: Sequence[int] | None, fn: str) -> tuple[int, ...] | None:
+        """``dofs`` of :meth:`poses_and_jacobians` checked, as a tuple (None stays None)."""
+        if dofs is None:
+            return None
+
+        def index(d: object) -> int:
+            if isinstance(d, bool):
+                raise TypeError
+            return operator.index(d)  # ints, numpy integers, integer 0-d tensors
+
+        try:
+            if isinstance(dofs, (str, bytes, bytearray)) or not isinstance(dofs, Sequence):
+                raise TypeError
+            out = tuple(index(d) for d in dofs)
+        except TypeError:
+            raise TypeError(
+                f"{_NAME}{fn}: expected dofs to be None or a sequence of integer DoF indices, "
+                f"got {type(dofs).__name__} {reprlib.repr(dofs)}"
+            ) from None
+        increasing = all(a < b for a, b in zip(out, out[1:], strict=False))
+        if not increasing or any(not 0 <= d < self.n_v for d in out):
+            raise ValueError(
+                f"{_NAME}{fn}: expected dofs to be strictly increasing indices in "
+                f"[0, {self.n_v}) (into velocity_names; see moving_dofs), got "
+                f"{reprlib.repr(dofs)}"
+            )
+        return out
 
     def _poses_and_jacobians(
         self, q2: Tensor, targets: tuple[int, ...], dofs: tuple[int, ...] | None = None
@@ -774,7 +826,7 @@ class Chain:
                 f"{_NAME}{fn}: expected frame to be 'world', 'link' or 'spatial', got "
                 f"{reprlib.repr(frame)}"
             )
-        points = self._jacobian_points(point, names, frame, q2.dtype)
+        points = self._jacobian_points(point, names, frame, q2.dtype, batch)
         poses, jacs = self._poses_and_jacobians(q2, targets) if targets else ([], [])
         out: dict[str, Tensor] = {}
         for name, P, Jd in zip(names, poses, jacs, strict=True):
@@ -794,8 +846,10 @@ class Chain:
         names: tuple[str, ...],
         frame: str,
         dtype: torch.dtype,
+        batch: tuple[int, ...],
     ) -> dict[str, Tensor]:
-        """``point`` of :meth:`jacobian` checked, as a dict link -> ``(..., 3)`` point."""
+        """``point`` of :meth:`jacobian` checked (its batch shape broadcasts with ``q``'s,
+        ``batch``), as a dict link -> ``(..., 3)`` point."""
         fn = _NAME + "jacobian"
         if point is None:
             return {}
@@ -822,6 +876,7 @@ class Chain:
                     f"{fn}: {what} has dtype {x.dtype} on {x.device}, expected {dtype} on "
                     f"{self.device} (like q)"
                 )
+            _checks.batch_broadcast(fn, (torch.Size(batch), "q"), (x.shape[:-1], what))
             out[k] = x
         return out
 

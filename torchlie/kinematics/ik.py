@@ -155,7 +155,10 @@ class SolverChain(Protocol):
         dtype, device: of the chain's constants (the targets, ``q0`` and bounds must match).
         n_dof, n_v: joint values and velocity coordinates (the solver steps the values, so it
             needs ``n_v == n_dof``: no quaternion joints).
-        joint_names: the DoFs; a floating joint's rotation vector is named ``J:rx, J:ry, J:rz``.
+        joint_names: the DoFs' names (for messages).
+        dof_joints: per DoF ``(joint, joint type, coordinate)`` (:attr:`Chain.dof_joints
+            <torchlie.kinematics.Chain.dof_joints>`): a floating joint's rotation vector is the
+            DoFs of coordinates ``rx, ry, rz`` of a ``"floating"`` joint.
         link_names: the links targets may name.
         lower, upper: ``(n_dof,)`` limits (``-inf``/``inf`` where there are none).
     """
@@ -165,6 +168,7 @@ class SolverChain(Protocol):
     n_dof: int
     n_v: int
     joint_names: tuple[str, ...]
+    dof_joints: tuple[tuple[str, str, str], ...]
     link_names: tuple[str, ...]
     lower: Tensor
     upper: Tensor
@@ -431,6 +435,8 @@ def _step(A: Tensor, b: Tensor, lam: Tensor, g: Tensor | None = None) -> Tensor:
     ulp; through the ``m x m`` dual system ``dq = A^T (A A^T + mu I)^-1 b`` when ``m <= k``.
     ``g``: ``A^T b`` when the caller has it."""
     k, m = A.shape[:2]
+    if k == 0:  # no DoF to step (A^T b, empty: a target link no DoF moves)
+        return (A * b.unsqueeze(0)).sum(1)
     dual = m <= k
     S = _gram(A if dual else A.transpose(0, 1))
     diag = torch.diagonal(S)  # (N, k or m), a view: mu is added in place
@@ -535,6 +541,11 @@ def inverse_kinematics(
     Returns:
         :class:`IKResult` ``(q, position_error, rotation_error, converged, iterations)``; an
         unreachable target gives ``converged = False`` and the best ``q`` found (finite).
+        When no DoF moves the target links (the root, links fixed to it, a chain without
+        DoFs) nothing is solved for: ``q`` is the first start as it is (``q0`` clamped into
+        the limits, else a uniform draw), ``converged`` says whether the links already are at
+        their targets (``iterations`` 0 then, else ``max_iterations``, as for an unreachable
+        target) and the derivative with respect to the targets is zero.
 
     Raises:
         TypeError, ValueError: a target of the wrong shape, dtype or device, an unknown link,
@@ -542,7 +553,7 @@ def inverse_kinematics(
             name.
     """
     if chain.n_v != chain.n_dof:  # the steps below add velocities to the values
-        quats = sorted({nm.rsplit(":", 1)[0] for nm in chain.joint_names if nm.endswith(":qw")})
+        quats = sorted({j for j, jtype, _ in chain.dof_joints if jtype in ("ball", "free")})
         raise ValueError(
             f"{_FN}: the chain has ball or free joints ({', '.join(map(repr, quats[:5]))}), "
             "whose quaternion values the solver does not step; it solves for hinge, slide "
@@ -606,13 +617,21 @@ def inverse_kinematics(
     w_loop = None if all(w == 1.0 for w in weights) else w_sqrt
     # Only the DoFs that move a target link are solved for (the others keep their start).
     moving = chain.moving_dofs([name for name, _, _ in items])
-    dofs = None if moving == tuple(range(n)) else _Dofs(moving, torch.tensor(moving, device=device))
+    dofs = None
+    if moving != tuple(range(n)) or not moving:
+        dofs = _Dofs(moving, torch.tensor(moving, dtype=torch.long, device=device))
 
     with torch.no_grad():
-        q_best, out = _solve(
-            chain, seeds, tasks, w_loop, dofs, lo1, hi1, (P, K), max_iterations,
-            restart_after, (tol_p, tol_r), early_exit,
-        )  # fmt: skip
+        if moving:
+            q_best, out = _solve(
+                chain, seeds, tasks, w_loop, dofs, lo1, hi1, (P, K), max_iterations,
+                restart_after, (tol_p, tol_r), early_exit,
+            )  # fmt: skip
+        else:  # nothing to solve for: the first start, as it is
+            q_best = seeds[0].view(n, P, K)[:, :, 0]
+            _, _, perr, rerr = _linearise(chain, q_best, tasks, w_loop, dofs)
+            conv = (perr <= tol_p) & (rerr <= tol_r)
+            out = [perr, rerr, conv, torch.where(conv, 0, max_iterations)]
 
     q_out = q_best
     if torch.is_grad_enabled() and any(t.requires_grad for *_, t in items):
@@ -653,7 +672,9 @@ def _solve(
     tol_p, tol_r = tols
     n_seeds, n, N = seeds.shape
     dtype, device = seeds.dtype, seeds.device
-    rot_dofs = [i for i, name in enumerate(chain.joint_names) if name.endswith(":rx")]
+    rot_dofs = [
+        i for i, (_, jtype, c) in enumerate(chain.dof_joints) if (jtype, c) == ("floating", "rx")
+    ]
     sel = None if dofs is None else dofs.index
     lo_a, hi_a = (lo, hi) if sel is None else (lo.index_select(0, sel), hi.index_select(0, sel))
     targets = [t.target for t in tasks]  # per target (..., P)
@@ -804,7 +825,7 @@ def _implicit_step(
         free = (q > lo) & (q < hi)  # a joint on a limit stays there
         A = A * (free if dofs is None else free.index_select(0, dofs.index)).to(A.dtype)
     b = _residual_values(chain, q, tasks, w_sqrt)
-    s = -_step(A.transpose(0, 1), b, torch.zeros_like(q[0]))
+    s = -_step(A.transpose(0, 1), b, q.new_zeros(q.shape[1]))
     if dofs is not None:  # zero for the DoFs that do not move a target link
         s = q.new_zeros(q.shape).index_add(0, dofs.index, s)
     return s - s.detach()

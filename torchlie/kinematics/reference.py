@@ -26,6 +26,19 @@ __all__ = ["reference_dof_names", "reference_forward_kinematics", "reference_jac
 _COORDS = {"planar": ("x", "y", "theta"), "floating": ("x", "y", "z", "rx", "ry", "rz")}
 
 
+def _own_joints(spec: RobotSpec) -> list[tuple[JointSpec, int]]:
+    """The joints with DoFs of their own (not fixed, not mimic), in document order, each with
+    its first DoF."""
+    out = []
+    k = 0
+    for j in spec.joints:
+        if j.type == "fixed" or j.mimic is not None:
+            continue
+        out.append((j, k))
+        k += len(_COORDS.get(j.type, ("",)))
+    return out
+
+
 def reference_dof_names(spec: RobotSpec) -> list[str]:
     """DoF names in document order (fixed and mimic joints excluded).
 
@@ -35,9 +48,7 @@ def reference_dof_names(spec: RobotSpec) -> list[str]:
         ['base_yaw', 'shoulder_pitch']
     """
     names = []
-    for j in spec.joints:
-        if j.type == "fixed" or j.mimic is not None:
-            continue
+    for j, _ in _own_joints(spec):
         if j.type in _COORDS:
             names += [f"{j.name}:{c}" for c in _COORDS[j.type]]
         else:
@@ -122,7 +133,9 @@ def _motion(j: JointSpec, vals: Tensor) -> Tensor:
 def reference_forward_kinematics(spec: RobotSpec, q: Tensor) -> dict[str, Tensor]:
     """World poses ``(B, 4, 4)`` of every link, in float64, for ``q`` of shape ``(B, n_dof)``.
 
-    ``q`` follows :func:`reference_dof_names` (the same layout as ``Chain.joint_names``).
+    ``q`` follows :func:`reference_dof_names` (the same layout as ``Chain.joint_names``);
+    which DoFs a joint takes follows from the joints' types and document order, not from the
+    names (a joint may be named ``arm:shoulder``).
 
     Example:
         >>> from torchlie.kinematics import parse_urdf, sample_robot
@@ -133,11 +146,8 @@ def reference_forward_kinematics(spec: RobotSpec, q: Tensor) -> dict[str, Tensor
     """
     q = q.to(torch.float64)
     B = q.shape[0]
-    names = reference_dof_names(spec)
     by_joint = {j.name: j for j in spec.joints}
-    start: dict[str, int] = {}
-    for i, n in enumerate(names):
-        start.setdefault(n.split(":")[0], i)
+    start = {j.name: k for j, k in _own_joints(spec)}
 
     def own(j: JointSpec) -> Tensor:
         if j.type == "fixed":
