@@ -627,23 +627,24 @@ def test_bad_limits_raise_naming_the_joint(limit, match):
         parse_sdf(_one_joint("prismatic", limit))
 
 
-def test_zero_quaternion_pose_raises():
+@pytest.mark.parametrize(
+    ("inner", "match"),
+    [
+        (
+            '<parent>a</parent><child>b</child><pose rotation_format="quat_xyzw">'
+            "0 0 0 0 0 0 0</pose>",
+            r"<joint name='j'> <pose>: the quaternion .* is zero",
+        ),
+        ("<parent>a</parent><child>a</child>", r"<joint name='j'>: link 'a' is both its <parent>"),
+    ],
+    ids=["zero_quaternion", "own_parent"],
+)
+def test_bad_joint_raises_naming_it(inner, match):
     xml = (
         '<sdf version="1.7"><model name="m"><link name="a"/><link name="b"/>'
-        '<joint name="j" type="revolute"><parent>a</parent><child>b</child>'
-        '<pose rotation_format="quat_xyzw">0 0 0 0 0 0 0</pose></joint></model></sdf>'
+        f'<joint name="j" type="revolute">{inner}</joint></model></sdf>'
     )
-    with pytest.raises(SDFError, match=r"<joint name='j'> <pose>: the quaternion .* is zero"):
-        parse_sdf(xml)
-
-
-def test_joint_with_one_link_as_parent_and_child_is_named():
-    xml = (
-        '<sdf version="1.7"><model name="m"><link name="a"/><link name="b"/>'
-        '<joint name="j" type="revolute"><parent>a</parent><child>a</child></joint>'
-        "</model></sdf>"
-    )
-    with pytest.raises(SDFError, match=r"<joint name='j'>: link 'a' is both its <parent>"):
+    with pytest.raises(SDFError, match=match):
         parse_sdf(xml)
 
 
