@@ -473,3 +473,15 @@ def test_norms_and_small_vector_parts_at_every_magnitude(dtype):
         q = torch.cat((torch.tensor([-1.0], dtype=torch.float64), u * a)).to(dtype)
         want = (math.pi - a) * u  # the angle times the unit axis of the vector part
         torch.testing.assert_close(quaternion.log(q)[1:].double(), want, rtol=0, atol=4 * eps)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_vee_of_hat_up_to_the_largest_float(dtype):
+    """``vee(hat(x)) = x`` exactly up to the largest float (the skew part's ``(a - b) / 2``
+    overflowed from half of it)."""
+    from torchlie import se2, so2
+
+    top = torch.finfo(dtype).max
+    x = torch.tensor([top, -top / 2, top / 3], dtype=dtype)
+    for core, v in ((so3, x), (se3, torch.cat((x, x))), (so2, x[:1]), (se2, x)):
+        assert torch.equal(core.vee(core.hat(v)), v), core.__name__

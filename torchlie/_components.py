@@ -102,9 +102,22 @@ def hat(w: Tensor) -> Tensor:
     return _layout.interleave((o, -z, y, z, o, -x, -y, x, o)).unflatten(-1, (3, 3))
 
 
+def half_difference(a: Tensor, b: Tensor) -> Tensor:
+    """``(a - b) / 2`` as ``a / 2 - b / 2`` (the same value; ``a - b`` overflows from half the
+    largest float)."""
+    return torch.sub(a * 0.5, b, alpha=0.5)
+
+
 def vee(M: Tensor) -> Tensor:
-    """vee of the skew-symmetric part, ``((M - M^T)/2)^v``."""
-    return 0.5 * skew_vee(M)
+    """vee of the skew-symmetric part, ``((M - M^T)/2)^v``, at every finite magnitude."""
+    d = half_difference
+    return _layout.interleave(
+        (
+            d(M[..., 2, 1], M[..., 1, 2]),
+            d(M[..., 0, 2], M[..., 2, 0]),
+            d(M[..., 1, 0], M[..., 0, 1]),
+        )
+    )
 
 
 def skew_vee(M: Tensor) -> Tensor:

@@ -284,7 +284,7 @@ def vee(Xi: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3"]:
         tensor([1., 2., 3.])
     """
     x, dtype = _checks.tensor(Xi, _NAME + "vee", "Xi", (3, 3))
-    t = 0.5 * (x[..., 1, 0] - x[..., 0, 1])
+    t = _components.half_difference(x[..., 1, 0], x[..., 0, 1])
     return _checks.out(torch.stack((x[..., 0, 2], x[..., 1, 2], t), dim=-1), dtype)
 
 

@@ -24,7 +24,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, _layout
+from . import _checks, _coeffs, _components, _layout
 from ._autograd import CustomFunction, blocked
 from ._typing import Bool, Float
 
@@ -256,7 +256,7 @@ def vee(Theta: Float[Tensor, "*b 2 2"]) -> Float[Tensor, "*b 1"]:
         tensor([2.])
     """
     x, dtype = _checks.tensor(Theta, _NAME + "vee", "Theta", (2, 2))
-    return _checks.out((0.5 * (x[..., 1, 0] - x[..., 0, 1])).unsqueeze(-1), dtype)
+    return _checks.out(_components.half_difference(x[..., 1, 0], x[..., 0, 1])[..., None], dtype)
 
 
 @_checks.float32_exact
