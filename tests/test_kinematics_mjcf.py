@@ -465,3 +465,14 @@ def test_gradients_through_quaternion_joints():
     assert torch.autograd.gradcheck(
         lambda x: chain.forward_kinematics(x, "c")["c"], (q,), eps=1e-6, atol=1e-8
     )
+
+
+def test_text_with_a_byte_order_mark():
+    """MJCF text (str or bytes) that starts with a UTF-8 byte-order mark (it was taken for a
+    path)."""
+    text = (
+        '<mujoco model="m"><worldbody><body name="a"><joint name="h" type="hinge"/>'
+        '<geom size="0.1"/></body></worldbody></mujoco>'
+    )
+    for source in ("\ufeff" + text, ("\ufeff" + text).encode("utf-8")):
+        assert parse_mjcf(source).joints[0].name == "h"

@@ -284,3 +284,16 @@ def test_parsed_rpy_and_origin_reach_the_chain_in_float64():
     T = chain.forward_kinematics(torch.zeros(0, dtype=torch.float64))["b"]
     assert T[0, 3].item() == 0.1
     assert T[1, 1].item() == math.cos(0.1) and T[2, 1].item() == math.sin(0.1)
+
+
+def test_text_with_a_byte_order_mark(tmp_path):
+    """URDF text (str or bytes) and files that start with a UTF-8 byte-order mark (it was taken
+    for a path)."""
+    text = (
+        '<robot name="r"><link name="a"/><link name="b"/><joint name="j" type="continuous">'
+        '<parent link="a"/><child link="b"/></joint></robot>'
+    )
+    path = tmp_path / "bom.urdf"
+    path.write_bytes(("\ufeff" + text).encode("utf-8"))
+    for source in ("\ufeff" + text, ("\ufeff" + text).encode("utf-8"), path):
+        assert parse_urdf(source).joints[0].name == "j"

@@ -91,10 +91,11 @@ def _compile(source: Any) -> tuple[Any, str]:
     if isinstance(source, mujoco.MjModel):
         return source, "<MjModel>"
     if isinstance(source, bytes):
-        source = source.decode()
-    if isinstance(source, str) and source.lstrip().startswith("<"):
+        source = source.decode("utf-8-sig")  # a UTF-8 byte-order mark dropped
+    if isinstance(source, str) and source.lstrip("\ufeff \t\r\n").startswith("<"):
         label = "<string>"
         load = mujoco.MjModel.from_xml_string
+        source = source.lstrip("\ufeff")
     elif isinstance(source, (str, os.PathLike)):
         label = os.fspath(source)
         load = mujoco.MjModel.from_xml_path

@@ -483,7 +483,7 @@ def _parse_root(r: _Reader, root: ET.Element) -> RobotSpec:
 
 
 def _looks_like_xml(text: str) -> bool:
-    return text.lstrip().startswith("<")
+    return text.lstrip("\ufeff \t\r\n").startswith("<")  # a byte-order mark may lead
 
 
 def parse_urdf(source: str | os.PathLike[str] | bytes) -> RobotSpec:
