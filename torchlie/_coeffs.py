@@ -795,6 +795,13 @@ SIM3_SERIES = {
 SIM3_BIG = 64.0
 
 
+def _half_exp(big: Tensor, sigma: Tensor, sign: float = 1.0) -> Tensor:
+    """``e^(sign sigma / 2)`` where ``big``, 1 elsewhere: the factor applied twice that takes
+    Sim(3) coefficients with ``e^sigma`` factored out back to their values (``e^sigma`` itself
+    would overflow, or underflow, where the result does not)."""
+    return torch.exp(torch.where(big, (0.5 * sign) * sigma, 0.0))
+
+
 def _sim3_v_scaled(
     sigma: Tensor, t2: Tensor, dtype: torch.dtype, differentiable: bool, scaled: bool = True
 ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor | None]:
@@ -860,7 +867,7 @@ def sim3_v(
     times two factors ``e^(sigma/2)``.
     """
     A, _, B, C, big = _sim3_v_scaled(sigma, t2, dtype, differentiable)
-    h = torch.exp(torch.where(big, 0.5 * sigma, 0.0))  # type: ignore[arg-type]
+    h = _half_exp(big, sigma)  # type: ignore[arg-type]
     return A, B * h * h, C * h * h
 
 
@@ -890,7 +897,7 @@ def sim3_v_inv(
     A, Ah, B, C, big = _sim3_v_scaled(sigma, t2, dtype, differentiable)
     D = Ah - t2 * C
     det = D * D + t2 * B * B
-    h = torch.exp(torch.where(big, -0.5 * sigma, 0.0))  # type: ignore[arg-type]
+    h = _half_exp(big, sigma, -1.0)  # type: ignore[arg-type]
     # a = 1/A as e^-sigma / Ah too: the reciprocal's derivative, -A'/A^2, squares A
     return h / Ah * h, -B * h / det * h, (B * B - C * D) * h / (Ah * det) * h
 
@@ -911,7 +918,7 @@ def expc_prime(sigma: Tensor) -> Tensor:
         s = fma(torch.full_like(sigma, c), s, ss)
     sl = torch.where(small, 1.0, sigma)
     big = sigma > SIM3_BIG
-    h = torch.exp(torch.where(big, 0.5 * sl, 0.0))
+    h = _half_exp(big, sigma)
     e = torch.exp(torch.where(big, 0.0, sl))
     sl2 = sl * sl
     closed = torch.where(big, h * ((sl - 1.0) / sl2) * h + 1.0 / sl2, (e * (sl - 1.0) + 1.0) / sl2)
@@ -974,7 +981,7 @@ def sim3_v_partials(
     Cs = (Asf + e * ((1.0 + sl) * cc - sc) - 2.0 * sl * C) / den
     Bt = (e * (sl * dsc + cc + tl * dcc) - B) / den
     Ct = (e * (sl * dcc - dsc) - C) / den
-    h = torch.exp(torch.where(big, 0.5 * sigma, 0.0))
+    h = _half_exp(big, sigma)
     w = torch.where
     return (
         A,
