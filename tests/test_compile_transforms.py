@@ -39,6 +39,16 @@ def _cases(dtype: torch.dtype) -> dict[str, tuple[Callable[..., torch.Tensor], t
     p = torch.randn(4, 3, generator=g, dtype=dtype)
     # identity (three equal singular values) and a generic matrix
     M = torch.stack((torch.eye(3, dtype=dtype),) * 2 + (R[0] + 0.1, R[2]))
+    # general quaternions: beside the branch cut, w = 0, a tie, and a scaled one
+    qg = torch.tensor(
+        [
+            [-1.0, 0.0, 1e-20, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.5, 0.5, 0.0, 0.0],
+            [0.6, -0.4, 1.0, 1.8],
+        ],
+        dtype=dtype,
+    )
     return {
         "so3.exp": (so3.exp, (w,)),
         "so3.log": (so3.log, (R,)),
@@ -48,6 +58,7 @@ def _cases(dtype: torch.dtype) -> dict[str, tuple[Callable[..., torch.Tensor], t
         "quaternion.to_matrix": (quaternion.to_matrix, (q,)),
         "quaternion.from_matrix": (quaternion.from_matrix, (R,)),
         "quaternion.apply": (quaternion.apply, (q, p)),
+        "quaternion.log": (quaternion.log, (qg,)),
         "se3.exp": (se3.exp, (xi,)),
         "se3.log": (se3.log, (T,)),
         "se3.compose": (se3.compose, (T, T.flip(0))),

@@ -366,6 +366,38 @@ def test_log_branch_cut_and_zero(dtype):
     assert torch.isfinite(g).all()
 
 
+def _mp_log_jacobian(q: list, rel: float) -> list:
+    """Central differences of :func:`_mp_log`, each step ``rel`` times the smallest non-zero
+    |component| ``m`` (far below the distance to the branch cut), with digits enough for the
+    changes of ``ln|q|`` (of order ``m h``) and of the angle."""
+    m = min(abs(c) for c in q if c != 0)
+    with mp.workdps(100 + 3 * int(-mp.log10(m * rel))):
+        h = mp.mpf(rel) * m
+        J = [[mp.mpf(0)] * 4 for _ in range(4)]
+        for j in range(4):
+            hi = [c + (h if i == j else 0) for i, c in enumerate(q)]
+            lo = [c - (h if i == j else 0) for i, c in enumerate(q)]
+            for i, (a, b) in enumerate(zip(_mp_log(hi), _mp_log(lo), strict=True)):
+                J[i][j] = (a - b) / (2 * h)
+        return J
+
+
+@pytest.mark.parametrize("w", [-1.0, -2.0, 0.5])
+@pytest.mark.parametrize("s", [1e-3, 1e-12, 1e-20, 1e-30])
+def test_log_jacobian_next_to_the_reals(dtype, w, s):
+    """Every entry of the Jacobian, reverse and forward mode, next to the real axis: beside the
+    branch cut (w < 0) the derivative across v is about pi/|v| and the one along v is w/|q|^2
+    (about -1): both to a few ulp entry by entry, for v along an axis (in float64 also 1e-100
+    and 1e-200, whose squares are far below the normal range)."""
+    sizes = [s] if dtype == torch.float32 else [s, s * 1e-70, s * 1e-170]
+    for m in sizes:
+        q = torch.tensor([w, 0.0, m, 0.0], dtype=dtype)
+        ref = _to_t(_mp_log_jacobian(_mp(q), 1e-30))
+        for J in (torch.func.jacrev(Q.log)(q), torch.func.jacfwd(Q.log)(q)):
+            err = (J.double() - ref).abs()
+            assert (err <= 4 * eps(dtype) * ref.abs()).all(), (m, J, ref)
+
+
 def test_exp_accuracy(dtype):
     a, _ = samplers.rotvecs(n_random=20)
     a = torch.cat(

@@ -58,6 +58,8 @@ _COSC4 = _alt_factorial_series(4, _N_MAX)
 #: (2t - 3 sin t + t cos t)/(2 t^5) = sum_k (-1)^k (k + 1) t2^k / (2k + 5)!
 _Q3 = [(-1) ** k * (k + 1) / math.factorial(2 * k + 5) for k in range(_N_MAX)]
 _ATAN = [(-1) ** k / (2 * k + 1) for k in range(_N_MAX)]
+#: (1/n) d/dn [atan2(n, w)/n] w^3 = sum_k (-1)^(k+1) (2k + 2)/(2k + 3) (n/w)^(2k)
+_ATAN_SLOPE = [(-1) ** (k + 1) * (2 * k + 2) / (2 * k + 3) for k in range(_N_MAX)]
 
 # Number of series terms per function: (float32, float64).  Functions whose exact formula is
 # free of cancellation need few terms; those whose exact formula cancels (sinc3, cosc4, q3)
@@ -66,6 +68,8 @@ _TERMS = {
     "sinc": (2, 3),
     "cosc": (2, 3),
     "atan": (2, 3),
+    # evaluated where the atan series is (its threshold is larger than atan's)
+    "atan_slope": (3, 4),
     "sinc3": (4, 8),
     "cosc4": (5, 10),
     "q3": (5, 10),
@@ -74,6 +78,7 @@ _SERIES = {
     "sinc": _SINC,
     "cosc": _COSC,
     "atan": _ATAN,
+    "atan_slope": _ATAN_SLOPE,
     "sinc3": _SINC3,
     "cosc4": _COSC4,
     "q3": _Q3,
@@ -226,6 +231,12 @@ def atan2(y: Tensor, x: Tensor) -> Tensor:
     return angle(y, x)
 
 
+def _atan_small(n: Tensor, w: Tensor) -> Tensor:
+    """Where :func:`atan_ratio` takes its series: ``w > 0`` and ``n / w`` small (found without
+    dividing by ``w``)."""
+    return (w > 0) & (n * n < _plan("atan", n.dtype)[1] * (w * w))
+
+
 def atan_ratio(n: Tensor, w: Tensor) -> Tensor:
     """atan2(n, w)/n for n >= 0: the angle of a quaternion over the norm of its vector part.
 
@@ -234,16 +245,24 @@ def atan_ratio(n: Tensor, w: Tensor) -> Tensor:
     series branch is selected without dividing by w, and only its own elements see ``n/w``, so
     no branch overflows in the backward pass (e.g. at w ~ 1e-17, n ~ 1: a rotation by pi).
     """
-    coeffs, thr = _plan("atan", n.dtype)
-    small = (w > 0) & (n * n < thr * (w * w))
-    w_s = torch.where(small, w, torch.ones_like(w))
-    r2 = torch.where(small, n * n, torch.zeros_like(n)) / (w_s * w_s)
-    series = _horner(r2, coeffs) / w_s
+    small = _atan_small(n, w)
+    series = atan_ratio_series(n, w, small)
     ok = n > 0
     n_e = torch.where(small | ~ok, torch.ones_like(n), n)
     w_e = torch.where(small, torch.ones_like(w), w)
     exact = torch.where(ok, atan2(n_e, w_e) / n_e, torch.zeros_like(n))
     return torch.where(small, series, exact)
+
+
+def atan_ratio_series(n: Tensor, w: Tensor, small: Tensor, name: str = "atan") -> Tensor:
+    """Where ``small`` (of :func:`_atan_small`): ``a = atan2(n, w)/n`` (``name`` ``"atan"``) or
+    its slope ``c = (1/n) da/dn = (w/(n^2 + w^2) - a)/n^2`` (``"atan_slope"``; the exact form
+    cancels there), as series in ``(n/w)^2``; elsewhere finite filler.  Smooth in ``n`` and
+    ``w`` to every order."""
+    w_s = torch.where(small, w, torch.ones_like(w))
+    r2 = torch.where(small, n * n, torch.zeros_like(n)) / (w_s * w_s)
+    out = _horner(r2, _plan(name, n.dtype)[0]) / w_s
+    return out if name == "atan" else out / (w_s * w_s)
 
 
 def cos_sqrt(t2: Tensor) -> Tensor:

@@ -416,9 +416,11 @@ def log(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
     (the scalar part keeps its true one).  Zero quaternion: NaN.
 
     Gradient meaning: the vector part is invariant to the scale of ``q``, so its ordinary
-    gradient is already the projected one (no custom backward is needed); it is the true one
-    wherever ``log`` is differentiable (everywhere except the branch cut), ``w = 0`` and
-    ``|w| = |v_i|`` included.
+    gradient is already the projected one.  Its derivatives (a closed form, reverse and forward
+    mode and of every order) are the true ones wherever ``log`` is differentiable (everywhere
+    except the branch cut), ``w = 0``, ``|w| = |v_i|`` and ``v`` next to the negative reals
+    included (the derivative along ``v`` there, ``w/|q|^2``, is kept beside the one across it,
+    about ``pi/|v|``).
 
     Example:
         >>> log(torch.tensor([0.0, 0.0, 0.0, 2.0]))
@@ -427,31 +429,78 @@ def log(q: Float[Tensor, "*b 4"]) -> Float[Tensor, "*b 4"]:
         tensor([0.0000, 3.1416, 0.0000, 0.0000])
     """
     x, dtype = _checks.tensor(q, "torchlie.quaternion.log", "q", (4,))
-    return _checks.out(_log(x), dtype)
+    return _checks.out(_LogFn(x), dtype)
 
 
-def _log(q: Tensor) -> Tensor:
-    q, k = _coeffs.rescaled(q)  # ln|q| = ln|q / k| + ln k; the rest is invariant to the scale
-    w = q[..., :1]
+def _log_parts(q: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """``(k, w, v, |v|)`` of ``q / k`` (``k`` of :func:`torchlie._coeffs.rescaled`: ``ln|q| =
+    ln|q / k| + ln k``, the rest is invariant to the scale); ``|v|`` from ``v`` scaled by its
+    own largest component, accurate also where ``|v|``'s squares underflow beside ``w``'s."""
+    q, k = _coeffs.rescaled(q)
     v = q[..., 1:]
-    x, y, z = v.unbind(-1)
-    n2 = fma(fma(x * x, y, y), z, z).unsqueeze(-1)
-    n = _coeffs.sqrt0(n2)
-    # atan_ratio is smooth at n = 0 for w > 0 and returns 0 (finite, with a finite gradient)
-    # where n = 0 and w <= 0; those points are fixed below.
+    return k, q[..., :1], v, _coeffs.norm(v, keepdim=True)
+
+
+def _log_values(q: Tensor) -> Tensor:
+    k, w, v, n = _log_parts(q)
+    # atan_ratio is smooth at n = 0 for w > 0 and returns 0 where n = 0 and w <= 0 (fixed below)
     vec = _coeffs.atan_ratio(n, w) * v
-    # w <= 0 with |v|'s squares below the normal range (|v| under about 1e-154 |w| in float64,
-    # 1e-19 in float32): |v| from v scaled by its own largest component and the angle times
-    # the unit vector (n was 0 or lost bits there: the axis came out x, or the angle wrong)
-    ns = _coeffs.norm(v, keepdim=True)
-    tiny = (w <= 0) & (ns > 0) & (ns * ns < 4.0 * torch.finfo(ns.dtype).tiny)
-    ne = torch.where(tiny, ns, 1.0)
+    # w <= 0 and |v| below about 1e-154 |w| (float64; 1e-19 in float32): the angle times the
+    # unit vector (pi / |v| overflows for the smallest)
+    tiny = (w <= 0) & (n > 0) & (n * n < 4.0 * torch.finfo(n.dtype).tiny)
+    ne = torch.where(tiny, n, 1.0)
     vec = torch.where(tiny, _coeffs.atan2(ne, w) * (v / ne), vec)
     cut = torch.cat((torch.full_like(w, torch.pi), torch.zeros_like(v[..., 1:])), dim=-1)
-    vec = torch.where((ns == 0) & (w < 0), cut, vec)
-    out = torch.cat((0.5 * torch.log(w * w + n2) + k.log(), vec), dim=-1)
-    zero = (n == 0) & (w == 0)
-    return torch.where(zero, torch.full_like(out, float("nan")), out)
+    vec = torch.where((n == 0) & (w < 0), cut, vec)
+    out = torch.cat((0.5 * torch.log(fma(w * w, n, n)) + k.log(), vec), dim=-1)
+    return torch.where((n == 0) & (w == 0), torch.full_like(out, float("nan")), out)
+
+
+def _log_derivative(q: Tensor, d: Tensor, transpose: bool) -> Tensor:
+    """``J d`` (``J^T d`` if ``transpose``), ``J`` the Jacobian of :func:`log` at ``q``.
+
+    With ``r^2 = w^2 + n^2``, ``n = |v|``, ``u = v/n``, ``phi = atan2(n, w)``:
+    ``d ln|q| = (w dw + v.dv) / r^2`` and ``d vec = -v dw / r^2 + S dv``, ``S`` symmetric:
+    ``(w / r^2) u u^T`` along ``v`` plus ``(phi / n)(I - u u^T)`` across it.  The two parts
+    are applied apart: next to the negative reals ``phi / n ~ pi / n`` is huge and the radial
+    ``w / r^2 ~ -1`` would be lost in their difference.  Where ``n << w`` (the series of
+    :func:`torchlie._coeffs.atan_ratio`) ``S = a I + c v v^T`` with ``a = phi / n`` and
+    ``c = (w / r^2 - a) / n^2`` as series, smooth at ``v = 0``.  On the branch cut the vector
+    part's derivative is 0 (the docstring's choice)."""
+    k, w, v, n = _log_parts(q)
+    d0, dv = d[..., :1], d[..., 1:]
+    r2 = fma(w * w, n, n)
+    small = _coeffs._atan_small(n, w)
+    a = _coeffs.atan_ratio_series(n, w, small)
+    c = _coeffs.atan_ratio_series(n, w, small, "atan_slope")
+    near = fma(a * dv, c * v, _coeffs.dot(v, dv).unsqueeze(-1))
+    far = ~small & (n > 0)
+    ne = torch.where(far, n, 1.0)
+    u = v / ne
+    p = _coeffs.dot(u, dv).unsqueeze(-1)
+    # (I - u u^T) dv as u x (dv x u): its transpose (reverse mode through this formula, as
+    # under compile) has no radial part to cancel either
+    across = torch.linalg.cross(u, torch.linalg.cross(dv, u, dim=-1), dim=-1) / ne
+    s_dv = torch.where(
+        small, near, torch.where(far, fma(_coeffs.atan2(ne, w) * across, u, p * w / r2), 0.0)
+    )
+    if transpose:
+        out0 = (w * d0 - _coeffs.dot(v, dv).unsqueeze(-1)) / r2
+        outv = fma(s_dv, v, d0 / r2)
+    else:
+        out0 = (w * d0 + _coeffs.dot(v, dv).unsqueeze(-1)) / r2
+        outv = fma(s_dv, v, -d0 / r2)
+    return torch.cat((out0, outv), dim=-1) / k  # the derivative at q / k, divided by k
+
+
+_LogFn = CustomFunction(
+    "QuaternionLog",
+    forward=_log_values,
+    save=lambda inputs, out: (inputs[0],),
+    backward=lambda saved, g: (_log_derivative(saved[0], g, True),),
+    jvp=lambda saved, dq: _log_derivative(saved[0], dq, False),
+    event_dims=(1,),
+)
 
 
 @_checks.float32_exact
