@@ -41,7 +41,8 @@ TRUE_OFFSET = (0.05, 0.0, 0.107 + 0.1034 + 0.12)
 
 
 def with_payload(base: Inertials, b: int, m: torch.Tensor, c: torch.Tensor) -> Inertials:
-    """``base`` with a point mass ``m`` at ``c`` (body ``b``'s frame) merged into body ``b``."""
+    """``base`` with a point mass ``m`` at ``c`` (body ``b``'s frame) merged into body ``b``
+    (the joints' armature, left out, stays the chain's own)."""
     mb, cb, Ib = base.mass[b], base.com[b], base.inertia[b]
     total = mb + m
     com = (mb * cb + m * c) / total

@@ -111,6 +111,46 @@ def test_against_pinocchio(name):
         assert v <= TOL[k], (name, k, v)
 
 
+@pytest.mark.parametrize("name", ["arm7", "panda", "tree"])
+def test_armature_against_pinocchio(name):
+    # Pinocchio adds model.armature (per velocity coordinate) to crba's diagonal and rnea's
+    # torques (and aba's inertia): random positive values on each joint with a coordinate of
+    # its own; none on mimic joints (no coordinate of their own), on floating joints and on a
+    # planar joint's x, y (Pinocchio's velocities there are not the rates of torchlie's
+    # coordinates).
+    chain, q, qd, qdd, _, P = _reference(name)
+    q, qd, qdd = q[:50], qd[:50], qdd[:50]
+    gen = torch.Generator().manual_seed(53)
+    by_name = {j.name: j for j in chain.spec.joints}
+    armature = torch.zeros(chain.n_v, dtype=F64)
+    armature_pin = np.zeros(P.model.nv)
+    for i, (kind, _, iv, d, _, _) in enumerate(P.joints, start=1):
+        if by_name[P.model.names[i]].mimic is not None or kind == "free":
+            continue
+        k = 2 if kind == "planar" else 0  # theta
+        armature[d + k] = armature_pin[iv + k] = 0.05 + float(torch.rand((), generator=gen))
+    P.model.armature = armature_pin
+    try:
+        ref = P.dynamics(q, qd, qdd, derivatives=False)
+    finally:
+        P.model.armature = np.zeros(P.model.nv)
+    ins = chain.inertials._replace(armature=armature)
+    assert _rel(chain.mass_matrix(q), ref["M"]) > 1e-3  # the armature matters
+    err = {
+        "tau": _rel(chain.inverse_dynamics(q, qd, qdd, inertials=ins), ref["tau"]),
+        "M": _rel(chain.mass_matrix(q, inertials=ins), ref["M"]),
+        "bias": _rel(chain.bias_forces(q, qd, inertials=ins), ref["bias"]),
+    }
+    tau = ref["tau"]
+    if P.model.nv == chain.n_dof:  # no mimic joint: Pinocchio's ABA applies
+        err["aba"] = _rel(chain.forward_dynamics(q, qd, tau, inertials=ins), ref["aba"])
+    else:
+        err["aba"] = _rel(chain.forward_dynamics(q, qd, tau, inertials=ins), qdd)
+    print(f"{name} armature: " + ", ".join(f"{k} {v:.1e}" for k, v in err.items()))
+    for k, v in err.items():
+        assert v <= TOL[k], (name, k, v)
+
+
 @pytest.mark.parametrize("name", ["arm7", "panda"])
 def test_fast_motion_against_pinocchio(name):
     # Velocities and accelerations of 1e3 (rad/s, rad/s^2): the velocity-product terms,
@@ -435,6 +475,81 @@ def test_inertials_replace_and_differentiate(arm):
     t6 = arm.inverse_dynamics(q[3], qd[3], qdd[3], inertials=Inertials(m6, base.com, base.inertia))
     torch.testing.assert_close(tb[3], t6, rtol=0, atol=1e-12)
     torch.testing.assert_close(tb[:3], tau[:3], rtol=0, atol=1e-12)
+
+
+def test_armature_replace_and_differentiate(arm):
+    # URDF has no armature: 0 on every velocity coordinate, and the results are those of the
+    # rigid bodies, bitwise, whether the armature is the chain's own, left out or given as 0.
+    q, qd, qdd = _state(arm, 6, seed=17)
+    ins = arm.inertials
+    assert ins.armature.shape == (7,) and not bool(ins.armature.any())
+    for given in (None, ins, Inertials(*ins[:3])):
+        assert torch.equal(arm.mass_matrix(q, inertials=given), arm.mass_matrix(q))
+        tau = arm.inverse_dynamics(q, qd, qdd, inertials=given)
+        assert torch.equal(tau, arm.inverse_dynamics(q, qd, qdd))
+        assert torch.equal(
+            arm.forward_dynamics(q, qd, tau, inertials=given), arm.forward_dynamics(q, qd, tau)
+        )
+    # Set: M + diag(armature), tau + armature * qdd, and forward dynamics inverts that.
+    a = torch.linspace(0.1, 0.7, 7, dtype=F64)
+    given = ins._replace(armature=a)
+    M = arm.mass_matrix(q, inertials=given)
+    torch.testing.assert_close(M, arm.mass_matrix(q) + torch.diag(a), rtol=0, atol=1e-15)
+    tau = arm.inverse_dynamics(q, qd, qdd, inertials=given)
+    torch.testing.assert_close(
+        tau, arm.inverse_dynamics(q, qd, qdd) + a * qdd, rtol=1e-14, atol=1e-14
+    )
+    assert torch.equal(arm.bias_forces(q, qd, inertials=given), arm.bias_forces(q, qd))
+    assert torch.equal(arm.gravity_torques(q, inertials=given), arm.gravity_torques(q))
+    torch.testing.assert_close(
+        arm.forward_dynamics(q, qd, tau, inertials=given), qdd, rtol=0, atol=1e-12
+    )
+    # Gradients with respect to the armature (float64 gradcheck, per-state values).
+    q, qd, qdd = q[:2], qd[:2], qdd[:2]
+    tau = arm.inverse_dynamics(q, qd, qdd)
+    ab = 0.1 + torch.rand(2, 7, generator=torch.Generator().manual_seed(18), dtype=F64)
+    for fn, args in (
+        (arm.inverse_dynamics, (q, qd, qdd)),
+        (arm.mass_matrix, (q,)),
+        (arm.forward_dynamics, (q, qd, tau)),
+    ):
+        for x in (a, ab):
+
+            def f(x, fn=fn, args=args):
+                return fn(*args, inertials=ins._replace(armature=x))
+
+            assert torch.autograd.gradcheck(f, (x.clone().requires_grad_(),))
+    # Bad shapes, named.
+    with pytest.raises(ValueError, match=r"mass_matrix: expected inertials.armature of shape"):
+        arm.mass_matrix(q, inertials=ins._replace(armature=a[:6]))
+    with pytest.raises(ValueError, match=r"inertials.armature has batch shape \(3,\), which"):
+        arm.mass_matrix(q, inertials=ins._replace(armature=a.expand(3, 7)))
+
+
+def test_armature_set_on_a_urdf_spec():
+    # The armature is a joint attribute of the spec (JointSpec.armature; URDF has no element
+    # for it): set there, it is the chain's own, and a translation moving no mass but with
+    # armature is not singular.
+    import dataclasses
+
+    no_mass = (
+        '<inertial><mass value="0"/><inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" iyz="0" '
+        'izz="0.1"/></inertial>'
+    )
+    spec = parse_urdf(_two_joints(no_mass, "prismatic"))
+    spec = dataclasses.replace(
+        spec,
+        joints=tuple(
+            dataclasses.replace(j, armature=0.5) if j.name == "j2" else j for j in spec.joints
+        ),
+    )
+    chain = Chain(spec, dtype=F64)
+    assert chain.inertials.armature.tolist() == [0.0, 0.5]
+    q = torch.tensor([[0.3, 0.2]], dtype=F64)
+    one = torch.ones(1, 2, dtype=F64)
+    assert float(chain.mass_matrix(q)[0, 1, 1]) == 0.5
+    acc = chain.forward_dynamics(q, one, one)
+    torch.testing.assert_close(chain.inverse_dynamics(q, one, acc), one, rtol=0, atol=1e-12)
 
 
 def test_inertials_merge_through_fixed_joints():

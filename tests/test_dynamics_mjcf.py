@@ -2,20 +2,21 @@
 mass matrix (``mj_fullM``), the bias forces (``qfrc_bias``) and forward dynamics
 (``mj_forward``'s ``qacc``) at random states, on hand-written files covering each joint feature
 (hinge and slide joints with ``pos`` and ``ref``, several joints in one body, ball and free
-joints, rotated inertia frames, fixed bodies with quaternions) and on packaged models.
+joints, rotated inertia frames, fixed bodies with quaternions, joint armature set on the joints
+and through defaults classes) and on packaged models, their joints' armature kept.
 
 Coordinates are MuJoCo's: ``q`` is ``qpos`` (quaternions for ball and free joints), velocities,
 accelerations and forces are over the ``nv`` velocity coordinates (angular parts of ball and
 free joints in the body's frame).
 
-MuJoCo adds to the rigid-body equations what a chain does not model: joint armature (in the
-mass matrix), damping, friction loss, springs, gravity compensation, contacts, equality
-constraints and actuators (in the forces).  Each model here is compiled with those zeroed or
-disabled: the joints' ``armature``, ``damping``, ``frictionloss`` and ``stiffness``, the
-actuators' and tendons' ``armature`` and the bodies' ``gravcomp`` set to 0 in its ``MjSpec``
-(zeroing the compiled ``MjModel.dof_armature`` does not reach MuJoCo's mass matrix), and
-contacts, constraints, equalities, limits, friction loss, actuation, springs and dampers
-disabled in ``option.disableflags``; so both sides compute the same equations.
+The joints' armature is part of the chain's equations, as of MuJoCo's (added to the mass
+matrix's diagonal).  MuJoCo adds to the rigid-body equations what a chain does not model:
+damping, friction loss, springs, gravity compensation, contacts, equality constraints and
+actuators (in the forces), tendons' armature.  Each model here is compiled with those zeroed or
+disabled: the joints' ``damping``, ``frictionloss`` and ``stiffness``, the actuators' and
+tendons' ``armature`` and the bodies' ``gravcomp`` set to 0 in its ``MjSpec``, and contacts,
+constraints, equalities, limits, friction loss, actuation, springs and dampers disabled in
+``option.disableflags``; so both sides compute the same equations.
 
 Tolerances (float64): torques and bias forces within ``1e-9 (1 + |tau|)``, the mass matrix
 within ``1e-10 (1 + max |M|)``, accelerations within ``1e-8 (1 + |qdd|)``: far above the
@@ -34,21 +35,27 @@ import numpy as np
 import pytest
 import torch
 
-from torchlie.kinematics import Chain
+from torchlie.kinematics import Chain, Inertials
 
 mujoco = pytest.importorskip("mujoco")
 
-# The model compiled from its MjSpec with armature, damping, ... zeroed (see the docstring).
+# The model compiled from its MjSpec with damping, ... zeroed (see the docstring).
 from torchlie.kinematics._mjcf_validate import rigid_model  # noqa: E402
 
 TOL_TAU, TOL_M, TOL_QDD = 1e-9, 1e-10, 1e-8
+F64 = torch.float64
 
 HAND = {
-    # hinge and slide joints, an anchor, ref, a rotated inertia frame, a fixed body with quat
+    # hinge and slide joints, an anchor, ref, a rotated inertia frame, a fixed body with quat;
+    # armature from the default class (j2), a named class (j1) and the joint (j3)
     "hinge_slide": """
-<mujoco><worldbody>
+<mujoco>
+<default><joint armature="0.02"/><default class="geared"><joint armature="0.3"/></default>
+</default>
+<worldbody>
   <body name="a" pos="0.1 0.2 0.3" quat="0.9 0.1 0.3 0.2">
-    <joint name="j1" type="hinge" axis="0.3 0.4 0.5" pos="0.05 -0.1 0.02" ref="0.4"/>
+    <joint name="j1" class="geared" type="hinge" axis="0.3 0.4 0.5" pos="0.05 -0.1 0.02"
+      ref="0.4"/>
     <inertial pos="0.1 0.02 -0.03" quat="0.7 0.1 -0.2 0.3" mass="1.3"
       diaginertia="0.03 0.02 0.015"/>
     <body name="b" pos="0.3 0 0" euler="0.2 0.1 -0.4">
@@ -58,19 +65,20 @@ HAND = {
         <inertial pos="0.02 0 0.01" mass="0.4" diaginertia="0.002 0.003 0.004"/>
       </body>
       <body name="c" pos="0 0 0.2">
-        <joint name="j3" type="hinge" axis="1 0 0" pos="0 0.03 0"/>
+        <joint name="j3" type="hinge" axis="1 0 0" pos="0 0.03 0" armature="0.15"/>
         <inertial pos="0.03 0 0.1" mass="0.5" diaginertia="0.004 0.003 0.002"/>
       </body>
     </body>
   </body>
 </worldbody></mujoco>""",
-    # several joints in one body (two hinges and a slide, each with its own anchor)
+    # several joints in one body (two hinges and a slide, each with its own anchor); armature
+    # on some of them
     "multi": """
 <mujoco><worldbody>
   <body name="a" pos="0 0 0.5">
-    <joint name="h1" type="hinge" axis="0 0 1" pos="0.1 0 0"/>
+    <joint name="h1" type="hinge" axis="0 0 1" pos="0.1 0 0" armature="0.1"/>
     <joint name="h2" type="hinge" axis="0 1 0" pos="0 0.05 0" ref="-0.3"/>
-    <joint name="s1" type="slide" axis="1 0 0"/>
+    <joint name="s1" type="slide" axis="1 0 0" armature="0.5"/>
     <inertial pos="0.2 0.01 0" quat="0.9 0 0.3 0.1" mass="2" diaginertia="0.1 0.08 0.05"/>
     <body name="b" pos="0.4 0 0">
       <joint name="h3" type="hinge" axis="0 1 0"/>
@@ -79,11 +87,12 @@ HAND = {
     </body>
   </body>
 </worldbody></mujoco>""",
-    # a free-floating base with a ball joint (anchored) and a hinge below it
+    # a free-floating base with a ball joint (anchored) and a hinge below it; armature on the
+    # free joint and, from the default class, on the ball joint and the hinge (on each DoF)
     "free_ball": """
-<mujoco><worldbody>
+<mujoco><default><joint armature="0.07"/></default><worldbody>
   <body name="base" pos="0 0 1" quat="0.9 0.2 0.1 0.3">
-    <freejoint name="root"/>
+    <joint type="free" name="root" armature="0.2"/>
     <inertial pos="0.01 0.02 -0.01" quat="0.8 0.1 0.2 0.1" mass="3"
       diaginertia="0.2 0.15 0.1"/>
     <body name="arm" pos="0.2 0 0" euler="0.3 0 0.2">
@@ -254,12 +263,14 @@ def test_compile_fullgraph() -> None:
     )
     f = torch.compile(chain.inverse_dynamics, fullgraph=True)
     torch.testing.assert_close(f(qpos, qvel, qacc), chain.inverse_dynamics(qpos, qvel, qacc))
+    f = torch.compile(chain.mass_matrix, fullgraph=True)
+    torch.testing.assert_close(f(qpos), chain.mass_matrix(qpos))
 
 
 def test_validate_reports_the_dynamics(tmp_path, capsys) -> None:
     # python -m torchlie.kinematics.validate on an MJCF file compares the dynamics with MuJoCo
-    # (on the model recompiled without armature, damping, ...): four lines, all within
-    # tolerance, in float64 and float32.
+    # (on the model recompiled without damping, ..., its joints' armature kept): four lines,
+    # all within tolerance, in float64 and float32.
     from torchlie.kinematics.validate import main
 
     path = tmp_path / "robot.xml"
@@ -288,4 +299,86 @@ def test_sites_change_nothing() -> None:
     qpos, qvel, qacc, _ = (torch.as_tensor(x) for x in random_state(m, 5, seed=7))
     torch.testing.assert_close(
         b.inverse_dynamics(qpos, qvel, qacc), a.inverse_dynamics(qpos, qvel, qacc)
+    )
+
+
+# Per velocity coordinate, as the files set it (see HAND): a free joint's and a ball joint's
+# armature on each of their DoFs.
+ARMATURE = {
+    "hinge_slide": [0.3, 0.02, 0.15],
+    "multi": [0.1, 0.0, 0.5, 0.0, 0.0],
+    "free_ball": [0.2] * 6 + [0.07] * 4,
+    # <freejoint> takes no defaults (MuJoCo's rule): 0 on the free joint
+    "freejoint": [0.0] * 6 + [0.07] * 4,
+}
+
+
+@pytest.mark.parametrize("name", sorted(ARMATURE))
+def test_armature_is_read(name: str) -> None:
+    # Each joint's armature (its own, its class's or the default class's) on each of its
+    # velocity coordinates, exactly MuJoCo's compiled dof_armature.
+    text = HAND.get(name) or HAND["free_ball"].replace(
+        '<joint type="free" name="root" armature="0.2"/>', '<freejoint name="root"/>'
+    )
+    m = rigid_model(text)
+    chain = Chain.from_mjcf(text, dtype=torch.float64)
+    armature = chain.inertials.armature
+    assert armature.shape == (chain.n_v,) and armature.dtype == torch.float64
+    assert armature.tolist() == ARMATURE[name] == m.dof_armature.tolist()
+
+
+def test_armature_replace_and_batch() -> None:
+    # The armature is an inertial parameter like the others: replaced through inertials=,
+    # per state, in the mass matrix's diagonal and in the torques (armature * qdd); the bias
+    # forces do not depend on it, and forward dynamics inverts the same mass matrix.
+    m = rigid_model(HAND["free_ball"])
+    chain = Chain.from_mjcf(m, dtype=torch.float64)
+    qpos, qvel, qacc, _ = (torch.as_tensor(x) for x in random_state(m, 4, seed=8))
+    ins = chain.inertials
+    own = chain.mass_matrix(qpos)
+    # Inertials(mass, com, inertia): the chain's own armature
+    assert torch.equal(chain.mass_matrix(qpos, inertials=Inertials(*ins[:3])), own)
+    rigid = ins._replace(armature=torch.zeros(chain.n_v, dtype=torch.float64))
+    M0 = chain.mass_matrix(qpos, inertials=rigid)
+    torch.testing.assert_close(own, M0 + torch.diag(ins.armature), rtol=0, atol=1e-15)
+    a = 0.1 + torch.rand(4, chain.n_v, generator=torch.Generator().manual_seed(9), dtype=F64)
+    given = ins._replace(armature=a)
+    torch.testing.assert_close(
+        chain.mass_matrix(qpos, inertials=given), M0 + torch.diag_embed(a), rtol=0, atol=1e-15
+    )
+    tau0 = chain.inverse_dynamics(qpos, qvel, qacc, inertials=rigid)
+    tau = chain.inverse_dynamics(qpos, qvel, qacc, inertials=given)
+    torch.testing.assert_close(tau, tau0 + a * qacc, rtol=1e-14, atol=1e-14)
+    torch.testing.assert_close(
+        tau[2],
+        chain.inverse_dynamics(qpos[2], qvel[2], qacc[2], inertials=ins._replace(armature=a[2])),
+    )
+    assert torch.equal(
+        chain.bias_forces(qpos, qvel, inertials=given),
+        chain.bias_forces(qpos, qvel, inertials=rigid),
+    )
+    assert torch.equal(chain.gravity_torques(qpos, inertials=given), chain.gravity_torques(qpos))
+    acc = chain.forward_dynamics(qpos, qvel, tau, inertials=given)
+    torch.testing.assert_close(acc, qacc, rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match=r"mass_matrix: expected inertials.armature of shape"):
+        chain.mass_matrix(qpos, inertials=ins._replace(armature=torch.zeros(12, dtype=F64)))
+
+
+def test_armature_under_vmap() -> None:
+    # torch.func.vmap over states gives the batched results, armature included.
+    m = rigid_model(HAND["free_ball"])
+    chain = Chain.from_mjcf(m, dtype=torch.float64)
+    qpos, qvel, qacc, tau = (torch.as_tensor(x) for x in random_state(m, 5, seed=10))
+    vmap = torch.func.vmap
+    tol = {"rtol": 1e-12, "atol": 1e-12}
+    torch.testing.assert_close(
+        vmap(chain.inverse_dynamics)(qpos, qvel, qacc),
+        chain.inverse_dynamics(qpos, qvel, qacc),
+        **tol,
+    )
+    torch.testing.assert_close(vmap(chain.mass_matrix)(qpos), chain.mass_matrix(qpos), **tol)
+    torch.testing.assert_close(
+        vmap(chain.forward_dynamics)(qpos, qvel, tau),
+        chain.forward_dynamics(qpos, qvel, tau),
+        **tol,
     )

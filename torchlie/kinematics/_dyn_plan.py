@@ -1,7 +1,8 @@
 """The dynamics' plan of a chain, built once from the parsed URDF: its bodies (links moved by
-a joint with degrees of freedom, with the inertials of the links fixed to them merged in), its
-joint columns and the constant 0/1 matrices that turn the Newton-Euler recursions into sums
-over the tree (see :mod:`torchlie.kinematics.dynamics`).
+a joint with degrees of freedom, with the inertials of the links fixed to them merged in), the
+joints' armature per velocity coordinate, its joint columns and the constant 0/1 matrices that
+turn the Newton-Euler recursions into sums over the tree (see
+:mod:`torchlie.kinematics.dynamics`).
 
 Apart from :mod:`torchlie.kinematics.dynamics` because it runs once per chain, on the parsed
 Python numbers (nothing here sees a batch), like :mod:`torchlie.kinematics._joints` for the
@@ -54,8 +55,10 @@ class _DynPlan:
     m_zero: bool  # some entries are 0 (columns on different branches): read from row K * K
     W: Tensor  # (n_dof, K) folding of columns onto DoFs
     W_is_identity: bool  # column k is DoF k with weight 1 (no mimic joint, DoF order)
-    inertials64: tuple[Tensor, Tensor, Tensor]  # merged (mass, com, inertia), float64 CPU
-    inertials: tuple[Tensor, Tensor, Tensor]  # the same in the chain's dtype and device
+    # merged (mass, com, inertia), then the armature per velocity coordinate, float64 CPU
+    inertials64: tuple[Tensor, Tensor, Tensor, Tensor]
+    inertials: tuple[Tensor, Tensor, Tensor, Tensor]  # the same in the chain's dtype and device
+    has_armature: bool  # some armature is not 0 (else the dynamics leave it out)
     gravity: Tensor  # (3, 1) DEFAULT_GRAVITY in the chain's dtype and device
     massless: list[str]  # DoFs that move neither mass nor inertia (a translation: no mass)
 
@@ -220,9 +223,21 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
         dtype=torch.float64,
     ).reshape(K, K)
 
+    # The armature per velocity coordinate: each joint's on its own coordinates (a mimic
+    # joint has none of its own; its columns drive the coordinate of the joint it follows).
+    armature = [0.0] * n_dof
+    for lk in links[1:]:
+        if lk.joint is None or lk.joint.mimic is not None:
+            continue
+        dofs = {d for _, _, d, _ in lk.cols}
+        if lk.float_rot is not None:
+            dofs |= {lk.float_rot[0] + k for k in range(3)}
+        for d in dofs:
+            armature[d] = float(lk.joint.armature)
+
     # DoFs that move nothing resisting their motion (M has a zero row there): a subtree with
-    # neither mass nor inertia, or a translation (prismatic, floating, free) moving no mass;
-    # a DoF is named when every column it drives is such a column.
+    # neither mass nor inertia, or a translation (prismatic, floating, free) moving no mass,
+    # and no armature; a DoF is named when every column it drives is such a column.
     subtrees = [[c for c in range(nb) if b in anc_sets[c]] for b in range(nb)]
     empty = [
         all(merged[c][0] == 0.0 and not any(any(r) for r in merged[c][2]) for c in sub_b)
@@ -235,7 +250,7 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
         {
             joint_names[d]
             for d in {col_dof[k] for k in range(K)}
-            if all(inert[k] for k in range(K) if col_dof[k] == d)
+            if armature[d] == 0.0 and all(inert[k] for k in range(K) if col_dof[k] == d)
         },
         key=joint_names.index,
     )
@@ -271,8 +286,9 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
         m_zero=K * K in m_gather,
         W=W,
         W_is_identity=col_dof == list(range(n_dof)) and all(w == 1.0 for w in col_w),
-        inertials64=(mass, com, inertia),
-        inertials=(mass, com, inertia),
+        inertials64=(mass, com, inertia, torch.tensor(armature, dtype=torch.float64)),
+        inertials=(mass, com, inertia, torch.tensor(armature, dtype=torch.float64)),
+        has_armature=any(a != 0.0 for a in armature),
         gravity=torch.tensor(DEFAULT_GRAVITY, dtype=torch.float64).unsqueeze(-1),
         massless=massless,
     )
@@ -314,7 +330,13 @@ def _convert(plan: _DynPlan, dtype: torch.dtype, device: torch.device) -> _DynPl
         W=f(plan.W),
         W_is_identity=plan.W_is_identity,
         inertials64=plan.inertials64,
-        inertials=(f(plan.inertials[0]), f(plan.inertials[1]), f(plan.inertials[2])),
+        inertials=(
+            f(plan.inertials[0]),
+            f(plan.inertials[1]),
+            f(plan.inertials[2]),
+            f(plan.inertials[3]),
+        ),
+        has_armature=plan.has_armature,
         gravity=f(plan.gravity),
         massless=plan.massless,
     )

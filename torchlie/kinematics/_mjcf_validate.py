@@ -11,10 +11,12 @@ body from the world origin over the samples (m).
 When the model has mass, the dynamics are compared too (inverse dynamics, mass matrix, bias
 forces, forward dynamics against ``mj_inverse``, ``mj_fullM``, ``qfrc_bias`` and
 ``mj_forward``'s ``qacc``), on the model compiled again from its ``MjSpec`` with what MuJoCo adds
-to the rigid bodies zeroed or disabled (armature, damping, friction loss, springs, gravity
-compensation, contacts, constraints, limits, actuators), with the tolerances of the URDF
-dynamics against Pinocchio (:data:`torchlie.kinematics.validate.TOL_DYNAMICS`).  A source
-given as a compiled ``MjModel`` has no spec to recompile: its dynamics are not compared.
+to the rigid bodies and their joints' armature zeroed or disabled (damping, friction loss,
+springs, gravity compensation, tendons' and actuators' armature, contacts, constraints, limits,
+actuators), with the tolerances of the URDF dynamics against Pinocchio
+(:data:`torchlie.kinematics.validate.TOL_DYNAMICS`).  The joints' armature is kept: the chain
+adds it as MuJoCo does.  A source given as a compiled ``MjModel`` has no spec to recompile:
+its dynamics are not compared.
 """
 
 from __future__ import annotations
@@ -50,16 +52,14 @@ def mujoco_reference(m: Any, qpos: np.ndarray, bodies: list[int]) -> tuple[np.nd
 
 
 def rigid_model(source: Any) -> Any:
-    """``source`` (a path or MJCF text) compiled with everything beyond rigid-body dynamics
-    zeroed in its ``MjSpec`` or disabled in its options (zeroing the compiled
-    ``MjModel.dof_armature`` does not reach MuJoCo's mass matrix)."""
+    """``source`` (a path or MJCF text) compiled with everything beyond rigid-body dynamics and
+    the joints' armature zeroed in its ``MjSpec`` or disabled in its options."""
     mujoco = _mujoco()
     if isinstance(source, str) and source.lstrip().startswith("<"):
         spec = mujoco.MjSpec.from_string(source)
     else:
         spec = mujoco.MjSpec.from_file(str(source))
     for j in spec.joints:
-        j.armature = 0.0
         j.damping = np.zeros_like(np.asarray(j.damping))
         j.frictionloss = 0.0
         j.stiffness = np.zeros_like(np.asarray(j.stiffness))
@@ -164,7 +164,7 @@ def validate_mjcf(
         w(f"{names[i]:<{width}}{dj[k]:>12.1e}  {'ok' if good else 'MISMATCH'}\n")
     mujoco = _mujoco()
     if isinstance(source, mujoco.MjModel):
-        w("\ndynamics: not compared (a compiled MjModel has no spec to zero the armature in)\n")
+        w("\ndynamics: not compared (a compiled MjModel has no spec to zero the damping in)\n")
     elif float(np.sum(m.body_mass)) > 0.0:
         from .validate import _DYN_NAMES, TOL_DYNAMICS
 
@@ -172,9 +172,9 @@ def validate_mjcf(
         dyn = _dynamics(source, dtype, q[: min(samples, 200)], seed)
         w(
             f"\ndynamics against MuJoCo (mj_inverse, mj_fullM, qfrc_bias, mj_forward; "
-            f"{min(samples, 200)} states, random velocities, accelerations and forces; armature, "
-            "damping, springs, contacts, constraints and actuators zeroed or disabled; largest "
-            "error relative to 1 + |reference|):\n"
+            f"{min(samples, 200)} states, random velocities, accelerations and forces; joint "
+            "armature kept; damping, springs, contacts, constraints and actuators zeroed or "
+            "disabled; largest error relative to 1 + |reference|):\n"
         )
         for k, v in dyn.items():
             good = v <= dtol[k]

@@ -936,10 +936,11 @@ class Chain:
     def inertials(self) -> Inertials:
         """The bodies' inertial parameters from the URDF's ``<inertial>`` elements (MJCF:
         MuJoCo's compiled ``body_mass``, ``body_ipos``, ``body_iquat``, ``body_inertia``), merged
-        through fixed joints, as fresh tensors in the chain's dtype and device:
-        :class:`~torchlie.kinematics.dynamics.Inertials` ``(mass, com, inertia)``.  Change
-        them, or make them require gradients, and pass them back as ``inertials=`` to the
-        dynamics methods.
+        through fixed joints, and the joints' armature per velocity coordinate (MJCF: MuJoCo's
+        compiled ``dof_armature``; URDF and SDF have none: 0), as fresh tensors in the chain's
+        dtype and device: :class:`~torchlie.kinematics.dynamics.Inertials` ``(mass, com,
+        inertia, armature)``.  Change them, or make them require gradients, and pass them back
+        as ``inertials=`` to the dynamics methods.
 
         Example:
             >>> from torchlie.kinematics import sample_robot
@@ -1014,8 +1015,9 @@ class Chain:
         sum J^T f_ext)`` by a batched Cholesky solve.  Arguments as for
         :meth:`inverse_dynamics`.
 
-        The chain's own inertials are checked once: a DoF that moves neither mass nor inertia
-        (a translation: no mass) makes ``M`` singular at every state and raises.  Where ``M(q)``
+        The chain's own inertials are checked once: a DoF without armature that moves neither
+        mass nor inertia (a translation: no mass) makes ``M`` singular at every state and
+        raises.  Where ``M(q)``
         is not positive definite otherwise (inertials given with ``inertials=``, or ones that
         leave a joint no inertia about its axis in some configuration: a point mass on the
         axis, a thin rod along it), the accelerations of that state are NaN.

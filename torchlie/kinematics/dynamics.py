@@ -18,13 +18,17 @@ Conventions (see also ``docs/dynamics.md``):
   angular velocity in its body's frame, a free joint's linear velocity of the body's origin in
   the world frame then its angular velocity in the body's frame), as
   :meth:`Chain.jacobian`'s columns; ``M`` is ``(..., n_v, n_v)``.  The results are MuJoCo's
-  ``qfrc_inverse``, ``mj_fullM`` and ``qacc`` without what MuJoCo adds to the rigid bodies
-  (joint armature, damping, friction loss, springs, contacts, constraints, actuators).
+  ``qfrc_inverse``, ``mj_fullM`` and ``qacc`` with the joints' armature, without what else
+  MuJoCo adds to the rigid bodies (damping, friction loss, springs, contacts, constraints,
+  actuators, tendons).
 * Bodies: every link moved by a joint with degrees of freedom (a mimic joint included) is a
   body; links attached through fixed joints merge their inertials into their nearest moving
   ancestor (links fixed to the root do not move and are ignored).  :attr:`Chain.inertials`
   holds, per body (:attr:`Chain.body_names`), its mass, centre of mass and rotational inertia
-  about the centre of mass, both in the body's (link) frame.
+  about the centre of mass, both in the body's (link) frame, and per velocity coordinate the
+  joint's armature (rotor inertia reflected to the joint: MuJoCo's ``armature``, 0 for URDF and
+  SDF), added to ``M``'s diagonal (so ``armature * qdd`` to ``tau``; the bias forces do not
+  change).  A mimic joint has no coordinate, hence no armature of its own.
 * Gravity ``(3,)`` or ``(..., 3)`` is the acceleration of free fall in the root (world) frame,
   default ``(0, 0, -9.81)``.  External wrenches ``f_ext`` map a link name to a ``(..., 6)``
   wrench ``(force; torque)`` acting on that link, in world coordinates, the torque taken about
@@ -71,13 +75,18 @@ _NAME = "torchlie.kinematics.Chain."
 
 
 class Inertials(NamedTuple):
-    """Inertial parameters of a chain's bodies (:attr:`Chain.body_names` order).
+    """Inertial parameters of a chain's bodies (:attr:`Chain.body_names` order) and joints.
 
     Attributes:
         mass: ``(..., n_bodies)`` kg.
         com: ``(..., n_bodies, 3)`` centre of mass in the body's frame, m.
         inertia: ``(..., n_bodies, 3, 3)`` rotational inertia about the centre of mass, axes of
             the body's frame, kg m^2.
+        armature: ``(..., n_v)`` per velocity coordinate (:attr:`Chain.velocity_names`), the
+            inertia added to the mass matrix's diagonal (rotor inertia reflected to the joint:
+            kg m^2 for a rotation, kg for a translation; MuJoCo's joint ``armature``,
+            Pinocchio's ``model.armature``).  ``None`` (the default, so ``Inertials(mass, com,
+            inertia)``): the chain's own, :attr:`Chain.inertials`'s.
 
     Leading batch dimensions are allowed (they broadcast to ``q``'s batch shape); the tensors
     may require gradients (system identification).
@@ -85,13 +94,14 @@ class Inertials(NamedTuple):
     Example:
         >>> from torchlie.kinematics import Chain, sample_robot
         >>> arm = Chain.from_urdf(sample_robot("arm7"))
-        >>> arm.inertials.mass.shape, arm.body_names[:2]
-        (torch.Size([7]), ('link1', 'link2'))
+        >>> arm.inertials.mass.shape, arm.body_names[:2], arm.inertials.armature.shape
+        (torch.Size([7]), ('link1', 'link2'), torch.Size([7]))
     """
 
     mass: Tensor
     com: Tensor
     inertia: Tensor
+    armature: Tensor | None = None
 
 
 def _plan(chain) -> _DynPlan:
@@ -110,10 +120,10 @@ def _body_names(chain) -> tuple[str, ...]:
 
 
 def _inertials(chain) -> Inertials:
-    """The chain's merged inertials in its dtype and on its device (fresh tensors)."""
-    m, c, inertia = _plan(chain).inertials64
+    """The chain's merged inertials and its armature in its dtype and on its device (fresh
+    tensors)."""
     dt, dev = chain.dtype, chain.device
-    return Inertials(*(x.to(device=dev, dtype=dt, copy=True) for x in (m, c, inertia)))
+    return Inertials(*(x.to(device=dev, dtype=dt, copy=True) for x in _plan(chain).inertials64))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -379,8 +389,9 @@ def _rnea(
     fext: Tensor | None,
 ) -> Tensor:
     """Generalised forces ``(n_dof, B)``; ``qd2``/``qdd2`` ``(B, n_dof)`` or None for zero,
-    ``g (3, B|1)`` gravity, ``fext`` world-origin wrenches per body ``(nb, 2, 3, B)``.
-    Spatial vectors are ``(..., 2, 3, B)`` (linear; angular)."""
+    ``g (3, B|1)`` gravity, ``fext`` world-origin wrenches per body ``(nb, 2, 3, B)``; the
+    armature's ``armature * qdd`` added.  Spatial vectors are ``(..., 2, 3, B)`` (linear;
+    angular)."""
     S = geo.S
     B = S.shape[-1]
     nb = len(plan.bodies)
@@ -389,7 +400,14 @@ def _rnea(
     if fext is not None:
         f = f - fext
     tau_c = (S * _mm(plan.At, f)).sum((1, 2))  # (K, B)
-    return tau_c if plan.W_is_identity else torch.mm(plan.W, tau_c)
+    tau = tau_c if plan.W_is_identity else torch.mm(plan.W, tau_c)
+    arm = _armature(ins, batch)
+    return tau if arm is None or qdd2 is None else fma(tau, arm, qdd2.mT)
+
+
+def _armature(ins: Inertials, batch: tuple[int, ...]) -> Tensor | None:
+    """The armature ``(n_v, B|1)``; None: nothing to add (the chain's own, all 0)."""
+    return None if ins.armature is None else _batch_last(ins.armature, batch, 1)
 
 
 def _acc(x: Tensor, t1: Tensor, t2: Tensor) -> Tensor:
@@ -459,14 +477,15 @@ def _column_forces(plan: _DynPlan, geo: _Geometry, ins: Inertials, batch: tuple[
 
 def _columns_and_forces(
     plan: _DynPlan, geo: _Geometry, ins: Inertials, batch: tuple[int, ...]
-) -> tuple[Tensor, Tensor]:
-    """``(S, F)`` for :func:`_crba` (the rest of the geometry dies here)."""
-    return geo.S, _column_forces(plan, geo, ins, batch)
+) -> tuple[Tensor, Tensor, Tensor | None]:
+    """``(S, F, armature)`` for :func:`_crba` (the rest of the geometry dies here)."""
+    return geo.S, _column_forces(plan, geo, ins, batch), _armature(ins, batch)
 
 
-def _crba(plan: _DynPlan, S: Tensor, F: Tensor) -> Tensor:
+def _crba(plan: _DynPlan, S: Tensor, F: Tensor, armature: Tensor | None) -> Tensor:
     """Mass matrix ``(B, n_dof, n_dof)`` from the joint columns ``S`` and their forces ``F``
-    (:func:`_column_forces`)."""
+    (:func:`_column_forces`), the ``armature`` ``(n_dof, B|1)`` (None: 0) added to its
+    diagonal."""
     K, _, _, B = S.shape
     # Q[k, l] = S_k . Ic_l S_l, summed component by component over (K, K, B).
     S6, F6 = S.view(K, 6, B), F.view(K, 6, B)
@@ -481,9 +500,8 @@ def _crba(plan: _DynPlan, S: Tensor, F: Tensor) -> Tensor:
     # transposing copy into the (B, K, K) layout (a gather reading B apart is several times
     # slower on large batches).
     Mc = Qz.index_select(0, plan.m_gather).mT.contiguous().view(B, K, K)
-    if plan.W_is_identity:
-        return Mc
-    return plan.W @ Mc @ plan.W.T
+    M = Mc if plan.W_is_identity else plan.W @ Mc @ plan.W.T
+    return M if armature is None else M + torch.diag_embed(armature.mT)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -494,18 +512,29 @@ def _crba(plan: _DynPlan, S: Tensor, F: Tensor) -> Tensor:
 def _check_inertials(
     chain, inertials: Inertials | None, fn: str, batch: tuple[int, ...]
 ) -> Inertials:
+    """The inertials to use, checked; an ``armature`` None (not given) is the chain's own, and
+    stays None where that is all 0 (nothing to add)."""
+    plan = _plan(chain)
+    own = plan.inertials[3] if plan.has_armature else None
     if inertials is None:
-        return Inertials(*_plan(chain).inertials)
-    if not isinstance(inertials, tuple) or len(inertials) != 3:
+        return Inertials(*plan.inertials[:3], own)
+    if not isinstance(inertials, tuple) or len(inertials) not in (3, 4):
         raise TypeError(
-            f"{_NAME}{fn}: expected inertials to be an Inertials (mass, com, inertia), got "
-            f"{type(inertials).__name__}"
+            f"{_NAME}{fn}: expected inertials to be an Inertials (mass, com, inertia, "
+            f"armature), got {type(inertials).__name__}"
         )
-    nb = len(_plan(chain).bodies)
+    nb = len(plan.bodies)
+    given = (*inertials, None)[:4]
     out = []
     for name, x, trailing in zip(
-        ("mass", "com", "inertia"), inertials, ((nb,), (nb, 3), (nb, 3, 3)), strict=True
+        ("mass", "com", "inertia", "armature"),
+        given,
+        ((nb,), (nb, 3), (nb, 3, 3), (chain.n_v,)),
+        strict=True,
     ):
+        if name == "armature" and x is None:
+            out.append(own)
+            continue
         t, _ = _checks.tensor(x, _NAME + fn, f"inertials.{name}", trailing)
         chain._check_like(t, _NAME + fn, f"inertials.{name}", x.dtype)
         lead = tuple(t.shape[: t.dim() - len(trailing)])
@@ -619,12 +648,13 @@ def _prepare(chain, q: Tensor, fn: str):
 
 
 def _over_blocks(
-    fn, plan: _DynPlan, inputs: list[Tensor | None], others: tuple[Tensor, ...], whole: bool
+    fn, plan: _DynPlan, inputs: list[Tensor | None], others: tuple[Tensor | None, ...], whole: bool
 ):
     """``fn(*inputs)`` for batch-first ``inputs`` (None: absent), through the shared driver
     :func:`~torchlie._autograd.evaluate` over blocks of the batch (their width: the number of
     joint columns) when nothing else (``others``: gravity, inertials) has a batch or may
-    record a graph and ``whole`` (external wrenches) does not ask for the whole batch."""
+    record a graph and ``whole`` (external wrenches) does not ask for the whole batch;
+    ``others``' armature may be None."""
     given = [x for x in inputs if x is not None]
 
     def call(*xs: Tensor):
@@ -632,8 +662,10 @@ def _over_blocks(
         return fn(*(None if x is None else next(it) for x in inputs))
 
     g, *ins = others
-    batched = g.shape[-1] != 1 or any(t.dim() > d for t, d in zip(ins, (1, 2, 3), strict=True))
-    if whole or batched or needs_graph(others):
+    batched = g.shape[-1] != 1 or any(
+        t is not None and t.dim() > d for t, d in zip(ins, (1, 2, 3, 1), strict=True)
+    )
+    if whole or batched or needs_graph([t for t in others if t is not None]):
         return call(*given)
     return evaluate(call, given, [1] * len(given), width=plan.col_dof.shape[0])
 
@@ -701,7 +733,7 @@ def _forward_dynamics(
     if inertials is None and plan.massless:
         raise ValueError(
             f"{_NAME}{fn}: the mass matrix is singular: nothing resisting their motion moves "
-            f"with {_some(plan.massless)} (neither mass nor inertia; no mass for a "
+            f"with {_some(plan.massless)} (neither mass nor inertia nor armature; no mass for a "
             "translation: links without <inertial>?); give those links inertials or pass "
             "inertials="
         )

@@ -27,7 +27,9 @@ The result is the same :class:`~torchlie.kinematics.RobotSpec` the URDF parser m
   and ``quat``, which only give its ``qpos0``).
 * Each body's inertial (for the dynamics) is MuJoCo's compiled ``body_mass``, ``body_ipos``
   and ``body_inertia`` along ``body_iquat``, in the body's frame; the frames between several
-  joints of one body have none.
+  joints of one body have none.  Each joint's ``armature`` (defaults classes applied; 0 when
+  not set) is MuJoCo's compiled ``dof_armature`` at its first DoF, which MuJoCo gives each
+  of a ball or free joint's DoFs alike; the dynamics add it to the mass matrix's diagonal.
 * Position limits are the ``range`` of the limited hinge and slide joints (MuJoCo's compiled
   ``jnt_range``, in radians whatever ``<compiler angle>`` says); a ball joint's range (a cone)
   is not kept.
@@ -168,11 +170,17 @@ def parse_mjcf(source: str | os.PathLike[str] | bytes | Any, *, sites: bool = Fa
             last = k == count - 1
             child = bodies[i] if last else _unique(f"{bodies[i]}:{jnames[j]}", taken)
             origin: dict[str, Any] = {"xyz": xyz, "quat": quat} if k == 0 else {}
+            # the same value on each of the joint's DoFs (one attribute per joint)
+            armature = float(m.dof_armature[int(m.jnt_dofadr[j])])
             if jt == _FREE:  # the body's world pose (free joints are on top-level bodies)
-                joints.append(JointSpec(jnames[j], "free", parent, child))
+                joints.append(JointSpec(jnames[j], "free", parent, child, armature=armature))
             elif jt == _BALL:
                 anchor = vec(m.jnt_pos[j])
-                joints.append(JointSpec(jnames[j], "ball", parent, child, anchor=anchor, **origin))
+                joints.append(
+                    JointSpec(
+                        jnames[j], "ball", parent, child, anchor=anchor, armature=armature, **origin
+                    )
+                )
             else:
                 limited = bool(m.jnt_limited[j])
                 lo, hi = (
@@ -193,6 +201,7 @@ def parse_mjcf(source: str | os.PathLike[str] | bytes | Any, *, sites: bool = Fa
                         upper=hi,
                         anchor=vec(m.jnt_pos[j]) if jt == _HINGE else (0.0, 0.0, 0.0),
                         ref=float(m.qpos0[int(m.jnt_qposadr[j])]),
+                        armature=armature,
                         **origin,
                     )
                 )

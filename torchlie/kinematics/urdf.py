@@ -130,6 +130,10 @@ class JointSpec:
     quat: tuple[float, float, float, float] | None = None
     anchor: tuple[float, float, float] = (0.0, 0.0, 0.0)
     ref: float = 0.0
+    # The joint's armature (MuJoCo's ``armature``: rotor inertia reflected to the joint, kg m^2
+    # or kg), added to the mass matrix's diagonal entry of each of its velocity coordinates;
+    # URDF and SDF have none: 0.
+    armature: float = 0.0
 
 
 @dataclass(frozen=True)
