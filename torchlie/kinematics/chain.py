@@ -1017,10 +1017,10 @@ class Chain:
 
         The chain's own inertials are checked once: a DoF without armature that moves neither
         mass nor inertia (a translation: no mass) makes ``M`` singular at every state and
-        raises.  Where ``M(q)``
-        is not positive definite otherwise (inertials given with ``inertials=``, or ones that
-        leave a joint no inertia about its axis in some configuration: a point mass on the
-        axis, a thin rod along it), the accelerations of that state are NaN.
+        raises.  Where ``M(q)`` is not positive definite otherwise (inertials given with
+        ``inertials=``, or ones that leave a joint no inertia about its axis in some
+        configuration: a point mass on the axis, a thin rod along it), the accelerations of
+        that state are NaN.
 
         Raises:
             ValueError: a DoF moves nothing that resists its motion (``M`` singular).
