@@ -546,8 +546,26 @@ def test_group_errors_name_the_method_called(method, core, exc, call):
 def test_group_method_errors_keep_their_own_name():
     with pytest.raises(TypeError, match=r"^torchlie\.SO3\.compose: expected another SO3, got SE3"):
         _X.compose(_Y)
+    with pytest.raises(
+        TypeError,
+        match=r"^torchlie\.SO3\.__matmul__: expected another SO3 or a tensor of points, got SE3",
+    ):
+        _X @ _Y
     with pytest.raises(ValueError, match=r"^torchlie\.SO3: expected tensor of shape"):
         SO3(torch.eye(4))
+
+
+@pytest.mark.parametrize("cls", [tnn.RotationHead, tnn.PoseHead, tnn.PlanarPoseHead])
+def test_heads_name_their_input_width(cls):
+    head = cls(4)
+    name = cls.__name__
+    with pytest.raises(
+        ValueError,
+        match=rf"^torchlie\.nn\.{name}: expected features of shape \(\.\.\., 4\), got \(2, 3\)",
+    ):
+        head(torch.zeros(2, 3))
+    with pytest.raises(TypeError, match=rf"^torchlie\.nn\.{name}: expected features to be a torch"):
+        head([0.0] * 4)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -629,8 +647,8 @@ def _on(path: str, *args: object, **kwargs: object) -> tuple[str, object]:
 
 
 def _head(cls: type, rep: str) -> tuple[str, object]:
-    # A head applies a linear layer, then representation_to_matrix checks and names itself.
-    return "torchlie.nn.representation_to_matrix", lambda b: cls(5, rep, dtype=F64)(_arg("v5", b))
+    # A head checks its features, then applies its linear layer.
+    return f"torchlie.nn.{cls.__name__}", lambda b: cls(5, rep, dtype=F64)(_arg("v5", b))
 
 
 def _param(cls: type, rep: str, kind: str) -> tuple[str, object]:

@@ -190,6 +190,12 @@ class _Group:
             return type(self)._wrap(self._core.compose(self.tensor, other.tensor))
         if isinstance(other, Tensor):
             return self._core.act(self.tensor, other)
+        if isinstance(other, _Group):
+            name = type(self).__name__
+            raise TypeError(
+                f"torchlie.{name}.__matmul__: expected another {name} or a tensor of points, "
+                f"got {type(other).__name__}"
+            )
         return NotImplemented
 
     @_as_method("compose")

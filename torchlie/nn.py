@@ -195,6 +195,13 @@ def representation_to_matrix(
 # ----------------------------------------------------------------------------------------------
 
 
+def _linear(head: nn.Module, features: Tensor, fn: str) -> Tensor:
+    """A head's linear layer of ``features``, whose last dimension is checked first (torch's
+    message names neither the head nor ``in_features``)."""
+    _checks.tensor(features, _NAME + fn, "features", (head.linear.in_features,))
+    return head.linear(features)
+
+
 class RotationHead(nn.Module):
     """Features ``(..., in_features)`` -> rotations: ``nn.Linear`` then a rotation map.
 
@@ -248,11 +255,11 @@ class RotationHead(nn.Module):
             >>> RotationHead(16, representation="9d").raw(torch.zeros(2, 16)).shape
             torch.Size([2, 9])
         """
-        return self.linear(features)
+        return _linear(self, features, "RotationHead.raw")
 
     def forward(self, features: Float[Tensor, "*b f"]) -> Float[Tensor, "*b 3 3"] | SO3:
         """Rotation matrices ``(..., 3, 3)`` (or an :class:`torchlie.SO3`)."""
-        R = representation_to_matrix(self.linear(features), self.representation)
+        R = representation_to_matrix(_linear(self, features, "RotationHead"), self.representation)
         return SO3._wrap(R) if self.output == "SO3" else R
 
     def quaternion(self, features: Float[Tensor, "*b f"]) -> Float[Tensor, "*b 4"]:
@@ -270,7 +277,7 @@ class RotationHead(nn.Module):
             >>> head.quaternion(torch.zeros(2)).detach()  # (-2, 0, 0, 2) flipped to w >= 0
             tensor([ 0.7071, -0.0000, -0.0000, -0.7071])
         """
-        x = self.linear(features)
+        x = _linear(self, features, "RotationHead.quaternion")
         if self.representation == "quaternion":
             fn = _NAME + "RotationHead.quaternion"
             v, dtype = _checks.tensor(x, fn, "x", (4,))
@@ -322,7 +329,7 @@ class PoseHead(nn.Module):
 
     def forward(self, features: Float[Tensor, "*b f"]) -> Float[Tensor, "*b 4 4"] | SE3:
         """Poses ``(..., 4, 4)`` (or an :class:`torchlie.SE3`)."""
-        y = self.linear(features)
+        y = _linear(self, features, "PoseHead")
         R = representation_to_matrix(y[..., :-3], self.representation)
         T = se3.from_rt(R, y[..., -3:])
         return SE3._wrap(T) if self.output == "SE3" else T
@@ -634,7 +641,7 @@ class PlanarPoseHead(nn.Module):
 
     def forward(self, features: Float[Tensor, "*b f"]) -> Float[Tensor, "*b 3 3"] | SE2:
         """Poses ``(..., 3, 3)`` (or an :class:`torchlie.SE2`)."""
-        y = self.linear(features)
+        y = _linear(self, features, "PlanarPoseHead")
         T = se2.from_rt(_unit_complex(y[..., :2]), y[..., 2:])
         return SE2._wrap(T) if self.output == "SE2" else T
 
