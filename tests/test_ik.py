@@ -656,6 +656,21 @@ def test_bad_input_names_the_argument():
         arm.inverse_kinematics(T, "tool_tcp", lower=lower)
     with pytest.raises(ValueError, match=rf"{fn}: expected lower .* shape \(\) or \(7,\)"):
         arm.inverse_kinematics(T, "tool_tcp", lower=torch.zeros(3, dtype=F64))
+    nan = r"every DoF \(not NaN\), got lower=nan for 'base_yaw' \(DoF 0\)"
+    with pytest.raises(
+        ValueError, match=rf"{fn}: expected lower to be a bound or -inf/inf for {nan}"
+    ):
+        arm.inverse_kinematics(T, "tool_tcp", lower=math.nan)
+    with pytest.raises(ValueError, match=rf"{fn}: .* got upper=nan for 'upper_arm_roll'"):
+        upper = arm.upper.clone()
+        upper[2] = math.nan
+        arm.inverse_kinematics(T, "tool_tcp", upper=upper)
+    with pytest.raises(TypeError, match=rf"{fn}: expected lower to be a number or a torch.Tensor "
+                       r"of shape \(\) or \(7,\), got bool True"):  # fmt: skip
+        arm.inverse_kinematics(T, "tool_tcp", lower=True)
+    with pytest.raises(TypeError, match=rf"{fn}: expected generator to be a torch.Generator or "
+                       r"None, got int 3"):  # fmt: skip
+        arm.inverse_kinematics(T, "tool_tcp", generator=3)
     with pytest.raises(TypeError, match=rf"{fn}: targets has dtype torch.float32"):
         arm.inverse_kinematics(T.float(), "tool_tcp")
     with pytest.raises(ValueError, match=rf"{fn}: expected q0 of shape \(\.\.\., 7\)"):

@@ -300,6 +300,11 @@ def _limits(chain: SolverChain, lower: object, upper: object) -> tuple[Tensor, T
             continue
         if isinstance(v, (int, float)) and not isinstance(v, bool):
             v = torch.full((chain.n_dof,), float(v), dtype=chain.dtype, device=chain.device)
+        elif not isinstance(v, Tensor):
+            raise TypeError(
+                f"{_FN}: expected {name} to be a number or a torch.Tensor of shape () or "
+                f"({chain.n_dof},), got {type(v).__name__} {reprlib.repr(v)}"
+            )
         v = _tensor(chain, v, name)
         if v.dim() > 1 or (v.dim() == 1 and v.shape[0] not in (1, chain.n_dof)):
             raise ValueError(
@@ -312,6 +317,12 @@ def _limits(chain: SolverChain, lower: object, upper: object) -> tuple[Tensor, T
         bad = (lo > hi) | torch.isnan(lo) | torch.isnan(hi)
         if bool(bad.any()):
             k = int(bad.nonzero()[0, 0])
+            for name, v in (("lower", lo), ("upper", hi)):
+                if math.isnan(float(v[k])):
+                    raise ValueError(
+                        f"{_FN}: expected {name} to be a bound or -inf/inf for every DoF (not "
+                        f"NaN), got {name}=nan for {chain.joint_names[k]!r} (DoF {k})"
+                    )
             raise ValueError(
                 f"{_FN}: expected lower <= upper for every DoF, got lower={float(lo[k])!r} > "
                 f"upper={float(hi[k])!r} for {chain.joint_names[k]!r} (DoF {k})"
@@ -577,6 +588,11 @@ def inverse_kinematics(
             "(revolute, prismatic) and URDF joints"
         )
     items = _targets(chain, targets, link)
+    if generator is not None and not isinstance(generator, torch.Generator):
+        raise TypeError(
+            f"{_FN}: expected generator to be a torch.Generator or None, got "
+            f"{type(generator).__name__} {reprlib.repr(generator)}"
+        )
     restarts = _checks.count(restarts, _FN, "restarts", 1)
     if max_iterations is None:
         max_iterations = _BUDGET[restarts >= _MANY_STARTS]
