@@ -75,15 +75,16 @@ targets by the implicit-function theorem: at a solution ``A^T b = 0``, so
 redundant), attached as ``q* + s - s.detach()`` with ``s`` the (tiny-damped) Gauss-Newton step
 of the residual computed with ``q*`` held fixed and only the targets carrying a graph.  A second
 such step, from that point with the graph through the joint values too, adds the second
-derivatives (the Gauss-Newton map does not move to first order at a zero residual), so
-Hessians and other second derivatives are those of the solution, not of its first-order
-approximation.  Reverse mode, forward mode (:func:`torch.func.jvp`,
-:mod:`torch.autograd.forward_ad`; :func:`torch.func.jacfwd` with ``randomness="same"`` where
-starts are drawn) and their compositions all see them.  Joints resting on a limit get zero
-gradient (they stay there for small changes).  Away from a zero residual (an unreachable
-target) this is the Gauss-Newton approximation of the derivative.  A target whose step is not
-finite (a non-finite target, or one so far that the step overflows: beyond about ``1e154`` m in
-float64) gets a zero derivative, and its ``q`` stays as found.
+derivatives (the Gauss-Newton map does not move to first order at a zero residual): where the
+solution is a function of the targets (isolated solutions, no redundancy), Hessians and other
+second derivatives are those of the solution, not of its first-order approximation.  Reverse
+mode, forward mode (:func:`torch.func.jvp`, :mod:`torch.autograd.forward_ad`;
+:func:`torch.func.jacfwd` with ``randomness="same"`` where starts are drawn) and their
+compositions all see them.  Joints resting on a limit get zero gradient (they stay there for
+small changes).  Away from a zero residual (an unreachable target) this is the Gauss-Newton
+approximation of the derivative.  A target whose step is not finite (a non-finite target, or
+one so far that the step overflows: beyond about ``1e154`` m in float64) gets a zero
+derivative, and its ``q`` stays as found.
 
 Under :func:`torch.func.vmap` the solver runs as it is (without ``early_exit``, which reads
 values); random starts (``restarts > 1`` or restarts during the iterations, or no ``q0``)
