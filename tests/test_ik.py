@@ -466,6 +466,129 @@ def test_no_graph_without_targets_that_require_grad():
     assert not arm.inverse_kinematics(T, "tool_tcp").q.requires_grad
 
 
+def test_forward_mode_derivative_is_the_reverse_mode_one():
+    """jvp, forward_ad and jacfwd give the implicit derivative (their tensors do not require
+    grad: the derivative is attached all the same)."""
+    arm = ARM
+    q = arm.random_configuration(1, generator=torch.Generator().manual_seed(3))
+    p = _fk(arm, q, "tool_tcp")[0, :3, 3]
+
+    def solve(x: torch.Tensor) -> torch.Tensor:
+        return arm.inverse_kinematics(x, "tool_tcp", q0=q[0], max_iterations=50,
+                                      position_tolerance=1e-12).q  # fmt: skip
+
+    J = torch.autograd.functional.jacobian(solve, p)  # (7, 3)
+    assert float(J.abs().max()) > 0.1
+    e = torch.tensor([1.0, 0.0, 0.0], dtype=F64)
+    torch.testing.assert_close(torch.func.jvp(solve, (p,), (e,))[1], J[:, 0], atol=1e-12, rtol=0)
+    with torch.autograd.forward_ad.dual_level():
+        out = solve(torch.autograd.forward_ad.make_dual(p, e))
+        tangent = torch.autograd.forward_ad.unpack_dual(out).tangent
+    torch.testing.assert_close(tangent, J[:, 0], atol=1e-12, rtol=0)
+    with torch.no_grad():  # forward mode does not need grad mode
+        torch.testing.assert_close(torch.func.jvp(solve, (p,), (e,))[1], J[:, 0], atol=1e-12,
+                                   rtol=0)  # fmt: skip
+    # The random starts need a randomness mode under jacfwd's vmap.
+    torch.testing.assert_close(torch.func.jacfwd(solve, randomness="same")(p), J, atol=1e-12,
+                               rtol=0)  # fmt: skip
+
+
+def test_second_derivative_of_the_solution_matches_finite_differences():
+    """The Hessian of a non-redundant solution is that of the solution (central differences
+    of its first derivative), not only its first derivative's."""
+    chain = Chain.from_urdf(ARM6, dtype=F64)
+    q_true = torch.tensor([0.3, -0.4, 0.9, 0.5, 0.7, -0.2], dtype=F64)
+    T0 = _fk(chain, q_true, "l6")
+    xi = torch.tensor([0.01, -0.02, 0.015, 0.02, -0.01, 0.03], dtype=F64)
+
+    def solve(x: torch.Tensor) -> torch.Tensor:
+        tight = {"position_tolerance": 1e-13, "rotation_tolerance": 1e-13}
+        return chain.inverse_kinematics(se3.compose(T0, se3.exp(x)), "l6", q0=q_true + 0.05,
+                                        max_iterations=30, restart_after=0, **tight).q  # fmt: skip
+
+    def grad(x: torch.Tensor) -> torch.Tensor:
+        return torch.autograd.functional.jacobian(solve, x, create_graph=True)  # (6, 6)
+
+    H = torch.autograd.functional.jacobian(grad, xi)  # (6, 6, 6)
+    h = 1e-5
+    fd = torch.stack([(grad(xi + h * e) - grad(xi - h * e)).detach() / (2 * h)
+                      for e in torch.eye(6, dtype=F64)], -1)  # fmt: skip
+    assert float(fd.abs().max()) > 0.1
+    torch.testing.assert_close(H, fd, atol=1e-7, rtol=0)
+
+
+def test_targets_that_require_grad_leave_the_solution_as_it_is():
+    """A non-finite or far target (finite, beyond where squares overflow) that requires grad
+    gives the solution found without grad (finite), and the other targets' gradients are
+    finite."""
+    arm = ARM
+    q = arm.random_configuration(4, generator=torch.Generator().manual_seed(0))
+    T = _fk(arm, q, "tool_tcp")
+    T[1, 0, 3] = math.nan
+    T[2, :3, 3] = torch.tensor([1e155, 0.0, 0.0], dtype=F64)
+    T[3, :3, 3] = torch.tensor([0.0, -1e300, 0.0], dtype=F64)
+    plain = arm.inverse_kinematics(T, "tool_tcp", restarts=2,
+                                   generator=torch.Generator().manual_seed(1))  # fmt: skip
+    Tg = T.clone().requires_grad_()
+    res = arm.inverse_kinematics(Tg, "tool_tcp", restarts=2,
+                                 generator=torch.Generator().manual_seed(1))  # fmt: skip
+    assert bool(plain.q.isfinite().all())
+    assert torch.equal(res.q.detach(), plain.q)
+    (g,) = torch.autograd.grad(res.q[0].sum(), Tg)
+    assert bool(g[0].isfinite().all()) and float(g[0].abs().max()) > 0
+    assert torch.equal(g[1:], torch.zeros_like(g[1:]))
+
+
+def test_far_targets_report_their_distance_and_are_stepped():
+    """A finite target far beyond where the squared error overflows: its (finite) error, and
+    the solver steps (it took no step: every cost was inf)."""
+    arm = ARM
+    for far in (1e160, 1e300):
+        T = torch.eye(4, dtype=F64).repeat(2, 1, 1)
+        T[:, :3, 3] = torch.tensor([[far, 0.0, 0.0], [0.0, 0.0, -far]], dtype=F64)
+        start = arm.inverse_kinematics(T, "tool_tcp", max_iterations=0,
+                                       generator=torch.Generator().manual_seed(0))  # fmt: skip
+        res = arm.inverse_kinematics(T, "tool_tcp", generator=torch.Generator().manual_seed(0))
+        torch.testing.assert_close(res.position_error, torch.full((2,), far, dtype=F64))
+        assert bool((res.q != start.q).any(-1).all())
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, F64], ids=["f32", "f64"])
+def test_restarts_return_the_best_of_their_starts_for_far_targets(dtype):
+    """Independent starts (no restart): the point kept is the best single start's, also where
+    the cost is large (a ranking key squeezing the costs into [0, 1) tied them)."""
+    arm = Chain.from_urdf(sample_robot("arm7"), dtype=dtype)
+    p = torch.tensor([[1e3, 0.0, 0.5]], dtype=dtype)
+    if dtype == F64:
+        p = p * 1e6
+    starts = arm.random_configuration(1, 8, generator=torch.Generator().manual_seed(1))[0]
+    res = arm.inverse_kinematics(p, "tool_tcp", restarts=8, restart_after=0, max_iterations=40,
+                                 generator=torch.Generator().manual_seed(1))  # fmt: skip
+    single = [arm.inverse_kinematics(p, "tool_tcp", q0=s, restart_after=0, max_iterations=40)
+              for s in starts]  # fmt: skip
+    best = min(range(8), key=lambda k: float(single[k].position_error))
+    assert float(single[best].position_error) < float(single[0].position_error)
+    assert torch.equal(res.q, single[best].q)
+    assert torch.equal(res.position_error, single[best].position_error)
+
+
+def test_vmap():
+    """Under torch.func.vmap (random starts need randomness="same" or "different")."""
+    arm = ARM
+    q = arm.random_configuration(3, generator=torch.Generator().manual_seed(0))
+    T = _fk(arm, q, "tool_tcp")
+    q0 = (q + 0.05).clamp(arm.lower, arm.upper)
+    ref = arm.inverse_kinematics(T, "tool_tcp", q0=q0, restart_after=0)
+
+    def solve(t: torch.Tensor, s: torch.Tensor, **options) -> torch.Tensor:
+        return arm.inverse_kinematics(t, "tool_tcp", q0=s, **options).q
+
+    out = torch.func.vmap(lambda t, s: solve(t, s, restart_after=0))(T, q0)
+    torch.testing.assert_close(out, ref.q, atol=1e-9, rtol=0)
+    out = torch.func.vmap(lambda t, s: solve(t, s, restarts=2), randomness="same")(T, q0)
+    torch.testing.assert_close(_fk(arm, out, "tool_tcp"), T, atol=1e-4, rtol=0)
+
+
 # ----------------------------------------------------------------------------------------------
 # Compilation
 # ----------------------------------------------------------------------------------------------
@@ -533,6 +656,21 @@ def test_bad_input_names_the_argument():
         arm.inverse_kinematics(T, "tool_tcp", lower=lower)
     with pytest.raises(ValueError, match=rf"{fn}: expected lower .* shape \(\) or \(7,\)"):
         arm.inverse_kinematics(T, "tool_tcp", lower=torch.zeros(3, dtype=F64))
+    nan = r"every DoF \(not NaN\), got lower=nan for 'base_yaw' \(DoF 0\)"
+    with pytest.raises(
+        ValueError, match=rf"{fn}: expected lower to be a bound or -inf/inf for {nan}"
+    ):
+        arm.inverse_kinematics(T, "tool_tcp", lower=math.nan)
+    with pytest.raises(ValueError, match=rf"{fn}: .* got upper=nan for 'upper_arm_roll'"):
+        upper = arm.upper.clone()
+        upper[2] = math.nan
+        arm.inverse_kinematics(T, "tool_tcp", upper=upper)
+    with pytest.raises(TypeError, match=rf"{fn}: expected lower to be a number or a torch.Tensor "
+                       r"of shape \(\) or \(7,\), got bool True"):  # fmt: skip
+        arm.inverse_kinematics(T, "tool_tcp", lower=True)
+    with pytest.raises(TypeError, match=rf"{fn}: expected generator to be a torch.Generator or "
+                       r"None, got int 3"):  # fmt: skip
+        arm.inverse_kinematics(T, "tool_tcp", generator=3)
     with pytest.raises(TypeError, match=rf"{fn}: targets has dtype torch.float32"):
         arm.inverse_kinematics(T.float(), "tool_tcp")
     with pytest.raises(ValueError, match=rf"{fn}: expected q0 of shape \(\.\.\., 7\)"):

@@ -184,6 +184,21 @@ def test_randn_errors():
         so3_randn(I3, torch.tensor(1))
     with pytest.raises(ValueError, match="do not broadcast"):
         so3_randn(torch.eye(3).expand(2, 3, 3), torch.ones(3))
+    fn = r"torchlie\.statistics\.so3_randn"
+    with pytest.raises(TypeError, match=rf"{fn}: expected generator to be a torch.Generator or "
+                       "None, got int 1"):  # fmt: skip
+        so3_randn(I3, 0.1, generator=1)
+    with pytest.raises(TypeError, match=rf"{fn}: expected sample_shape to be a tuple of ints "
+                       r"\(a torch.Size\), got int 3"):  # fmt: skip
+        so3_randn(I3, 0.1, sample_shape=3)
+    with pytest.raises(TypeError, match=rf"{fn}: expected sample_shape .*, got tuple \(2.0,\)"):
+        so3_randn(I3, 0.1, sample_shape=(2.0,))
+    with pytest.raises(ValueError, match=rf"{fn}: expected sample_shape of non-negative sizes, "
+                       r"got \(2, -1\)"):  # fmt: skip
+        so3_randn(I3, 0.1, sample_shape=(2, -1))
+    with pytest.raises(TypeError, match=r"torchlie\.statistics\.se3_randn: expected generator"):
+        se3_randn(torch.eye(4), 0.1, generator=7)
+    assert so3_randn(I3, 0.1, sample_shape=[2]).shape == (2, 3, 3)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -416,6 +431,39 @@ def test_keyframes_hit_keyframes_and_clamp_or_extrapolate():
     u1 = (after - times[-2]) / (times[-1] - times[-2])
     torch.testing.assert_close(ext[0], so3.interpolate(R[0], R[1], u0), rtol=0, atol=1e-14)
     torch.testing.assert_close(ext[1], so3.interpolate(R[-2], R[-1], u1), rtol=0, atol=1e-14)
+
+
+@pytest.mark.parametrize(
+    "group, fn",
+    [(so3, so3_interpolate_keyframes), (se3, se3_interpolate_keyframes)],
+    ids=["so3", "se3"],
+)
+def test_keyframes_are_the_end_keyframes_exactly(group, fn):
+    """At and beyond the ends (clamped) the result is the first / last keyframe bit for bit,
+    and at the last time with extrapolate=True too; the derivative there is the last
+    segment's."""
+    times = torch.tensor([0.0, 1.0, 2.5], dtype=F64)
+    K = group.exp(torch.randn(3, 6 if group is se3 else 3, generator=gen(4), dtype=F64))
+    q = torch.tensor([-1.0, 0.0, 2.5, 3.0, 1e300], dtype=F64)
+    out = fn(times, K, q)
+    for i, k in enumerate((0, 0, 2, 2, 2)):
+        assert torch.equal(out[i], K[k]), i
+    assert torch.equal(fn(times, K, 2.5, extrapolate=True), K[2])
+    s = torch.tensor(2.5, dtype=F64, requires_grad=True)
+    (d,) = torch.autograd.grad(fn(times, K, s, extrapolate=True).sum(), s)
+    h = 1e-6  # central differences of the extrapolated curve
+    fd = fn(times, K, 2.5 + h, extrapolate=True) - fn(times, K, 2.5 - h, extrapolate=True)
+    assert float(fd.abs().sum()) > 0
+    torch.testing.assert_close(d, fd.sum() / (2 * h), atol=1e-7, rtol=0)
+
+
+@pytest.mark.parametrize("dtype, big", [(F64, 1e308), (torch.float32, 3e38)], ids=["f64", "f32"])
+def test_keyframes_with_a_span_beyond_the_largest_float(dtype, big):
+    K = so3.exp(torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0]], dtype=dtype))
+    times = torch.tensor([-big, big], dtype=dtype)
+    out = so3_interpolate_keyframes(times, K, torch.tensor([0.0, big / 2, -big / 2], dtype=dtype))
+    z = torch.tensor([0.5, 0.75, 0.25], dtype=dtype)
+    torch.testing.assert_close(so3.log(out)[:, 2], z, atol=4 * eps(dtype), rtol=0)
 
 
 def test_keyframes_batched_shapes():
@@ -665,6 +713,40 @@ def test_align_at_every_magnitude(dtype):
     torch.testing.assert_close(
         fit.translation.double() / d, ref.translation.double(), rtol=0, atol=tol * 8
     )
+
+
+@pytest.mark.parametrize("scale", [False, True])
+@pytest.mark.parametrize("far, small", [(1e4, 1.0), (1e12, 1.0), (1e308, 1e-3)])
+def test_align_a_far_point_of_zero_weight_changes_nothing(far, small, scale):
+    """A point of zero weight changes nothing, wherever it is and whatever its index (centring
+    through the first point and scaling by the largest coordinate lost the others' digits)."""
+    P = torch.randn(6, 3, generator=gen(0), dtype=F64) * small
+    R = so3.exp(torch.tensor([0.3, -0.2, 0.5], dtype=F64))
+    Q = P @ R.mT + torch.tensor([1.0, -2.0, 0.5], dtype=F64) * small
+    P[0] = far
+    w = torch.tensor([0.0, 1.0, 1.0, 1.0, 1.0, 1.0], dtype=F64)
+    ref = align(P[1:], Q[1:], scale=scale)
+    for k in (0, 3):  # the point first, then in the middle
+        fit = align(P.roll(k, 0), Q.roll(k, 0), w.roll(k), scale=scale)
+        torch.testing.assert_close(fit.rotation, ref.rotation, atol=4e-15, rtol=0)
+        torch.testing.assert_close(fit.translation, ref.translation, atol=8e-15 * small, rtol=0)
+        torch.testing.assert_close(fit.scale, ref.scale, atol=4e-15, rtol=0)
+
+
+@pytest.mark.parametrize("dtype, big", [(F64, 1e308), (torch.float32, 2e38)], ids=["f64", "f32"])
+def test_weights_whose_sum_overflows(dtype, big):
+    """Weights are scale-invariant up to the largest finite ones (w / sum(w) gave w / inf)."""
+    R = so3.exp(torch.randn(3, 3, generator=gen(1), dtype=F64) * 0.5).to(dtype)
+    T = se3.exp(torch.randn(3, 6, generator=gen(2), dtype=F64)).to(dtype)
+    w = torch.full((3,), big, dtype=dtype)
+    tol = 8 * eps(dtype)
+    torch.testing.assert_close(so3_mean(R, w), so3_mean(R), atol=tol, rtol=0)
+    torch.testing.assert_close(se3_mean(T, w), se3_mean(T), atol=4 * tol, rtol=0)
+    P = torch.randn(5, 3, generator=gen(3), dtype=F64).to(dtype)
+    Q = P @ R[0].mT + 1.0
+    fit, ref = align(P, Q, torch.full((5,), big, dtype=dtype)), align(P, Q)
+    torch.testing.assert_close(fit.rotation, ref.rotation, atol=tol, rtol=0)
+    torch.testing.assert_close(fit.translation, ref.translation, atol=4 * tol, rtol=0)
 
 
 def test_align_magnitudes_per_element_and_gradients():

@@ -28,6 +28,8 @@ and returned in the input dtype.
 
 from __future__ import annotations
 
+import math
+import reprlib
 from collections.abc import Callable
 from types import ModuleType
 from typing import NamedTuple
@@ -95,6 +97,21 @@ def _randn(
 ) -> Tensor:
     fn = _NAME + g.name + "_randn"
     m, dtype = _checks.tensor(mean, fn, "mean", (g.n, g.n))
+    sizes = sample_shape if isinstance(sample_shape, (tuple, list)) else None
+    if sizes is None or not all(isinstance(k, int) and not isinstance(k, bool) for k in sizes):
+        raise TypeError(
+            f"{fn}: expected sample_shape to be a tuple of ints (a torch.Size), got "
+            f"{type(sample_shape).__name__} {reprlib.repr(sample_shape)}"
+        )
+    if any(k < 0 for k in sizes):
+        raise ValueError(
+            f"{fn}: expected sample_shape of non-negative sizes, got {tuple(sample_shape)}"
+        )
+    if generator is not None and not isinstance(generator, torch.Generator):
+        raise TypeError(
+            f"{fn}: expected generator to be a torch.Generator or None, got "
+            f"{type(generator).__name__} {reprlib.repr(generator)}"
+        )
     given = [
         k for k, v in (("std", std), ("cov", cov), ("scale_tril", scale_tril)) if v is not None
     ]
@@ -196,13 +213,15 @@ def se3_randn(
 
 
 def _weights(fn: str, x: Tensor, weights: object, n: int, ref: tuple[str, Tensor]) -> Tensor:
-    """Normalised weights ``(..., n)`` (a tensor of ``ref``'s dtype, or numbers)."""
+    """Normalised weights ``(..., n)`` (a tensor of ``ref``'s dtype, or numbers), divided by a
+    power of two of the largest first (exactly), so that their sum does not overflow."""
     w = _checks.real(weights, fn, "weights", x, ref)
     if w.dim() == 0 or w.shape[-1] != n:
         raise ValueError(
             f"{fn}: expected weights of shape (..., {n}) (one per element of the set), got "
             f"{tuple(w.shape)}"
         )
+    w = w / _coeffs.power_of_two(w.detach().abs().amax(-1, keepdim=True))
     return w / _sum(w, -1).unsqueeze(-1)
 
 
@@ -232,10 +251,14 @@ def _wsum(w: Tensor, x: Tensor, k: int) -> Tensor:
     return _sum(w[(...,) + (None,) * k] * x, -1 - k)
 
 
-def _binade(x: Tensor) -> Tensor:
+def _binade(x: Tensor, used: Tensor | None = None) -> Tensor:
     """The power of two ``k`` with ``max |x_ij| / k`` in ``[1, 2)`` over the last two dimensions
-    (kept, size 1), detached (:func:`torchlie._coeffs.power_of_two`)."""
-    return _coeffs.power_of_two(x.detach().abs().amax((-2, -1), keepdim=True))
+    (kept, size 1), detached (:func:`torchlie._coeffs.power_of_two`); over the rows ``used``
+    (``(..., n, 1)`` bool) when given."""
+    m = x.detach().abs()
+    if used is not None:
+        m = torch.where(used, m, 0.0)
+    return _coeffs.power_of_two(m.amax((-2, -1), keepdim=True))
 
 
 def _sum(x: Tensor, dims: int | tuple[int, ...]) -> Tensor:
@@ -354,8 +377,16 @@ def so3_mean(
     raise ``iterations`` for wider sets.  Gradients flow through the unrolled steps.
 
     Both are equivariant: ``mean(A R_i B) = A mean(R_i) B``.  Weights ``(..., N)`` (non-negative,
-    positive sum; normalised here; not checked, which would read their values: a sum of 0 gives
-    NaN) broadcast with the set; default uniform.  The other means take weights alike.
+    positive sum, of any finite magnitude; normalised here; not checked, which would read their
+    values: a sum of 0 gives NaN) broadcast with the set; default uniform.  The other means take
+    weights alike.
+
+    Where the chordal mean is not unique, because ``sum_i w_i R_i`` has rank at most 1 (e.g. two
+    rotations ``pi`` apart with equal weights, ``{I, Rz(pi)}``, where every rotation about ``z``
+    minimises), ``method="chordal"`` returns one of the minimisers (finite, and the same
+    whatever the batch around it; not NaN, unlike :func:`so2_mean`), and the geodesic steps
+    start from it and reach one of the Karcher means (``Rz(pi/2)`` for ``{I, Rz(pi)}``).  The
+    derivatives there are finite but belong to no particular mean.
 
     Example:
         >>> R = so3.exp(torch.tensor([[0.0, 0.0, 0.2], [0.0, 0.0, 0.6]]))
@@ -504,11 +535,21 @@ def _keyframes(
     t0, t1 = ts[idx], ts[idx + 1]
     dt = t1 - t0
     ok = dt > 0
-    u = torch.where(ok, (q - t0) / torch.where(ok, dt, torch.ones_like(dt)), torch.zeros_like(q))
+    # A span beyond the largest float (dt = inf): u from the halves of the times.
+    wide = torch.isinf(dt)
+    num = torch.where(wide, q / 2 - t0 / 2, q - t0)
+    den = torch.where(ok, torch.where(wide, t1 / 2 - t0 / 2, dt), torch.ones_like(dt))
+    u = torch.where(ok, num / den, torch.zeros_like(q))
     if not extrapolate:
         u = u.clamp(0.0, 1.0)
     u = u[(...,) + lead]
-    return _checks.out(g.core.interpolate(kf[idx], kf[idx + 1], u), dtype)
+    k1 = kf[idx + 1]
+    out = g.core.interpolate(kf[idx], k1, u)
+    # At u = 1 (at and after the last time when clamped) the keyframe itself, exactly (the
+    # interpolation's value there may differ by an ulp), with the interpolation's derivatives.
+    end = (u == 1)[(...,) + (None, None)]
+    out = torch.where(end, k1.detach() + (out - out.detach()), out)
+    return _checks.out(out, dtype)
 
 
 @_checks.float32_exact
@@ -636,8 +677,9 @@ def align(
     gradient.  With ``scale=True``, when those of ``P`` coincide every scale fits equally too:
     ``s = 1``, with zero gradient (never NaN); when only those of ``Q`` do, ``s = 0``.
     ``weights`` is a tensor of the dtype of ``P`` or numbers (a list, a numpy array), converted
-    to it.  Points of any finite magnitude: each set is scaled by a power of two before the
-    products are formed, and the factors are undone exactly.
+    to it.  Points of any finite magnitude: each set is scaled by a power of two (from its
+    largest coordinate over the points of nonzero weight) before the products are formed, and
+    the factors are undone exactly; points of zero weight change nothing, wherever they are.
 
     Returns:
         :class:`Alignment` ``(rotation (..., 3, 3), translation (..., 3), scale (...))``; its
@@ -678,12 +720,21 @@ def align(
     # and the spread neither overflow nor underflow at any finite magnitude; the factors are
     # undone at the end (exactly too).  They are constants: the result's dependence on them is
     # exactly cancelled, so its derivatives are those of the unscaled formula.
-    a, b = _binade(p), _binade(q)
-    p, q = p / a, q / b
+    # Points of zero weight do not count (they do not change the fit; far ones would take the
+    # others' digits), and are clamped where that scale puts them beyond where products stay
+    # finite.
+    used = (w != 0).unsqueeze(-1)
+    a, b = _binade(p, used), _binade(q, used)
+    big = 2.0 ** (math.frexp(torch.finfo(p.dtype).max)[1] // 2 - 4)
+    p, q = (p / a).clamp(-big, big), (q / b).clamp(-big, big)
     a, b = a[..., 0, 0], b[..., 0, 0]
     if translation:
-        # Centred through the first point: points that all coincide centre to exactly 0.
-        p0, q0 = p[..., :1, :], q[..., :1, :]
+        # Centred through the point of largest weight (the first of them; picked exactly, the
+        # other terms zero): points that all coincide centre to exactly 0, and a far point of
+        # zero weight does not take the others' digits in p - p0.
+        top = w.detach().argmax(-1, keepdim=True)
+        pick = (torch.arange(n, device=w.device) == top).to(w.dtype)
+        p0, q0 = _wsum(pick, p, 1).unsqueeze(-2), _wsum(pick, q, 1).unsqueeze(-2)
         dp, dq = _wsum(w, p - p0, 1), _wsum(w, q - q0, 1)
         p_bar, q_bar = p0.squeeze(-2) + dp, q0.squeeze(-2) + dq
         p = (p - p0) - dp.unsqueeze(-2)

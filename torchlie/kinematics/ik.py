@@ -73,9 +73,22 @@ The iterations run without autograd.  The answer is then differentiable with res
 targets by the implicit-function theorem: at a solution ``A^T b = 0``, so
 ``dq*/dtheta = -(A^T A)^+ A^T db/dtheta`` (the minimum-norm solution when the robot is
 redundant), attached as ``q* + s - s.detach()`` with ``s`` the (tiny-damped) Gauss-Newton step
-of the residual computed with ``q*`` held fixed and only the targets carrying a graph.  Joints
-resting on a limit get zero gradient (they stay there for small changes).  Away from a zero
-residual (an unreachable target) this is the Gauss-Newton approximation of the derivative.
+of the residual computed with ``q*`` held fixed and only the targets carrying a graph.  A second
+such step, from that point with the graph through the joint values too, adds the second
+derivatives (the Gauss-Newton map does not move to first order at a zero residual): where the
+solution is a function of the targets (isolated solutions, no redundancy), Hessians and other
+second derivatives are those of the solution, not of its first-order approximation.  Reverse
+mode, forward mode (:func:`torch.func.jvp`, :mod:`torch.autograd.forward_ad`;
+:func:`torch.func.jacfwd` with ``randomness="same"`` where starts are drawn) and their
+compositions all see them.  Joints resting on a limit get zero gradient (they stay there for
+small changes).  Away from a zero residual (an unreachable target) this is the Gauss-Newton
+approximation of the derivative.  A target whose step is not finite (a non-finite target, or
+one so far that the step overflows: beyond about ``1e154`` m in float64) gets a zero
+derivative, and its ``q`` stays as found.
+
+Under :func:`torch.func.vmap` the solver runs as it is (without ``early_exit``, which reads
+values); random starts (``restarts > 1`` or restarts during the iterations, or no ``q0``)
+need ``randomness="same"`` or ``"different"``.
 
 Example:
     >>> import torch
@@ -96,9 +109,10 @@ from collections.abc import Mapping, Sequence
 from typing import NamedTuple, Protocol, runtime_checkable
 
 import torch
+import torch.autograd.forward_ad as _fwad
 from torch import Tensor
 
-from .. import _checks
+from .. import _checks, _coeffs
 from .. import se3 as _se3
 from .. import so3 as _so3
 from ._joints import _uniform_within
@@ -287,6 +301,11 @@ def _limits(chain: SolverChain, lower: object, upper: object) -> tuple[Tensor, T
             continue
         if isinstance(v, (int, float)) and not isinstance(v, bool):
             v = torch.full((chain.n_dof,), float(v), dtype=chain.dtype, device=chain.device)
+        elif not isinstance(v, Tensor):
+            raise TypeError(
+                f"{_FN}: expected {name} to be a number or a torch.Tensor of shape () or "
+                f"({chain.n_dof},), got {type(v).__name__} {reprlib.repr(v)}"
+            )
         v = _tensor(chain, v, name)
         if v.dim() > 1 or (v.dim() == 1 and v.shape[0] not in (1, chain.n_dof)):
             raise ValueError(
@@ -299,6 +318,12 @@ def _limits(chain: SolverChain, lower: object, upper: object) -> tuple[Tensor, T
         bad = (lo > hi) | torch.isnan(lo) | torch.isnan(hi)
         if bool(bad.any()):
             k = int(bad.nonzero()[0, 0])
+            for name, v in (("lower", lo), ("upper", hi)):
+                if math.isnan(float(v[k])):
+                    raise ValueError(
+                        f"{_FN}: expected {name} to be a bound or -inf/inf for every DoF (not "
+                        f"NaN), got {name}=nan for {chain.joint_names[k]!r} (DoF {k})"
+                    )
             raise ValueError(
                 f"{_FN}: expected lower <= upper for every DoF, got lower={float(lo[k])!r} > "
                 f"upper={float(hi[k])!r} for {chain.joint_names[k]!r} (DoF {k})"
@@ -313,10 +338,10 @@ def _limits(chain: SolverChain, lower: object, upper: object) -> tuple[Tensor, T
 
 
 def _norm3(v: Tensor) -> Tensor:
-    """Norm of ``(3, N)`` columns (three fused products: a reduction over a leading dimension
-    of 3 costs more)."""
+    """Norm of ``(3, N)`` columns, by :func:`torch.hypot` (no overflow of the squares of
+    far targets' errors; a reduction over a leading dimension of 3 costs more)."""
     x, y, z = v.unbind(0)
-    return torch.addcmul(torch.addcmul(x * x, y, y), z, z).sqrt()
+    return torch.hypot(torch.hypot(x, y), z)
 
 
 def _errors(perr: list[Tensor], rerr: list[Tensor]) -> tuple[Tensor, Tensor]:
@@ -439,10 +464,13 @@ def _step(A: Tensor, b: Tensor, lam: Tensor, g: Tensor | None = None) -> Tensor:
         return (A * b.unsqueeze(0)).sum(1)
     dual = m <= k
     S = _gram(A if dual else A.transpose(0, 1))
-    diag = torch.diagonal(S)  # (N, k or m), a view: mu is added in place
+    diag = torch.diagonal(S)  # (N, k or m), a view: mu is added in place (in the solver loop)
     eps = torch.finfo(A.dtype).eps
     mu = lam * diag.mean(-1) + eps * (1.0 + diag.amax(-1))
-    diag.add_(mu.unsqueeze(-1))
+    if torch.is_grad_enabled():  # (the implicit steps: S has a graph)
+        S = S + torch.diag_embed(mu.unsqueeze(-1).expand_as(diag)).permute(1, 2, 0)
+    else:
+        diag.add_(mu.unsqueeze(-1))
     if dual:
         return (A * _spd_solve(S, b).unsqueeze(0)).sum(1)
     return _spd_solve(S, (A * b.unsqueeze(0)).sum(1) if g is None else g)
@@ -533,7 +561,8 @@ def inverse_kinematics(
             others keep their start value.
         position_tolerance, rotation_tolerance: thresholds of ``converged`` (m, rad).
         early_exit: stop once every target has a start within tolerance (one device
-            synchronisation per iteration; not for ``torch.compile(fullgraph=True)``).
+            synchronisation per iteration; not for ``torch.compile(fullgraph=True)`` nor
+            :func:`torch.func.vmap`).
         lower, upper: bounds replacing the chain's limits, ``(n_dof,)`` or a number (``inf``
             for none); checked ``lower <= upper``.
         generator: random generator of the starts.
@@ -560,6 +589,11 @@ def inverse_kinematics(
             "(revolute, prismatic) and URDF joints"
         )
     items = _targets(chain, targets, link)
+    if generator is not None and not isinstance(generator, torch.Generator):
+        raise TypeError(
+            f"{_FN}: expected generator to be a torch.Generator or None, got "
+            f"{type(generator).__name__} {reprlib.repr(generator)}"
+        )
     restarts = _checks.count(restarts, _FN, "restarts", 1)
     if max_iterations is None:
         max_iterations = _BUDGET[restarts >= _MANY_STARTS]
@@ -603,15 +637,12 @@ def inverse_kinematics(
     seeds = _clamp(draws.reshape(n_seeds, N, n).mT.contiguous(), lo1, hi1)
 
     # Tasks: targets broadcast to (P,), batch innermost.
-    tasks, grad_tasks, weights = [], [], []
+    tasks, raw, weights = [], [], []
     for name, pose, t in items:
         tail = (4, 4) if pose else (3,)
-        size = math.prod(tail)
         tb = t.expand(*batch, *tail).reshape(P, *tail)
-        ref = _se3.inverse(tb) if pose else tb
-        ref = ref.reshape(P, size).mT
-        grad_tasks.append(_Task(name, pose, ref.reshape(*tail, P)))
-        tasks.append(_Task(name, pose, ref.detach().contiguous().view(*tail, P)))
+        raw.append(_Task(name, pose, tb))
+        tasks.append(_Task(name, pose, _batch_last(tb.detach(), pose).contiguous()))
         weights += [wp] * 3 + ([wr] * 3 if pose else [])
     w_sqrt = torch.tensor(weights, dtype=dtype, device=device).sqrt()
     w_loop = None if all(w == 1.0 for w in weights) else w_sqrt
@@ -634,9 +665,24 @@ def inverse_kinematics(
             out = [perr, rerr, conv, torch.where(conv, 0, max_iterations)]
 
     q_out = q_best
-    if torch.is_grad_enabled() and any(t.requires_grad for *_, t in items):
-        q_out = q_best + _implicit_step(chain, q_best, grad_tasks, w_sqrt, dofs, lo1, hi1)
+    if any(_differentiated(t) for *_, t in items):
+        q_out = _implicit_steps(chain, q_best, raw, w_sqrt, dofs, lo1, hi1)
     return IKResult(q_out.mT.reshape(*batch, n), *(x.reshape(batch) for x in out))
+
+
+def _batch_last(t: Tensor, pose: bool) -> Tensor:
+    """A task's target ``(..., P)`` from targets ``(P, 4, 4)`` (as ``T*^-1``) or ``(P, 3)``."""
+    ref = _se3.inverse(t) if pose else t
+    return ref.reshape(t.shape[0], math.prod(t.shape[1:])).mT.reshape(*t.shape[1:], t.shape[0])
+
+
+def _differentiated(t: Tensor) -> bool:
+    """Whether ``t`` carries a derivative: a reverse-mode graph (grad mode on), a forward-mode
+    tangent (:mod:`torch.autograd.forward_ad`, :func:`torch.func.jvp`, whose tensors do not
+    require grad)."""
+    if torch.is_grad_enabled() and t.requires_grad:
+        return True
+    return not torch.compiler.is_compiling() and _fwad.unpack_dual(t).tangent is not None
 
 
 def _solve(
@@ -687,7 +733,7 @@ def _solve(
     conv = (perr <= tol_p) & (rerr <= tol_r)
     # Per column, last dimension the column (so that early exit can select).
     st: dict[str, Tensor] = {
-        "q": q, "b": b, "A": A, "perr": perr, "rerr": rerr, "cost": _half_sq(b), "conv": conv,
+        "q": q, "b": b, "A": A, "perr": perr, "rerr": rerr, "cost": _size(b), "conv": conv,
         "lam": torch.full((N,), _LAMBDA0, dtype=dtype, device=device),
         "solved_at": torch.zeros(N, dtype=torch.int64, device=device),  # iterations until conv
         "tgt": tgt, "seeds": seeds,
@@ -697,25 +743,36 @@ def _solve(
     # Per target: the best point so far.
     inf = torch.full((P,), math.inf, dtype=dtype, device=device)
     best = {
-        "q": q.view(n, P, K)[:, :, 0], "key": inf, "perr": inf, "rerr": inf,
+        "q": q.view(n, P, K)[:, :, 0], "cost": inf, "perr": inf, "rerr": inf,
         "conv": torch.zeros(P, dtype=torch.bool, device=device),
+        "found": torch.zeros(P, dtype=torch.bool, device=device),  # a point with a cost
         "solved_at": torch.full((P,), max_iterations, dtype=torch.int64, device=device),
     }  # fmt: skip
 
     def gather_best() -> Tensor:
         """The best point of every target over its columns (ties: the first column); returns
-        which columns hold them."""
-        key, tgt = _key(st["conv"], st["cost"]), st["tgt"]
-        M = key.shape[0]
+        which columns hold them.  Ranked as the result is: a point within tolerance before
+        any other, then by cost (a NaN cost never), compared as they are (no key mixing the
+        two, which would tie large costs)."""
+        conv, cost, tgt = st["conv"], st["cost"], st["tgt"]
+        M = cost.shape[0]
         cols = torch.arange(M, device=device)
-        kmin = inf.scatter_reduce(0, tgt, key, "amin")
-        win = torch.where(key == kmin.index_select(0, tgt), cols, M)
+        solved = torch.zeros_like(best["conv"]).scatter_reduce(0, tgt, conv, "amax")
+        ranked = (conv | ~solved.index_select(0, tgt)) & ~cost.isnan()
+        cost = torch.where(ranked, cost, math.inf)
+        cmin = inf.scatter_reduce(0, tgt, cost, "amin")
+        win = torch.where(ranked & (cost == cmin.index_select(0, tgt)), cols, M)
         c = torch.full((P,), M, device=device).scatter_reduce(0, tgt, win, "amin")
-        leads = torch.zeros(M + 1, dtype=torch.bool, device=device).index_fill_(0, c, True)
+        leads = torch.zeros(M + 1, dtype=torch.bool, device=device).index_fill(0, c, True)
+        found = c < M
         c = c.clamp(max=M - 1)
-        better = kmin < best["key"]
+        was = best["conv"]
+        better = found & (
+            ~best["found"] | (solved & ~was) | ((solved == was) & (cmin < best["cost"]))
+        )
+        best["found"] = best["found"] | found
         best["q"] = torch.where(better, st["q"].index_select(1, c), best["q"])
-        best["key"] = torch.where(better, kmin, best["key"])
+        best["cost"] = torch.where(better, cmin, best["cost"])
         for name in ("perr", "rerr", "conv"):
             best[name] = torch.where(better, st[name].index_select(0, c), best[name])
         first = best["solved_at"].scatter_reduce(0, tgt, st["solved_at"], "amin")
@@ -768,7 +825,7 @@ def _solve(
             # not within tolerance; the others restart.
             shared = (
                 torch.zeros(P, dtype=torch.int64, device=device)
-                .index_add_(0, st["tgt"], torch.ones_like(st["tgt"]))
+                .index_add(0, st["tgt"], torch.ones_like(st["tgt"]))
                 .index_select(0, st["tgt"])
                 > 1
             )
@@ -783,7 +840,7 @@ def _solve(
             q_new = torch.where(fresh, st["seeds"][seed], q_new)
             st["pushed"] = st["pushed"] & ~fresh
         b_new, A_new, perr_new, rerr_new = _linearise(chain, q_new, tasks, weights, dofs)
-        cost_new = _half_sq(b_new)
+        cost_new = _size(b_new)
         conv_new = (perr_new <= tol_p) & (rerr_new <= tol_r)
         ok = (cost_new < st["cost"]) & (conv_new | ~conv)  # False for nan: a failed step
         if restart:
@@ -799,48 +856,59 @@ def _solve(
     return best["q"], [best["perr"], best["rerr"], best["conv"], best["solved_at"]]
 
 
-def _half_sq(b: Tensor) -> Tensor:
-    return 0.5 * (b * b).sum(0)
+def _size(b: Tensor) -> Tensor:
+    """The cost's measure ``|b|`` ``(N,)`` of residuals ``b (m, N)`` (the steps minimise
+    ``|b|^2 / 2``, which ranks alike), from ``b`` scaled by a power of two of its largest
+    component: finite for every finite ``b`` (``|b|^2`` overflows beyond about ``1e154`` in
+    float64, ``1e19`` in float32)."""
+    k = _coeffs.power_of_two(b.abs().amax(0))
+    k = torch.where(k.isfinite(), k, 1.0)  # (a non-finite residual: a non-finite size)
+    c = b / k
+    return (c * c).sum(0).sqrt() * k
 
 
-def _key(conv: Tensor, cost: Tensor) -> Tensor:
-    """Ranks points: any converged one before any other, then by cost (in ``[0, 1)``)."""
-    return (~conv).to(cost.dtype) * 2.0 + cost / (1.0 + cost)
-
-
-def _implicit_step(
+def _implicit_steps(
     chain: SolverChain,
     q: Tensor,
-    tasks: list[_Task],
+    targets: list[_Task],
     w_sqrt: Tensor,
     dofs: _Dofs | None,
     lo: Tensor,
     hi: Tensor,
 ) -> Tensor:
-    """``s - s.detach()`` with ``s = -(A^T A)^+ A^T b``: zero, with the implicit-function
-    gradient of the solution with respect to the targets (only ``b`` carries a graph)."""
-    with torch.no_grad():
-        fixed = [t._replace(target=t.target.detach()) for t in tasks]
-        _, A, _, _ = _residuals(chain, q, fixed, w_sqrt, dofs)
-        free = (q > lo) & (q < hi)  # a joint on a limit stays there
-        A = A * (free if dofs is None else free.index_select(0, dofs.index)).to(A.dtype)
-    b = _residual_values(chain, q, tasks, w_sqrt)
-    s = -_step(A.transpose(0, 1), b, q.new_zeros(q.shape[1]))
+    """``q`` (the solver's answer ``(n_dof, P)``, as it is) with the derivatives of the solution
+    with respect to ``targets`` (tasks with their targets as given, ``(P, 4, 4)`` or
+    ``(P, 3)``), to first and second order: two Gauss-Newton steps ``G(q, theta) = q -
+    (A^T A)^+ A^T b`` attached as ``q + s - s.detach()``.  The first, at ``q`` held fixed (only
+    ``b`` carries a graph, through the targets), gives ``dq*/dtheta``; the second, from it with
+    the graph through ``q`` too (forward kinematics, ``A`` and ``b``), adds the second
+    derivatives: ``dG/dq = 0`` at a zero residual, so ``d^2 G(q1(theta), theta)`` is that of
+    the solution once ``q1`` has the right first derivative.  A column whose step is not finite
+    (a non-finite or far target) keeps ``q`` (zero derivative)."""
+    free = (q > lo) & (q < hi)  # a joint on a limit stays there (its column of A is zeroed)
+    free = (free if dofs is None else free.index_select(0, dofs.index)).to(q.dtype)
+    zero = q.new_zeros(q.shape[1])
+    with torch.no_grad():  # both steps' values (q1 = q): finite, or the column is left out
+        fixed = [t._replace(target=_batch_last(t.target, t.pose)) for t in targets]
+        b, A, _, _ = _residuals(chain, q, fixed, w_sqrt, dofs)
+        ok = _step((A * free).transpose(0, 1), b, zero).isfinite().all(0)
+    # A column left out takes its target without a graph (where's derivative is a selection:
+    # neither q nor the targets' derivatives see its non-finite values).
+    tasks = []
+    for t in targets:
+        sel = ok.view(-1, *(1,) * (t.target.dim() - 1))
+        tasks.append(t._replace(target=_batch_last(torch.where(sel, t.target, t.target.detach()),
+                                                   t.pose)))  # fmt: skip
+    b, A, _, _ = _residuals(chain, q, tasks, w_sqrt, dofs)
+    q1 = q + _attached(q, -_step((A.detach() * free).transpose(0, 1), b, zero), ok, dofs)
+    b, A, _, _ = _residuals(chain, q1, tasks, w_sqrt, dofs)
+    return q1 + _attached(q, -_step((A * free).transpose(0, 1), b, zero), ok, dofs)
+
+
+def _attached(q: Tensor, s: Tensor, ok: Tensor, dofs: _Dofs | None) -> Tensor:
+    """``s - s.detach()`` ``(n_dof, N)`` for a step ``s`` of the DoFs ``dofs``: zero, with the
+    derivatives of ``s``; zero in the columns not ``ok`` (``(N,)``)."""
+    s = torch.where(ok, s, 0.0)
     if dofs is not None:  # zero for the DoFs that do not move a target link
         s = q.new_zeros(q.shape).index_add(0, dofs.index, s)
     return s - s.detach()
-
-
-def _residual_values(chain: SolverChain, q: Tensor, tasks: list[_Task], w_sqrt: Tensor) -> Tensor:
-    """Weighted residuals ``(m, N)`` with the graph of the targets (``q`` held fixed)."""
-    with torch.no_grad():
-        poses, _ = chain.poses_and_jacobians(q, [t.link for t in tasks])
-    rs = []
-    for task, Pt in zip(tasks, poses, strict=True):
-        T = Pt.permute(2, 1, 0)  # (N, 4, 4)
-        if task.pose:
-            Ti = task.target.permute(2, 0, 1)
-            rs.append(_se3.log(_se3.compose(Ti, T)).mT)
-        else:
-            rs.append(T[:, :3, 3].mT - task.target)
-    return (torch.cat(rs) if len(rs) > 1 else rs[0]) * w_sqrt.unsqueeze(-1)
