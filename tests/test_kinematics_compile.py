@@ -35,3 +35,30 @@ def test_compile_inductor_arm():
     q = arm.random_configuration(32, generator=torch.Generator().manual_seed(0))
     f = torch.compile(lambda x: arm.forward_kinematics(x, stacked=True), fullgraph=True)
     torch.testing.assert_close(f(q), arm.forward_kinematics(q, stacked=True), atol=TOL, rtol=0)
+
+
+@pytest.mark.compile
+@pytest.mark.slow
+def test_compiled_forward_mode_of_jacobians_and_dynamics():
+    """Inductor's code for jvp of a Jacobian whose columns are not the DoFs in order (mimic
+    joints, a branch) and of the dynamics with a floating joint's bias and external wrenches:
+    the tangents are eager's."""
+    chain = Chain.from_urdf(sample_robot("tree"), dtype=torch.float64)
+    g = torch.Generator().manual_seed(1)
+    q = chain.random_configuration(3, generator=g)
+    u = torch.randn(q.shape, generator=g, dtype=torch.float64)
+    wrench = torch.ones(6, dtype=torch.float64)
+
+    def f(x):
+        return (
+            chain.jacobian(x, "left_finger_b"),
+            chain.inverse_dynamics(x, x, x, f_ext={"puck_tool": wrench, "drone_camera": wrench}),
+        )
+
+    def tangents(a, b):
+        return torch.func.jvp(f, (a,), (b,))[1]
+
+    want = tangents(q, u)
+    got = torch.compile(tangents, fullgraph=True)(q, u)
+    for g_, w_ in zip(got, want, strict=True):
+        torch.testing.assert_close(g_, w_, rtol=1e-12, atol=1e-12 * float(w_.abs().max()))

@@ -172,3 +172,31 @@ def interleave(parts: Sequence[Tensor], out: Sequence[Tensor | None] | None = No
     for part, column in zip(parts, target.unbind(-1), strict=True):
         column.copy_(part)
     return target
+
+
+def row_gathers(index: Sequence[int], n: int, device: torch.device) -> tuple[Tensor, ...]:
+    """The gathers of :func:`add_rows` for ``index`` (row ``k`` of the source goes to row
+    ``index[k]`` of ``n``): the ``j``-th is, for each result row, its ``j``-th source row, or
+    ``len(index)`` (the zero row appended) where it has fewer (at least one gather)."""
+    groups: list[list[int]] = [[] for _ in range(n)]
+    for k, i in enumerate(index):
+        groups[i].append(k)
+    depth = max(1, *(len(g) for g in groups))  # one at least: no source row, zeros
+    pad = len(index)
+    return tuple(
+        torch.tensor([g[j] if j < len(g) else pad for g in groups], dtype=torch.long, device=device)
+        for j in range(depth)
+    )
+
+
+def add_rows(x: Tensor, gathers: Sequence[Tensor]) -> Tensor:
+    """``x.new_zeros(n, ...).index_add(0, index, x)`` with the gathers of :func:`row_gathers`:
+    rows of ``x`` summed into the rows of the result, in the order of ``x``'s rows (the same
+    values), by ``index_select`` of ``x`` with a zero row appended.  torch's ``index_add`` and
+    ``index_copy`` are not used: Inductor (torch 2.13) compiles their forward-mode derivative
+    wrong (every tangent entry the sum of all the tangents added)."""
+    xp = torch.cat((x, x.new_zeros(1, *x.shape[1:])))
+    out = xp.index_select(0, gathers[0])
+    for g in gathers[1:]:
+        out = out + xp.index_select(0, g)
+    return out

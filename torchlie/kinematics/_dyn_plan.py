@@ -16,7 +16,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from ._joints import _Link, _unit, quat_rows, rpy_rows
+from .. import _layout
+from ._joints import _Link, _unit_floats, quat_rows, rpy_rows
 from .urdf import RobotSpec
 
 #: Gravity in the root frame when none is given, m/s^2.
@@ -49,7 +50,8 @@ class _DynPlan:
     A: Tensor  # (n_bodies, K): 1 where the column's body is an ancestor-or-self of the body
     At: Tensor  # A transposed, contiguous
     Af: Tensor  # (K, K): 1 where column l's body is an ancestor-or-self of column k's frame
-    float_cols: Tensor  # (n_float,) the first rotation column of each floating joint
+    # the first rotation column of each floating joint, as gathers of _layout.add_rows (K rows)
+    float_gathers: tuple[Tensor, ...]
     sub: Tensor  # (n_bodies, n_bodies): 1 where the second is in the first's subtree
     m_gather: Tensor  # (K * K,) where each entry of the mass matrix is read (see _crba)
     m_zero: bool  # some entries are 0 (columns on different branches): read from row K * K
@@ -167,13 +169,13 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
             if kind == "tr":
                 if own:  # the axis in the child's frame
                     assert lk.joint is not None
-                    tr.append((lk.index, tuple(float(x) for x in _unit(lk.joint.axis)), b, d, w))
+                    tr.append((lk.index, _unit_floats(lk.joint.axis), b, d, w))
                 else:
                     tr.append((lk.parent, v, b, d, w))
                 continue
             if kind == "rot":  # revolute, continuous, planar: the axis in the child's frame
                 assert lk.joint is not None
-                rot.append((lk.index, tuple(float(x) for x in _unit(lk.joint.axis)), b, d, w))
+                rot.append((lk.index, _unit_floats(lk.joint.axis), b, d, w))
             else:
                 rot.append((lk.index, v, b, d, w))
             anchors.append(lk.anchor or (0.0, 0.0, 0.0))
@@ -278,8 +280,8 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
         A=A,
         At=A.T.contiguous(),
         Af=Af,
-        float_cols=torch.tensor(
-            [len(rot) + 3 * k for k in range(len(floats_raw))], dtype=torch.long
+        float_gathers=_layout.row_gathers(
+            [len(rot) + 3 * k for k in range(len(floats_raw))], K, torch.device("cpu")
         ),
         sub=sub,
         m_gather=torch.tensor(m_gather, dtype=torch.long),
@@ -323,7 +325,7 @@ def _convert(plan: _DynPlan, dtype: torch.dtype, device: torch.device) -> _DynPl
         A=f(plan.A),
         At=f(plan.At),
         Af=f(plan.Af),
-        float_cols=i(plan.float_cols),
+        float_gathers=tuple(i(g) for g in plan.float_gathers),
         sub=f(plan.sub),
         m_gather=i(plan.m_gather),
         m_zero=plan.m_zero,

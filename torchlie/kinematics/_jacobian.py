@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from .. import _components
+from .. import _components, _layout
 from .. import so3 as _so3
 from ._joints import _Link
 
@@ -36,6 +36,7 @@ class _JacPlan:
     dof_index: Tensor  # (n_cols,) long
     col_weight: Tensor | None  # (n_cols,)
     in_dof_order: bool  # column k is DoF k's, for every DoF (a serial arm): no scatter needed
+    dof_gathers: tuple[Tensor, ...]  # dof_index for _layout.add_rows (n_dof rows)
     dofs: tuple[int, ...]  # the DoFs that move the link (those of dof_index, sorted)
     col_dofs: tuple[int, ...]  # dof_index as Python ints
     # (n_rot_const, 3, 1, 1): the centre of each rotation in its child's frame (MJCF joint
@@ -88,6 +89,7 @@ def _jacobian_plan(
         floats=floats,
         dof_index=torch.tensor(dofs, dtype=torch.long, device=dev),
         in_dof_order=dofs == list(range(n_dof)),
+        dof_gathers=_layout.row_gathers(dofs, n_dof, dev),
         dofs=tuple(sorted(set(dofs))),
         col_dofs=tuple(dofs),
         col_weight=(
@@ -144,10 +146,11 @@ def _link_columns(
 
 def _dof_index(
     jp: _JacPlan, dofs: tuple[int, ...], device: torch.device
-) -> tuple[Tensor | None, Tensor | None]:
+) -> tuple[Tensor | None, tuple[Tensor, ...] | None]:
     """``(keep, where)`` for the Jacobian columns of the sorted DoFs ``dofs``: ``keep``, the
     columns of ``jp`` that feed one of them (None: all do), and ``where``, the place of each
-    kept column among ``dofs`` (None: the kept columns are those DoFs, in order)."""
+    kept column among ``dofs`` as gathers of :func:`torchlie._layout.add_rows` (None: the kept
+    columns are those DoFs, in order)."""
     pos = {d: i for i, d in enumerate(dofs)}
     kept = [k for k, d in enumerate(jp.col_dofs) if d in pos]
     where = [pos[jp.col_dofs[k]] for k in kept]
@@ -156,7 +159,7 @@ def _dof_index(
         keep = torch.tensor(kept, dtype=torch.long, device=device)
     if where == list(range(len(dofs))):
         return keep, None
-    return keep, torch.tensor(where, dtype=torch.long, device=device)
+    return keep, _layout.row_gathers(where, len(dofs), device)
 
 
 def _frame_jacobian(

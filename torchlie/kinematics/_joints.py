@@ -117,9 +117,15 @@ def _origin(j: JointSpec) -> Tensor:
     return T
 
 
-def _unit(v: Sequence[float]) -> Tensor:
+def _unit_floats(v: Sequence[float]) -> tuple[float, ...]:
+    """``v / |v|`` in Python floats (no tensor: a plan built while Dynamo traces reads no
+    tensor's value)."""
     n = math.hypot(*v)
-    return torch.tensor([x / n for x in v], dtype=torch.float64)
+    return tuple(x / n for x in v)
+
+
+def _unit(v: Sequence[float]) -> Tensor:
+    return torch.tensor(_unit_floats(v), dtype=torch.float64)
 
 
 def _block(R: Tensor | None = None, t: Tensor | None = None) -> Tensor:

@@ -73,7 +73,7 @@ poses against the stacked ``C_f`` plus a few fused multiply-adds.  Poses are kep
 as ``(4, 4, batch)`` (batch innermost) so those element-wise ops run over long contiguous
 rows; the public results are ordinary contiguous ``(..., 4, 4)`` tensors.  A Jacobian is one
 column per moving joint on the link's path (a world direction, and for a rotation its moment
-about the link), each added into its DoF's column by one ``index_add`` (mimic joints share a
+about the link), each added into its DoF's column by gathers (mimic joints share a
 DoF), so time and memory are linear in the number of joints.  Everything is plain
 differentiable torch, so first and second derivatives with respect to ``q`` are exact.  The
 constants are built from the parsed URDF in ``_joints.py``, the forward pass is planned and run
@@ -93,7 +93,7 @@ from typing import TYPE_CHECKING, Any
 import torch
 from torch import Tensor
 
-from .. import _checks
+from .. import _checks, _layout
 from .._autograd import cached
 from .._typing import Float
 from . import dynamics as _dyn
@@ -222,7 +222,9 @@ class Chain:
         self._jac_plans: dict[int, _JacPlan] = {}
         # (link, DoFs) -> which of the link's Jacobian columns feed those DoFs and where they go
         # among them (see _dof_index).
-        self._dof_maps: dict[tuple[int, tuple[int, ...]], tuple[Tensor | None, Tensor | None]]
+        self._dof_maps: dict[
+            tuple[int, tuple[int, ...]], tuple[Tensor | None, tuple[Tensor, ...] | None]
+        ]
         self._dof_maps = {}
         self._mimic_t: dict[torch.dtype, tuple[Tensor, Tensor, Tensor]] = {}
 
@@ -622,7 +624,7 @@ class Chain:
         if C is None:
             return q2.new_zeros(n_out, 6, B)
         if dofs is None:
-            index = None if jp.in_dof_order else jp.dof_index
+            index = None if jp.in_dof_order else jp.dof_gathers
         else:
             keep, index = cached(
                 self._dof_maps, (target, dofs), lambda: _dof_index(jp, dofs, C.device)
@@ -632,7 +634,7 @@ class Chain:
         if index is None:  # the link's columns are those DoFs, in order
             return C
         # Each column into its DoF's column (summed where mimic joints share one).
-        return C.new_zeros(n_out, 6, B).index_add(0, index, C)
+        return _layout.add_rows(C, index)
 
     def moving_dofs(self, links: str | Sequence[str]) -> tuple[int, ...]:
         """The DoFs that move at least one of ``links``, sorted: the others have zero Jacobian

@@ -62,7 +62,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from .. import _checks, _coeffs, _components
+from .. import _checks, _coeffs, _components, _layout
 from .. import so3 as _so3
 from .._autograd import cached, evaluate, fma, needs_graph, transforms_active
 from .._typing import Float
@@ -368,7 +368,7 @@ def _body_motion(
         acc = _stack6(_cross_sum(None, (fa_, Vl), (fl_, Va)), _cross_parts(fa_, Va))
         fb = _float_bias(geo, qd2, plan)
         if fb is not None:
-            acc = acc.index_add(0, plan.float_cols, fb)
+            acc = acc + _layout.add_rows(fb, plan.float_gathers)
     if qdd2 is not None:
         qddc = _gather_cols(qdd2, plan).unsqueeze(1)
         acc = S * qddc if acc is None else fma(acc, S, qddc)
@@ -637,8 +637,7 @@ def _fext(
         idx.append(b)
     if not parts:
         return None
-    out = geo.S.new_zeros(nb, 6, B)
-    out = out.index_add(0, torch.tensor(idx, device=out.device), torch.stack(parts))
+    out = _layout.add_rows(torch.stack(parts), _layout.row_gathers(idx, nb, parts[0].device))
     return out.view(nb, 2, 3, B)
 
 

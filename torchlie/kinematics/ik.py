@@ -112,7 +112,7 @@ import torch
 import torch.autograd.forward_ad as _fwad
 from torch import Tensor
 
-from .. import _checks, _coeffs
+from .. import _checks, _coeffs, _layout
 from .. import se3 as _se3
 from .. import so3 as _so3
 from ._joints import _uniform_within
@@ -212,6 +212,7 @@ class _Dofs(NamedTuple):
 
     ids: tuple[int, ...]  # sorted
     index: Tensor  # the same, a long tensor on the chain's device
+    gathers: tuple[Tensor, ...]  # their rows among all DoFs (torchlie._layout.add_rows)
 
 
 class _Task(NamedTuple):
@@ -650,7 +651,11 @@ def inverse_kinematics(
     moving = chain.moving_dofs([name for name, _, _ in items])
     dofs = None
     if moving != tuple(range(n)) or not moving:
-        dofs = _Dofs(moving, torch.tensor(moving, dtype=torch.long, device=device))
+        dofs = _Dofs(
+            moving,
+            torch.tensor(moving, dtype=torch.long, device=device),
+            _layout.row_gathers(moving, n, device),
+        )
 
     with torch.no_grad():
         if moving:
@@ -910,5 +915,5 @@ def _attached(q: Tensor, s: Tensor, ok: Tensor, dofs: _Dofs | None) -> Tensor:
     derivatives of ``s``; zero in the columns not ``ok`` (``(N,)``)."""
     s = torch.where(ok, s, 0.0)
     if dofs is not None:  # zero for the DoFs that do not move a target link
-        s = q.new_zeros(q.shape).index_add(0, dofs.index, s)
+        s = _layout.add_rows(s, dofs.gathers)
     return s - s.detach()
