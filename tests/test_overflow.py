@@ -590,3 +590,29 @@ def test_exp_gradients_of_huge_upstream_gradients(dtype):
         (want,) = torch.autograd.grad(fn(leaf), leaf, G)
         (got,) = torch.autograd.grad(fn(leaf), leaf, G * c)
         _close(got.double() / c, want.double(), dtype, float(want.abs().max()))
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+def test_project_gradients_of_huge_matrices(dtype):
+    """``project(s M) = project(M)``: the gradient (reverse and forward) of ``s M`` is that of
+    ``M`` over ``s``, up to half the largest float (the trace of the polar factor overflowed:
+    NaN)."""
+    g = torch.Generator().manual_seed(14)
+    M = torch.cat((torch.eye(3, dtype=dtype)[None], torch.randn(4, 3, 3, generator=g, dtype=dtype)))
+    M = M / M.abs().amax((-1, -2), keepdim=True)
+    s = torch.finfo(dtype).max / 2
+    G = torch.arange(9.0, dtype=dtype).view(3, 3) * 2.0**20
+    one, big = _linear_grads(so3.project, M, M * s, G.expand(5, 3, 3))
+    _close(big * s, one, dtype, float(one.abs().max()))
+    one, big = _linear_grads(
+        conversions.rot9d_to_matrix, M.flatten(-2), (M * s).flatten(-2), G.expand(5, 3, 3)
+    )
+    _close(big * s, one, dtype, float(one.abs().max()))
+    import torch.autograd.forward_ad as fwad
+
+    with fwad.dual_level():
+        outs = [
+            fwad.unpack_dual(so3.project(fwad.make_dual(x, G.expand(5, 3, 3)))).tangent
+            for x in (M, M * s)
+        ]
+    _close(outs[1].double() * s, outs[0].double(), dtype, float(outs[0].abs().max()))
