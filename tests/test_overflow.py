@@ -616,3 +616,25 @@ def test_project_gradients_of_huge_matrices(dtype):
             for x in (M, M * s)
         ]
     _close(outs[1].double() * s, outs[0].double(), dtype, float(outs[0].abs().max()))
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+def test_quaternion_apply_near_the_largest_float(dtype):
+    """``apply(q, p)`` is ``to_matrix(q) p`` for points up to the largest float and any scale of
+    ``q`` (``v x (v x p)`` overflowed with ``|q|^2 |p|``), its gradient in ``q`` linear in
+    ``p``."""
+    top = torch.finfo(dtype).max
+    q = torch.tensor([1.541, -0.2934, -2.1788, 0.5684], dtype=dtype)
+    p = torch.tensor([-6.97e307, -8.99e307, 2.59e307], dtype=torch.float64)
+    p = (p * (top / 1.7976931348623157e308)).to(dtype)
+    _close(quaternion.apply(q, p), so3.act(quaternion.to_matrix(q), p), dtype, top)
+    g = torch.Generator().manual_seed(15)
+    qs = torch.randn(6, 4, generator=g, dtype=dtype)
+    ps = torch.rand(6, 3, generator=g, dtype=dtype) * 2.0 - 1.0
+    want = quaternion.apply(qs, ps).double()
+    for k in (2.0**-20, 1.0, 2.0**20):
+        _close(quaternion.apply(qs * k, ps * (top / 2)), want * (top / 2), dtype, top / 2)
+    G = torch.randn(6, 3, generator=g, dtype=dtype) * 2.0**-6
+    one, big = _linear_grads(lambda x: quaternion.apply(x, ps), qs, qs, G)
+    _, big = _linear_grads(lambda x: quaternion.apply(x, ps * (top / 2)), qs, qs, G)
+    _close(big / (top / 2), one, dtype, float(one.abs().max()))
