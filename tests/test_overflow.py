@@ -485,3 +485,156 @@ def test_vee_of_hat_up_to_the_largest_float(dtype):
     x = torch.tensor([top, -top / 2, top / 3], dtype=dtype)
     for core, v in ((so3, x), (se3, torch.cat((x, x))), (so2, x[:1]), (se2, x)):
         assert torch.equal(core.vee(core.hat(v)), v), core.__name__
+
+
+# ----------------------------------------------------------------------------------------------
+# Intermediate products near the largest float: the result is finite and right
+# ----------------------------------------------------------------------------------------------
+
+
+def _close(got: torch.Tensor, want: torch.Tensor, dtype: torch.dtype, scale: float) -> None:
+    """``got`` (finite) within ``_tol(dtype) * 4`` of ``want`` relative to ``scale``."""
+    assert torch.isfinite(got).all(), got
+    err = ((got.double() - want.double()) / scale).abs().max()
+    assert err <= _tol(dtype) * 4, float(err)
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+def test_se3_exp_and_log_of_translations_near_the_largest_float(dtype):
+    """``t = Jl(phi) rho``, ``rho = Jl(phi)^-1 t``: linear in ``rho`` (``t``), and ``t = rho``
+    for ``rho`` along ``phi``; the products of ``phi`` and ``rho`` (``phi . rho``,
+    ``phi x rho``) overflowed from a few times the largest float over ``|phi|`` (inf and NaN)."""
+    m = torch.finfo(dtype).max / 2
+    T = se3.exp(torch.tensor([m, 0.0, 0.0, m, 0.0, 0.0], dtype=dtype))
+    _close(T[:3, 3], torch.tensor([m, 0.0, 0.0], dtype=torch.float64), dtype, m)
+    xi = torch.ones(6, dtype=dtype) * (m / 2)
+    _close(se3.exp(xi)[:3, 3], xi[:3], dtype, m)
+    R = torch.diag(torch.tensor([1.0, -1.0, -1.0], dtype=dtype))
+    got = se3.log(se3.from_rt(R, torch.tensor([m, 0.0, 0.0], dtype=dtype)))
+    want = torch.tensor([m, 0.0, 0.0, math.pi, 0.0, 0.0], dtype=torch.float64)
+    _close(got, want, dtype, m)
+    _close(got[3:], want[3:], dtype, 1.0)
+    # generic directions: the results of rho (t) of size s are s times those of size 1
+    g = torch.Generator().manual_seed(11)
+    phi = torch.randn(8, 3, generator=g, dtype=torch.float64) * 1.5
+    u = torch.randn(8, 3, generator=g, dtype=torch.float64)
+    u = (u / u.abs().amax(-1, keepdim=True)).to(dtype)
+    phi = phi.to(dtype)
+    s = m / 2
+    unit = se3.exp(torch.cat((u, phi), -1))[:, :3, 3]
+    _close(se3.exp(torch.cat((u * s, phi), -1))[:, :3, 3], unit.double() * s, dtype, s)
+    Rs = so3.exp(phi)
+    unit = se3.log(se3.from_rt(Rs, u))
+    got = se3.log(se3.from_rt(Rs, u * s))
+    _close(got[:, :3], unit[:, :3].double() * s, dtype, s)
+    assert torch.equal(got[:, 3:], unit[:, 3:])
+
+
+def _linear_grads(fn, x_unit: torch.Tensor, x_big: torch.Tensor, G: torch.Tensor):
+    """Gradients of ``<fn(x), G>`` at ``x_unit`` and ``x_big``, in float64."""
+    out = []
+    for x in (x_unit, x_big):
+        leaf = x.clone().requires_grad_()
+        (grad,) = torch.autograd.grad(fn(leaf), leaf, G)
+        assert torch.isfinite(grad).all(), grad
+        out.append(grad.double())
+    return out
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+def test_se3_exp_and_log_gradients_near_the_largest_float(dtype):
+    """The translation of ``exp`` is linear in ``rho``, the ``rho`` of ``log`` in ``t``: their
+    gradients in ``phi`` (``R``) from an upstream gradient on them scale with ``rho`` (``t``),
+    those in ``rho`` (``t``) do not, at every size up to half the largest float."""
+    m = torch.finfo(dtype).max / 2
+    g = torch.Generator().manual_seed(12)
+    phi = torch.cat(
+        (torch.tensor([[m, 0.0, 0.0], [m / 2, m / 2, m / 2]], dtype=torch.float64),
+         torch.randn(6, 3, generator=g, dtype=torch.float64) * 1.5)
+    ).to(dtype)  # fmt: skip
+    u = torch.cat(
+        (torch.tensor([[1.0, 0.0, 0.0], [1.0, 1.0, 1.0]], dtype=torch.float64),
+         torch.rand(6, 3, generator=g, dtype=torch.float64) * 2.0 - 1.0)
+    ).to(dtype)  # fmt: skip
+    s = m / 2
+    # exp: an upstream gradient on the translation only (small: the gradient in phi is s times
+    # that of rho = u)
+    G = torch.zeros(8, 4, 4, dtype=dtype)
+    G[:, :3, 3] = torch.randn(8, 3, generator=g, dtype=dtype) * 2.0**-6
+    one, big = _linear_grads(se3.exp, torch.cat((u, phi), -1), torch.cat((u * s, phi), -1), G)
+    _close(big[:, :3], one[:, :3], dtype, 1.0)
+    _close(big[:, 3:] / s, one[:, 3:], dtype, float(one[:, 3:].abs().max()))
+    # log: an upstream gradient on rho only
+    Rs = so3.exp(torch.randn(8, 3, generator=g, dtype=dtype))
+    Rs[0] = torch.diag(torch.tensor([1.0, -1.0, -1.0], dtype=dtype))  # angle pi
+    gl = torch.zeros(8, 6, dtype=dtype)
+    gl[:, :3] = torch.randn(8, 3, generator=g, dtype=dtype) * 2.0**-6
+    one, big = _linear_grads(se3.log, se3.from_rt(Rs, u), se3.from_rt(Rs, u * s), gl)
+    _close(big[:, :3, 3], one[:, :3, 3], dtype, float(one[:, :3, 3].abs().max()))
+    _close(big[:, :3, :3] / s, one[:, :3, :3], dtype, float(one[:, :3, :3].abs().max()))
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+def test_exp_gradients_of_huge_upstream_gradients(dtype):
+    """The gradients are linear in the upstream gradient: a power of two ``c`` with ``c |w|``
+    times the upstream gradient beyond the largest float (``w . v`` and ``w x v`` of the
+    backward overflowed, NaN) gives ``c`` times the gradient (se3's at moderate angles: its
+    ``Q`` block takes ``phi`` itself, whose products with the gradient overflow at 1e10)."""
+    g = torch.Generator().manual_seed(13)
+    w = torch.tensor([[1e10, 2e9, -3e9], [30.0, -10.0, 20.0], [1.0, -2.0, 0.5]], dtype=dtype)
+    xi = torch.cat((torch.randn(3, 3, generator=g, dtype=dtype), w), -1)
+    c = 2.0 ** (math.floor(math.log2(torch.finfo(dtype).max)) - 30)  # 1.6e29 f32, 8e298 f64
+    for fn, x, shape in ((so3.exp, w, (3, 3, 3)), (se3.exp, xi[1:], (2, 4, 4))):
+        G = torch.rand(shape, generator=g, dtype=dtype) * 2.0 - 1.0
+        leaf = x.clone().requires_grad_()
+        (want,) = torch.autograd.grad(fn(leaf), leaf, G)
+        (got,) = torch.autograd.grad(fn(leaf), leaf, G * c)
+        _close(got.double() / c, want.double(), dtype, float(want.abs().max()))
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+def test_project_gradients_of_huge_matrices(dtype):
+    """``project(s M) = project(M)``: the gradient (reverse and forward) of ``s M`` is that of
+    ``M`` over ``s``, up to half the largest float (the trace of the polar factor overflowed:
+    NaN)."""
+    g = torch.Generator().manual_seed(14)
+    M = torch.cat((torch.eye(3, dtype=dtype)[None], torch.randn(4, 3, 3, generator=g, dtype=dtype)))
+    M = M / M.abs().amax((-1, -2), keepdim=True)
+    s = torch.finfo(dtype).max / 2
+    G = torch.arange(9.0, dtype=dtype).view(3, 3) * 2.0**20
+    one, big = _linear_grads(so3.project, M, M * s, G.expand(5, 3, 3))
+    _close(big * s, one, dtype, float(one.abs().max()))
+    one, big = _linear_grads(
+        conversions.rot9d_to_matrix, M.flatten(-2), (M * s).flatten(-2), G.expand(5, 3, 3)
+    )
+    _close(big * s, one, dtype, float(one.abs().max()))
+    import torch.autograd.forward_ad as fwad
+
+    with fwad.dual_level():
+        outs = [
+            fwad.unpack_dual(so3.project(fwad.make_dual(x, G.expand(5, 3, 3)))).tangent
+            for x in (M, M * s)
+        ]
+    _close(outs[1].double() * s, outs[0].double(), dtype, float(outs[0].abs().max()))
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+def test_quaternion_apply_near_the_largest_float(dtype):
+    """``apply(q, p)`` is ``to_matrix(q) p`` for points up to the largest float and any scale of
+    ``q`` (``v x (v x p)`` overflowed with ``|q|^2 |p|``), its gradient in ``q`` linear in
+    ``p``."""
+    top = torch.finfo(dtype).max
+    q = torch.tensor([1.541, -0.2934, -2.1788, 0.5684], dtype=dtype)
+    p = torch.tensor([-6.97e307, -8.99e307, 2.59e307], dtype=torch.float64)
+    p = (p * (top / 1.7976931348623157e308)).to(dtype)
+    _close(quaternion.apply(q, p), so3.act(quaternion.to_matrix(q), p), dtype, top)
+    g = torch.Generator().manual_seed(15)
+    qs = torch.randn(6, 4, generator=g, dtype=dtype)
+    ps = torch.rand(6, 3, generator=g, dtype=dtype) * 2.0 - 1.0
+    want = quaternion.apply(qs, ps).double()
+    for k in (2.0**-20, 1.0, 2.0**20):
+        _close(quaternion.apply(qs * k, ps * (top / 2)), want * (top / 2), dtype, top / 2)
+    G = torch.randn(6, 3, generator=g, dtype=dtype) * 2.0**-6
+    one, big = _linear_grads(lambda x: quaternion.apply(x, ps), qs, qs, G)
+    _, big = _linear_grads(lambda x: quaternion.apply(x, ps * (top / 2)), qs, qs, G)
+    _close(big / (top / 2), one, dtype, float(one.abs().max()))

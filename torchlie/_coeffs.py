@@ -328,7 +328,12 @@ def power_of_two(m: Tensor) -> Tensor:
     where ``m`` is not finite.  Read from the exponent field of ``m`` (no rounding, a few cheap
     element-wise operations): dividing by ``k`` is exact."""
     bits, mask = _EXPONENT_BITS[m.dtype]
-    return (m.clamp(min=torch.finfo(m.dtype).tiny).view(bits) & mask).view(m.dtype)
+    x = torch.clamp_min(m, torch.finfo(m.dtype).tiny).view(bits)
+    if torch.compiler.is_compiling():
+        return (x & mask).view(m.dtype)
+    # in place on the clamp's own result, the mask a cached tensor (a Python int operand costs
+    # torch more than the operation on a block of a batch)
+    return x.bitwise_and_(_layout.constant(mask, x)).view(m.dtype)
 
 
 def largest(v: Tensor | Sequence[Tensor]) -> Tensor:
@@ -377,6 +382,48 @@ def rescaled_planes(v: Tensor, n: int) -> Sequence[Tensor]:
         return [c / k for c in x]
     S = _layout.stacked(v, n)
     return (S / _scale_of(S.abs().amax(0))).unbind(0)
+
+
+def binary_planes(v: Tensor, n: int) -> Sequence[Tensor]:
+    """The planes of ``v r`` (``n`` components, no autograd), ``r = 1 / (8 k)`` with ``k`` the
+    power of two of the largest ``|v_i|`` (:func:`power_of_two`): the largest ``|v_i r|`` lies
+    in ``[1/8, 1/4)`` (NaN for a zero ``v``, as :func:`rescaled`).
+
+    For functions invariant to the scale of a quaternion whose arithmetic is exact under
+    powers of two: the same bits as from ``v`` itself wherever no product underflows, and
+    products with another operand (a point) that cannot overflow for the scale of ``v``.  In
+    eager mode from the stack of ``v``'s planes, as :func:`rescaled_planes`; while compiling
+    element-wise on the planes."""
+    if torch.compiler.is_compiling():
+        x = v.unbind(-1)
+        r = _binary_factor(largest(x))
+        return [c * r for c in x]
+    S = _layout.stacked(v, n)
+    return (S * _binary_factor(S.abs().amax(0))).unbind(0)
+
+
+def _binary_factor(m: Tensor) -> Tensor:
+    """``r = 1 / (8 k)`` of :func:`binary_planes` from the largest ``|v_i|``: a power of two
+    (subnormal for the top binades of ``m``), so ``v r`` is exact, a subnormal ``v`` too."""
+    k = power_of_two(m)
+    return _layout.constant(0.125, k) / k
+
+
+def _binary_guard(v: Tensor) -> tuple[Tensor, Callable[[Tensor], Tensor]]:
+    if not torch.compiler.is_compiling():
+        r = _binary_factor(largest(v))
+        return v * r, lambda t: t * r
+    x = v.unbind(-1)
+    r = _binary_factor(largest(x))
+    return (
+        torch.stack([c * r for c in x], dim=-1),
+        lambda t: torch.stack([c * r for c in t.unbind(-1)], dim=-1),
+    )
+
+
+#: :func:`binary_planes` as the guard of a custom Function (the derivative of ``v r`` is
+#: ``r``).
+BINARY: Guard = _binary_guard
 
 
 def _scale(v: Tensor | Sequence[Tensor]) -> Tensor:

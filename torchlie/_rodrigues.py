@@ -60,6 +60,12 @@ def exp_entries(
 # Jl(w) and Jl(w)^-1 applied to vectors
 # ----------------------------------------------------------------------------------------------
 
+#: The power of two that :func:`jl_components` takes on the products of ``w`` and ``v``: room
+#: for ``|w| |v|`` up to 256 times the largest float (a reduced angle is below 11; a vector of
+#: the largest floats is ``sqrt(3)`` times them), at the cost of the products within 256 times
+#: the smallest normal number, whose terms lose bits to gradual underflow.
+SHRINK = 2.0**-8
+
 
 def jl_components(
     xyz: Sequence[Tensor],
@@ -68,20 +74,39 @@ def jl_components(
     b: Tensor,
     c: Tensor,
     out: Sequence[Tensor | None] = (None,) * 3,
+    shrink: float = SHRINK,
 ) -> list[Tensor]:
     """Components of ``a v + b (w x v) + c (w . v) w`` (``w = xyz``, ``v`` by components;
-    written to ``out``)."""
+    written to ``out``).
+
+    ``w . v`` and ``w x v`` are formed at ``shrink`` times their size (the factor taken on each
+    product before it is rounded) and the factor given back on the coefficients: a power of
+    two, so the values are those of the plain products wherever these are normal, and no
+    product overflows where ``|w| |v|`` exceeds the largest float but the result does not (a
+    translation near it, or a huge gradient).  For coefficients of at most a few units
+    (Rodrigues'); ``shrink=1``: the plain products, for coefficients that may be near the
+    largest float themselves (Sim(3)'s, of ``e^sigma``)."""
     x, y, z = xyz
     p, q, r = v
-    cwv = c * fma(fma(x * p, y, q), z, r)
+    k, up = shrink, 1.0 / shrink
+    plain = shrink == 1.0
+    zero = None if plain else _layout.constant(0.0, x)  # 0-dim, cached
+    if plain:
+        cwv = c * fma(fma(x * p, y, q), z, r)
+    else:
+        cwv = c * fma(fma(fma(zero, x, p, value=k), y, q, value=k), z, r, value=k)
     result = []
     for vi, wi, (w1, v2), (w2, v1), o in (
         (p, x, (y, r), (z, q), out[0]),
         (q, y, (z, p), (x, r), out[1]),
         (r, z, (x, q), (y, p), out[2]),
     ):
-        cross = fma(w1 * v2, w2, v1, value=-1.0)
-        result.append(fma(fma(a * vi, b, cross), cwv, wi, out=o))
+        if plain:
+            cross = fma(w1 * v2, w2, v1, value=-1.0)
+            result.append(fma(fma(a * vi, b, cross), cwv, wi, out=o))
+        else:
+            cross = fma(fma(zero, w1, v2, value=k), w2, v1, value=-k)
+            result.append(fma(fma(a * vi, b, cross, value=up), cwv, wi, value=up, out=o))
     return result
 
 

@@ -310,7 +310,12 @@ def apply(q: Float[Tensor, "*b1 4"], points: Float[Tensor, "*b2 3"]) -> Float[Te
 
 
 def _apply_values(q: Tensor | Sequence[Tensor], p: Tensor) -> Tensor:
-    """:func:`apply` from components: ``p + s (w (v x p) + v x (v x p))``, ``s = 2 / |q|^2``."""
+    """:func:`apply` from components: ``p + s (w (v x p) + v x (v x p))``, ``s = 2 / |q|^2``.
+
+    ``q`` as the callers pass it, scaled by a power of two to a largest component in
+    ``[1/8, 1/4)`` (:func:`torchlie._coeffs.binary_planes`): the same values as from ``q``
+    itself, and every product and sum below the largest float where ``p``'s components are
+    (``v x (v x p)`` of an unscaled ``q`` overflowed with ``|q|^2 |p|``)."""
     w, *v = _components.planes(q, 4)
     pc = _components.planes(p, 3)
     s = 2.0 / _components.norm2(w, *v)
@@ -372,12 +377,12 @@ def _apply_jvp(saved: tuple[Tensor, ...], dq: Tensor | None, dp: Tensor | None) 
 
 _ApplyFn = CustomFunction(
     "QuaternionApply",
-    forward=lambda q, p: _apply_values(_coeffs.rescaled_planes(q, 4), p),
+    forward=lambda q, p: _apply_values(_coeffs.binary_planes(q, 4), p),
     save=lambda inputs, out: (inputs[0], inputs[1]),
     backward=_apply_backward,
     jvp=_apply_jvp,
     event_dims=(1, 1),
-    guard=_coeffs.RESCALE,
+    guard=_coeffs.BINARY,
 )
 
 

@@ -137,7 +137,8 @@ def _poly_planes(a: Tensor, b: Tensor, c: Tensor, phi: Tensor, v: Tensor) -> lis
     ``(a - c t2) v + b (phi x v) + c (phi . v) phi`` (coefficients of shape ``(...)``)."""
     x = phi.unbind(-1)
     t2 = _coeffs.dot(x, x)
-    return _rodrigues.jl_components(x, v.unbind(-1), a - c * t2, b, c)
+    # plain products: the coefficients, of e^+-sigma, may be near the largest float themselves
+    return _rodrigues.jl_components(x, v.unbind(-1), a - c * t2, b, c, shrink=1.0)
 
 
 def _poly(a: Tensor, b: Tensor, c: Tensor, phi: Tensor, v: Tensor) -> Tensor:
@@ -179,7 +180,7 @@ def _exp(xi: Tensor) -> Tensor:
     A, B, C = _coefficients(_coeffs.sim3_v, sigma, red, diff)
     t2 = _coeffs.dot(red, red)
     v = rho.unbind(-1)
-    t = _rodrigues.jl_components(red, v, A - C * t2, B, C)
+    t = _rodrigues.jl_components(red, v, A - C * t2, B, C, shrink=1.0)  # as _poly_planes
     k = (1.0 - lam) * A * _coeffs.dot(red, v) / torch.where(big, t2, 1.0)
     k = torch.where(big, k, 0.0)
     t = [torch.where(big, fma(c * lam, k, r), c) for c, r in zip(t, red, strict=True)]

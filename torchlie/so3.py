@@ -427,15 +427,21 @@ def _project_forward(M: Tensor) -> Tensor:
 
 
 def _polar_system(M: Tensor, R: Tensor):
-    """``(finite, R, B)``: ``B = tr(P) I - P`` for the symmetric factor ``P = R^T M`` (non-finite
-    elements as the identity).  For symmetric ``P``, ``P hat(x) + hat(x) P = hat(B x)``."""
+    """``(finite, R, B, k)``: ``B = tr(P) I - P`` for the symmetric factor ``P = R^T M / k``
+    (non-finite elements as the identity), ``k`` the power of two of the largest ``|M_ij|``
+    (:func:`torchlie._coeffs.power_of_two`, detached): the sums of ``P`` then stay far from
+    overflow (``tr(P)`` overflowed from a third of the largest float), and ``B^-1 / k`` is the
+    system's inverse, the same bits as unscaled where no entry is subnormal.  For symmetric
+    ``P``, ``P hat(x) + hat(x) P = hat(B x)``."""
     finite = torch.isfinite(R).all(dim=-1).all(dim=-1)[..., None, None]
     eye = torch.eye(3, dtype=M.dtype, device=M.device)
     R = torch.where(finite, R, eye)
-    P = R.transpose(-1, -2) @ torch.where(finite, M, eye)
+    M = torch.where(finite, M, eye)
+    k = _coeffs.power_of_two(M.detach().abs().amax((-1, -2), keepdim=True))
+    P = R.transpose(-1, -2) @ (M / k)
     P = 0.5 * (P + P.transpose(-1, -2))
     B = P.diagonal(0, -2, -1).sum(-1)[..., None, None] * eye - P
-    return finite, R, B
+    return finite, R, B, k
 
 
 def _solve3(B: Tensor, w: Tensor) -> Tensor:
@@ -455,15 +461,15 @@ def _project_backward(saved, g: Tensor):
     # two signed singular values: B is invertible wherever the projection is differentiable,
     # rotations included, and no eigenbasis is formed (an eigenbasis has no derivative at
     # repeated singular values, so the second derivatives at rotations would be wrong).
-    finite, R, B = _polar_system(*saved)
-    grad = _r_hat(R, _solve3(B, _components.skew_vee(R.transpose(-1, -2) @ g)))
+    finite, R, B, k = _polar_system(*saved)
+    grad = _r_hat(R, _solve3(B, _components.skew_vee(R.transpose(-1, -2) @ g)) / k[..., 0])
     # a non-finite element (NaN output) passes no gradient: the others stay clean
     return (torch.where(finite, grad, torch.zeros_like(grad)),)
 
 
 def _project_jvp(saved, dM: Tensor) -> Tensor:
-    finite, R, B = _polar_system(*saved)
-    out = _r_hat(R, _solve3(B, _components.skew_vee(R.transpose(-1, -2) @ dM)))
+    finite, R, B, k = _polar_system(*saved)
+    out = _r_hat(R, _solve3(B, _components.skew_vee(R.transpose(-1, -2) @ dM)) / k[..., 0])
     return torch.where(finite, out, torch.full_like(out, float("nan")))
 
 
