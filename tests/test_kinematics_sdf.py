@@ -240,6 +240,16 @@ def test_roots_names_and_limits():
     assert parse_sdf(OLD_STYLE).joint("j2").type == "continuous"  # no <limit>: SDF's none
 
 
+def test_sdf_inertials_are_not_read_and_forward_dynamics_says_so():
+    chain = Chain.from_sdf(FRAMES, dtype=torch.float64)
+    ins = chain.inertials
+    assert not ins.mass.any() and not ins.inertia.any()
+    q = chain.random_configuration(2, generator=torch.Generator().manual_seed(0))
+    v = torch.zeros(2, chain.n_v, dtype=torch.float64)
+    with pytest.raises(ValueError, match="a chain from SDF, whose inertials are not read"):
+        chain.forward_dynamics(q, v, v)
+
+
 def test_sdf_jacobian_matches_autograd():
     chain = Chain.from_sdf(FRAMES, dtype=torch.float64)
     q = chain.random_configuration(generator=torch.Generator().manual_seed(3))[:3]

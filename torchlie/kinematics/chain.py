@@ -937,7 +937,8 @@ class Chain:
     @property
     def inertials(self) -> Inertials:
         """The bodies' inertial parameters from the URDF's ``<inertial>`` elements (MJCF:
-        MuJoCo's compiled ``body_mass``, ``body_ipos``, ``body_iquat``, ``body_inertia``), merged
+        MuJoCo's compiled ``body_mass``, ``body_ipos``, ``body_iquat``, ``body_inertia``; SDF:
+        not read, zero), merged
         through fixed joints, and the joints' armature per velocity coordinate (MJCF: MuJoCo's
         compiled ``dof_armature``; URDF and SDF have none: 0), as fresh tensors in the chain's
         dtype and device: :class:`~torchlie.kinematics.dynamics.Inertials` ``(mass, com,
