@@ -39,10 +39,10 @@ _is_compiling = torch.compiler.is_compiling
 _CONSTANTS: dict[tuple[object, torch.dtype, torch.device, int], Tensor] = {}
 
 
-def constant(values: tuple[object, ...], like: Tensor, dims: int = 0) -> Tensor:
-    """``values`` (numbers, or nested tuples of them) as a tensor of ``like``'s device and dtype,
-    with trailing dimensions of size one up to ``dims`` dimensions (to broadcast against a
-    batch): built once per device, dtype and shape in eager mode, in the traced graph while
+def constant(values: tuple[object, ...] | float | int, like: Tensor, dims: int = 0) -> Tensor:
+    """``values`` (a number, or nested tuples of numbers) as a tensor of ``like``'s device and
+    dtype, with trailing dimensions of size one up to ``dims`` dimensions (to broadcast against
+    a batch): built once per device, dtype and shape in eager mode, in the traced graph while
     compiling."""
 
     def build() -> Tensor:
@@ -181,7 +181,7 @@ def row_gathers(index: Sequence[int], n: int, device: torch.device) -> tuple[Ten
     groups: list[list[int]] = [[] for _ in range(n)]
     for k, i in enumerate(index):
         groups[i].append(k)
-    depth = max(1, *(len(g) for g in groups))  # one at least: no source row, zeros
+    depth = max([1, *(len(g) for g in groups)])  # one at least: no source row, zeros
     pad = len(index)
     return tuple(
         torch.tensor([g[j] if j < len(g) else pad for g in groups], dtype=torch.long, device=device)
