@@ -568,8 +568,11 @@ def test_restarts_return_the_best_of_their_starts_for_far_targets(dtype):
               for s in starts]  # fmt: skip
     best = min(range(8), key=lambda k: float(single[k].position_error))
     assert float(single[best].position_error) < float(single[0].position_error)
-    assert torch.equal(res.q, single[best].q)
-    assert torch.equal(res.position_error, single[best].position_error)
+    # the same start alone and among 8 (kernels round by batch width: not bitwise)
+    tol = 1e-6 if dtype == F64 else 1e-3
+    torch.testing.assert_close(res.q, single[best].q, rtol=0, atol=tol)
+    err = float(res.position_error)
+    assert abs(err - float(single[best].position_error)) <= tol * err
 
 
 def test_vmap():
