@@ -478,7 +478,8 @@ def _log_derivative(q: Tensor, d: Tensor, transpose: bool) -> Tensor:
     small = _coeffs._atan_small(n, w)
     a = _coeffs.atan_ratio_series(n, w, small)
     c = _coeffs.atan_ratio_series(n, w, small, "atan_slope")
-    near = fma(a * dv, c * v, _coeffs.dot(v, dv).unsqueeze(-1))
+    vdv = _coeffs.dot(v, dv).unsqueeze(-1)
+    near = fma(a * dv, c * v, vdv)
     far = ~small & (n > 0)
     ne = torch.where(far, n, 1.0)
     u = v / ne
@@ -489,12 +490,10 @@ def _log_derivative(q: Tensor, d: Tensor, transpose: bool) -> Tensor:
     s_dv = torch.where(
         small, near, torch.where(far, fma(_coeffs.atan2(ne, w) * across, u, p * w / r2), 0.0)
     )
-    if transpose:
-        out0 = (w * d0 - _coeffs.dot(v, dv).unsqueeze(-1)) / r2
-        outv = fma(s_dv, v, d0 / r2)
-    else:
-        out0 = (w * d0 + _coeffs.dot(v, dv).unsqueeze(-1)) / r2
-        outv = fma(s_dv, v, -d0 / r2)
+    # the off-diagonal blocks (v^T / r^2 and -v / r^2) swap with the transpose
+    sign = -1.0 if transpose else 1.0
+    out0 = (w * d0 + sign * vdv) / r2
+    outv = fma(s_dv, v, -sign * d0 / r2)
     return torch.cat((out0, outv), dim=-1) / k  # the derivative at q / k, divided by k
 
 
