@@ -10,10 +10,11 @@ of it (the solver's default tolerances), checked here again by forward kinematic
 The solver is deterministic for a given generator seed, and ``max_iterations=k`` stops it after
 ``k`` iterations of the same run, so the convergence curve is drawn by solving with
 ``k = 0, 2, 4, ...``: the share of targets solved and the median errors after ``k``
-iterations, saved as ``convergence.png`` in ``--out`` (with matplotlib; without it the figures
-are printed only).
+iterations, saved as ``examples/out/convergence.png`` (``--out DIR`` for another folder; with
+matplotlib, and without it or with ``--no-plot`` the figures are printed only).
 
-Run: ``python examples/inverse_kinematics.py [--quick] [--targets N] [--restarts K]``.
+Run: ``python examples/inverse_kinematics.py [--quick] [--targets N] [--restarts K] [--out DIR]
+[--no-plot]``.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from torchlie import se3
 from torchlie.kinematics import Chain, sample_robot
 
 LINK = "panda_hand_tcp"
+OUT = Path(__file__).resolve().parent / "out"
 
 
 def parse(argv: list[str] | None) -> argparse.Namespace:
@@ -40,10 +42,13 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--targets", type=int, default=1000, help="number of target poses")
     p.add_argument("--restarts", type=int, default=8, help="random starts per target")
     p.add_argument("--max-iterations", type=int, default=40, help="iteration budget")
-    p.add_argument("--dtype", choices=("float32", "float64"), default="float32")
+    p.add_argument(
+        "--dtype", choices=("float32", "float64"), default="float32", help="dtype of the solve"
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the targets and the starts")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
-    p.add_argument("--out", default="examples/out", help="folder of the convergence plot")
+    p.add_argument("--out", type=Path, default=OUT, help="folder of the convergence plot")
+    p.add_argument("--no-plot", action="store_true", help="write no plot (figures only)")
     cfg = p.parse_args(argv)
     if cfg.quick:
         cfg.targets = 200
@@ -141,7 +146,7 @@ def _run(cfg: argparse.Namespace) -> dict:
     print(f"{'iteration':>10}{'solved %':>10}{'median mm':>12}{'median mrad':>13}")
     for k, rate, p, r in curve:
         print(f"{k:>10}{100 * rate:>10.1f}{p * 1e3:>12.4g}{r * 1e3:>13.4g}")
-    figures["plot"] = plot(curve, Path(cfg.out), cfg)
+    figures["plot"] = None if cfg.no_plot else plot(curve, cfg.out, cfg)
     return figures
 
 

@@ -25,6 +25,9 @@ OPTIONS = {
         "--quick --robots --samples --dtypes --brief --out --threads".split()
     ),
     "rotation_regression": "--quick --steps --out --no-plot --seed --threads".split(),
+    "inverse_kinematics": (
+        "--quick --targets --restarts --max-iterations --dtype --seed --threads --out --no-plot"
+    ).split(),
     "payload_identification": (
         "--quick --states --payload --noise --iterations --out --no-plot --seed --threads".split()
     ),
@@ -271,8 +274,8 @@ def test_planar_pose_graph(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_inverse_kinematics(capsys):
-    fig = load("inverse_kinematics").main(["--quick"])
+def test_inverse_kinematics(tmp_path, capsys):
+    fig = load("inverse_kinematics").main(["--quick", "--out", str(tmp_path)])
     assert fig["targets"] == 200
     assert fig["success_rate"] >= 0.9
     assert fig["median_position_error_m"] <= 1e-4
@@ -284,6 +287,20 @@ def test_inverse_kinematics(capsys):
     assert fig["within_limits"]
     assert fig["recheck_max_position_diff_m"] <= 1e-6
     assert "success" in capsys.readouterr().out
+    plot = tmp_path / "convergence.png"
+    if has_matplotlib():
+        assert fig["plot"] is not None and plot.stat().st_size > 1000
+    else:
+        assert fig["plot"] is None and not plot.exists()
+
+
+def test_inverse_kinematics_default_out_and_no_plot(tmp_path, monkeypatch):
+    # the default folder is the examples' own, wherever the script is run from
+    monkeypatch.chdir(tmp_path)
+    module = load("inverse_kinematics")
+    assert module.main.__globals__["OUT"] == EXAMPLES / "out"
+    fig = module.main(["--targets", "4", "--restarts", "1", "--max-iterations", "2", "--no-plot"])
+    assert fig["plot"] is None and not any(tmp_path.iterdir())
 
 
 @pytest.mark.slow
