@@ -59,6 +59,21 @@ def test_readme_relative_links_resolve():
     assert not missing, f"README links to files that do not exist: {missing}"
 
 
+@pytest.mark.parametrize(
+    "page", [README, *sorted(DOCS.rglob("*.md"))], ids=lambda p: str(p.relative_to(ROOT))
+)
+def test_pages_hold_no_control_characters(page):
+    # a formula written through a non-raw string turns \r, \t, \f, \v into control characters,
+    # which MkDocs renders without a warning
+    text = page.read_bytes().decode("utf-8")
+    bad = [
+        (n, line)
+        for n, line in enumerate(text.split("\n"), 1)
+        if re.search(r"[\x00-\x08\x0b-\x1f\x7f]|\t", line)
+    ]
+    assert not bad, bad
+
+
 def test_declared_torch_range_is_the_tested_one():
     """``pyproject.toml`` declares torch from the oldest release ``.ci/torch-range`` runs the
     suite on to the minor release after the newest, and the docs state that range."""
