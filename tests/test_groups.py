@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import inspect
+import io
 import pickle
 from dataclasses import dataclass
 
@@ -240,6 +241,17 @@ def test_immutable_and_pickle(grp):
         X.extra = 1
     for Y in (pickle.loads(pickle.dumps(X)), copy.deepcopy(X), copy.copy(X)):
         assert type(Y) is grp.cls and torch.equal(Y.tensor, X.tensor)
+
+
+def test_torch_save_and_load_with_the_default_weights_only(grp):
+    # a checkpoint holding elements loads with torch.load's default (weights_only=True)
+    X = rand(grp, 2)
+    buf = io.BytesIO()
+    torch.save({"pose": X, "list": [X[0]]}, buf)
+    buf.seek(0)
+    got = torch.load(buf)
+    assert type(got["pose"]) is grp.cls and torch.equal(got["pose"].tensor, X.tensor)
+    assert type(got["list"][0]) is grp.cls and torch.equal(got["list"][0].tensor, X.tensor[0])
 
 
 def test_repr():

@@ -424,6 +424,17 @@ def test_small_batch(name, fn, kinds, dtype):
     _check_layouts(fn, _inputs(kinds, SMALL, dtype, seed=1), f"{name} batch {SMALL}")
 
 
+@pytest.mark.parametrize(("name", "fn", "kinds"), OPS, ids=IDS)
+def test_results_do_not_share_memory_with_inputs(name, fn, kinds):
+    # a result that is a view of an input (so3.inverse as a transpose) lets an in-place update
+    # of the result write into the caller's tensor
+    xs = _inputs(kinds, SMALL, torch.float64, seed=3)
+    held = {x.untyped_storage().data_ptr() for x in xs}
+    for i, out in enumerate(flat(fn(*xs))):
+        if isinstance(out, torch.Tensor) and out.numel():
+            assert out.untyped_storage().data_ptr() not in held, f"{name}: output {i}"
+
+
 #: Rows of the large batch also evaluated alone.
 _ALONE = range(1, LARGE, 211)
 #: The ops held to more than ``ULPS`` between an element alone and in a batch: the planar log

@@ -1,4 +1,5 @@
-"""torchlie: batched, differentiable SO(3), SE(3), SO(2), SE(2) and quaternion math for PyTorch.
+"""torchlie: batched, differentiable SO(3), SE(3), SO(2), SE(2), Sim(3) and quaternion math for
+PyTorch.
 
 Conventions (one for every function in the package)
 ----------------------------------------------------

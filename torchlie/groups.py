@@ -2,14 +2,17 @@
 and :class:`Sim3`.
 
 Each object wraps exactly one tensor, ``.tensor``: rotation matrices ``(..., 3, 3)`` for
-:class:`SO3`, homogeneous poses ``(..., 4, 4)`` for :class:`SE3`.  Every method is one call into
-the functional core (:mod:`torchlie.so3`, :mod:`torchlie.se3`, :mod:`torchlie.quaternion`), so
+:class:`SO3` and ``(..., 2, 2)`` for :class:`SO2`, homogeneous matrices ``(..., 4, 4)`` for
+:class:`SE3` and :class:`Sim3` and ``(..., 3, 3)`` for :class:`SE2`.  Every method is one call into
+the functional core (:mod:`torchlie.so3`, :mod:`torchlie.se3`, :mod:`torchlie.so2`,
+:mod:`torchlie.se2`, :mod:`torchlie.sim3`, :mod:`torchlie.quaternion`), so
 values, gradients, batching and the conventions of :mod:`torchlie` are exactly those of the
 functions.  The classes are not tensor subclasses and not modules: they hold no state besides the
 tensor, cannot be mutated, and cost one Python object per call.
 
 * ``X @ Y`` composes two elements of the same group (batch shapes broadcast);
-  ``X @ p`` with a plain tensor ``p`` of shape ``(..., 3)`` acts on points (``X.apply(p)``).
+  ``X @ p`` with a plain tensor ``p`` of points (``(..., 3)``, ``(..., 2)`` for the planar
+  groups) acts on them (``X.apply(p)``).
   Inside ``torch.compile(fullgraph=True)`` use the named methods ``X.compose(Y)`` and
   ``X.apply(p)``: torch 2.13's Dynamo does not trace ``@`` on user-defined classes (2.15's does).
 * ``X.shape`` is the *batch* shape; ``len(X)``, ``X[i]``, ``X[1:3]``, ``X[..., 0]`` index the
@@ -21,7 +24,9 @@ tensor, cannot be mutated, and cost one Python object per call.
   (``.inverse()``, ``.log()``, ``.adjoint()``, ``.apply(p)``) and changes of representation
   (``.quaternion()``, ``.pos_quat()``, ``.to_rt()``).  So ``(T @ T.inverse()).matrix`` is a
   tensor, as ``.tensor`` is.
-* Both classes are registered as pytree nodes (one leaf, the tensor), so they can be passed into
+* ``X == Y`` is Python's identity, as for any object (not an element-wise comparison): compare
+  values with ``torch.equal(X.tensor, Y.tensor)`` or ``X.distance(Y)``.
+* The classes are registered as pytree nodes (one leaf, the tensor), so they can be passed into
   and returned from ``torch.func`` transforms and ``torch.compile`` d functions.  A transform
   that maps leaves maps the tensor: ``torch.func.grad`` with respect to an ``SO3`` returns an
   ``SO3`` wrapping the *ambient* gradient ``dL/dR``, which is not a rotation.
@@ -102,14 +107,14 @@ def _renamed(err: Exception, obj: Any, op: str) -> Exception:
 
 
 class _Group:
-    """Behaviour shared by :class:`SO3` and :class:`SE3` (not public)."""
+    """Behaviour shared by the five classes (not public)."""
 
     __slots__ = ("tensor",)
 
     tensor: Tensor
     _core: ClassVar[ModuleType]
-    _n: ClassVar[int]  # matrix size: 3 or 4
-    _dof: ClassVar[int]  # tangent dimension: 3 or 6
+    _n: ClassVar[int]  # matrix size: 2, 3 or 4
+    _dof: ClassVar[int]  # tangent dimension: 1, 3, 6 or 7
 
     # -- construction ----------------------------------------------------------------------
 
@@ -135,12 +140,14 @@ class _Group:
         raise AttributeError(f"{type(self).__name__} is immutable")
 
     def __reduce__(self):
-        return (type(self)._wrap, (self.tensor,))
+        return (_rebuild, (type(self), self.tensor))
 
     @classmethod
     @_as_method("exp")
     def exp(cls: type[_G], tangent: Tensor) -> _G:
-        """``Exp`` of a tangent vector (rotation vector ``(..., 3)`` or twist ``(..., 6)``).
+        """``Exp`` of a tangent vector of the group's convention (:mod:`torchlie`): rotation
+        vector ``(..., 3)`` (SO3), twist ``(..., 6)`` (SE3), angle ``(..., 1)`` (SO2), twist
+        ``(rho_x, rho_y, theta)`` (SE2), ``(rho, phi, sigma)`` ``(..., 7)`` (Sim3).
 
         Example:
             >>> SO3.exp(torch.zeros(5, 3)).shape
@@ -215,7 +222,8 @@ class _Group:
 
     @_as_method("apply")
     def apply(self, points: Float[Tensor, "*b1 3"]) -> Float[Tensor, "*b 3"]:
-        """Act on points ``(..., 3)`` (``self @ points``; batch shapes broadcast).
+        """Act on points ``(..., 3)`` (``self @ points``; batch shapes broadcast; the planar
+        groups take points ``(..., 2)``).
 
         Example:
             >>> SE3.from_rt(torch.eye(3), torch.ones(3)).apply(torch.zeros(2, 3))
@@ -236,7 +244,8 @@ class _Group:
 
     @_as_method("log")
     def log(self) -> Tensor:
-        """``Log``: rotation vector ``(..., 3)`` (SO3) or twist ``(..., 6)`` (SE3).
+        """``Log``: the tangent vector of :meth:`exp`'s convention (rotation vector ``(..., 3)``,
+        twist ``(..., 6)``, angle ``(..., 1)``, planar twist ``(..., 3)``, ``(..., 7)``).
 
         Example:
             >>> SO3.exp(torch.tensor([0.1, 0.2, 0.3])).log()
@@ -327,7 +336,9 @@ class _Group:
 
     @_as_method("distance")
     def distance(self: _G, other: _G) -> Any:
-        """The core's ``distance`` (SO3: angle; SE3: ``(angle, translation norm)``).
+        """The core's ``distance``: the angle (SO3, SO2), ``(angle, translation norm)`` (SE3,
+        SE2), ``(angle, translation norm, |log scale|)`` (Sim3) (see each module's
+        ``distance``).
 
         Example:
             >>> SO3.identity().distance(SO3.exp(torch.tensor([0.0, 0.3, 0.4])))
@@ -650,28 +661,6 @@ class SE3(_Group):
         return _se3.to_pos_quat(self.tensor)[..., 3:]
 
 
-# -- pytree registration ---------------------------------------------------------------------
-
-
-def _flatten(x: _Group) -> tuple[list[Any], None]:
-    return [x.tensor], None
-
-
-def _flatten_with_keys(x: _Group) -> tuple[list[tuple[Any, Any]], None]:
-    return [(_pytree.GetAttrKey("tensor"), x.tensor)], None
-
-
-for _cls in (SO3, SE3):
-    _pytree.register_pytree_node(
-        _cls,
-        _flatten,
-        lambda leaves, _ctx, _c=_cls: _c._wrap(next(iter(leaves))),
-        serialized_type_name=f"torchlie.groups.{_cls.__name__}",
-        flatten_with_keys_fn=_flatten_with_keys,
-    )
-del _cls
-
-
 # -- the planar groups -------------------------------------------------------------------------
 
 
@@ -834,17 +823,6 @@ class SE2(_Planar):
         return _se2.to_rt(self.tensor)[1]
 
 
-for _cls in (SO2, SE2):
-    _pytree.register_pytree_node(
-        _cls,
-        _flatten,
-        lambda leaves, _ctx, _c=_cls: _c._wrap(next(iter(leaves))),
-        serialized_type_name=f"torchlie.groups.{_cls.__name__}",
-        flatten_with_keys_fn=_flatten_with_keys,
-    )
-del _cls
-
-
 class Sim3(_Group):
     """Similarities, wrapping ``(..., 4, 4)`` matrices ``[[s R, t], [0, 1]]`` (``s > 0``).
 
@@ -975,10 +953,32 @@ class Sim3(_Group):
         return _quat.from_matrix(_sim3.to_srt(self.tensor)[1])
 
 
-_pytree.register_pytree_node(
-    Sim3,
-    _flatten,
-    lambda leaves, _ctx: Sim3._wrap(next(iter(leaves))),
-    serialized_type_name="torchlie.groups.Sim3",
-    flatten_with_keys_fn=_flatten_with_keys,
-)
+# -- pytrees and serialization ----------------------------------------------------------------
+
+
+def _rebuild(cls: type[_G], tensor: Any) -> _G:
+    """An element from its tensor, without checks (what pickling an element stores)."""
+    return cls._wrap(tensor)
+
+
+def _flatten(x: _Group) -> tuple[list[Any], None]:
+    return [x.tensor], None
+
+
+def _flatten_with_keys(x: _Group) -> tuple[list[tuple[Any, Any]], None]:
+    return [(_pytree.GetAttrKey("tensor"), x.tensor)], None
+
+
+_CLASSES = (SO3, SE3, SO2, SE2, Sim3)
+for _cls in _CLASSES:
+    _pytree.register_pytree_node(
+        _cls,
+        _flatten,
+        lambda leaves, _ctx, _c=_cls: _c._wrap(next(iter(leaves))),
+        serialized_type_name=f"torchlie.groups.{_cls.__name__}",
+        flatten_with_keys_fn=_flatten_with_keys,
+    )
+del _cls
+# ``torch.load``'s default (``weights_only=True``) unpickles only what is allowed: an element
+# is its class and a tensor, nothing executable
+torch.serialization.add_safe_globals([_rebuild, *_CLASSES])

@@ -236,7 +236,7 @@ def compose(R1: Float[Tensor, "*b1 3 3"], R2: Float[Tensor, "*b2 3 3"]) -> Float
 
 @_checks.float32_exact
 def inverse(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3 3"]:
-    """``R^T`` (the inverse of a rotation).
+    """``R^T`` (the inverse of a rotation), a new tensor (not a view of ``R``).
 
     Example:
         >>> R = exp(torch.tensor([0.1, 0.2, 0.3]))
@@ -244,7 +244,7 @@ def inverse(R: Float[Tensor, "*b 3 3"]) -> Float[Tensor, "*b 3 3"]:
         True
     """
     x, dtype = _checks.tensor(R, _NAME + "inverse", "R", (3, 3))
-    return _checks.out(x.transpose(-1, -2), dtype)
+    return _checks.out(x.transpose(-1, -2).clone(memory_format=torch.contiguous_format), dtype)
 
 
 @_checks.float32_exact
