@@ -568,6 +568,33 @@ def test_heads_name_their_input_width(cls):
         head([0.0] * 4)
 
 
+@pytest.mark.parametrize(
+    "cls, method",
+    [
+        (tnn.RotationHead, "forward"),
+        (tnn.RotationHead, "raw"),
+        (tnn.RotationHead, "quaternion"),
+        (tnn.PoseHead, "forward"),
+        (tnn.PlanarPoseHead, "forward"),
+    ],
+)
+def test_heads_name_a_dtype_other_than_their_layers(cls, method):
+    # was torch's "mat1 and mat2 must have the same dtype, but got Double and Float"
+    name = cls.__name__ + ("" if method == "forward" else f".{method}")
+    for layer, given in ((torch.float32, F64), (F64, torch.float32)):
+        head = cls(4, dtype=layer)
+        with pytest.raises(
+            TypeError,
+            match=rf"^torchlie\.nn\.{name}: expected features of the head's dtype "
+            + re.escape(f"{layer}, got {given}; convert one of them"),
+        ):
+            getattr(head, method)(torch.zeros(2, 4, dtype=given))
+    # torch.autocast casts the layer's operands: bfloat16 features with a float32 layer there
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        out = getattr(cls(4), method)(torch.zeros(2, 4, dtype=torch.bfloat16))
+    assert torch.isfinite(out.tensor if hasattr(out, "tensor") else out).all()
+
+
 # ----------------------------------------------------------------------------------------------
 # Batch dimensions: at most _checks.MAX_BATCH_DIMS, one check shared by every entry point
 # ----------------------------------------------------------------------------------------------

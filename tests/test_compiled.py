@@ -87,6 +87,36 @@ def test_compiled_gradients_and_errors():
     assert set(dir(compiled.so3)) == set(so3.__all__)
 
 
+def test_compiled_has_a_namespace_per_function_module():
+    # the functional API mirrored name for name: every function module, each with its names
+    import torchlie
+
+    modules = {"so2", "se2", "so3", "se3", "sim3", "quaternion", "conversions"}
+    assert modules <= set(compiled.__all__)
+    for m in modules:
+        eager = getattr(torchlie, m)
+        assert set(dir(getattr(compiled, m))) == set(eager.__all__), m
+        for name in eager.__all__:
+            assert compiled.inductor_options(m, name) == compiled.inductor_options("so3", "exp")
+
+
+def test_compiled_sim3_exp_log_values_and_gradients():
+    from torchlie import sim3
+
+    g = torch.Generator().manual_seed(46)
+    xi = (0.5 * torch.randn(5, 7, generator=g, dtype=torch.float64)).requires_grad_()
+    w = torch.arange(1.0, 8.0, dtype=torch.float64)
+    torch._dynamo.reset()
+    T = compiled.sim3.exp(xi)
+    eps = torch.finfo(torch.float64).eps
+    torch.testing.assert_close(T, sim3.exp(xi), rtol=0, atol=8 * eps)
+    torch.testing.assert_close(compiled.sim3.log(T), sim3.log(T), rtol=0, atol=16 * eps)
+    (got,) = torch.autograd.grad((compiled.sim3.log(compiled.sim3.exp(xi)) * w).sum(), xi)
+    (want,) = torch.autograd.grad((sim3.log(sim3.exp(xi)) * w).sum(), xi)
+    torch.testing.assert_close(got, want, rtol=0, atol=1e-12)
+    assert compiled.sim3.random is sim3.random
+
+
 def test_inductor_options_errors():
     with pytest.raises(ValueError, match=r"inductor_options: expected module to be one of"):
         compiled.inductor_options("so4", "exp")

@@ -14,7 +14,7 @@ from torch.autograd import gradcheck
 
 import torchlie.groups
 from torchlie import quaternion, se3, sim3, so3
-from torchlie.groups import SE3, SO3, Sim3
+from torchlie.groups import SE2, SE3, SO2, SO3, Sim3
 
 F64 = torch.float64
 
@@ -315,9 +315,118 @@ def test_from_quaternion_and_pos_quat_check():
     SE3.from_pos_quat(pq[:1], check=True)
 
 
-def test_from_pos_quat_check_bad_shape():
-    with pytest.raises(ValueError, match="torchlie.SE3.from_pos_quat: expected pq of shape"):
-        SE3.from_pos_quat(torch.ones(2, 6), check=True)
+def _eyes(n: int, off: float) -> torch.Tensor:
+    """Two identity matrices, the second with its (0, 0) entry off by ``off``."""
+    M = torch.eye(n, dtype=F64).repeat(2, 1, 1)
+    M[1, 0, 0] += off
+    return M
+
+
+def _q(off: float) -> torch.Tensor:
+    return torch.tensor([[0.0, 0.0, 0.0, 1.0], [1.0 + off, 0.0, 0.0, 0.0]], dtype=F64)
+
+
+#: Every constructor from a representation with a value constraint: (name, the call of its
+#: arguments with the second element off by ``off``, what the check calls a valid value, the
+#: call with a wrong trailing shape).  Each takes ``check=`` and ``atol=`` with one meaning.
+VALUE_CONSTRUCTORS = [
+    (
+        "SO3.from_quaternion",
+        lambda off, **kw: SO3.from_quaternion(_q(off), **kw),
+        "unit quaternions",
+        lambda **kw: SO3.from_quaternion(torch.ones(2, 3), **kw),
+    ),
+    (
+        "SE3.from_pos_quat",
+        lambda off, **kw: SE3.from_pos_quat(
+            torch.cat((torch.ones(2, 3, dtype=F64), _q(off)), -1), **kw
+        ),
+        "unit quaternions",
+        lambda **kw: SE3.from_pos_quat(torch.ones(2, 6), **kw),
+    ),
+    (
+        "SE3.from_rt",
+        lambda off, **kw: SE3.from_rt(_eyes(3, off), torch.ones(3, dtype=F64), **kw),
+        "rotations",
+        lambda **kw: SE3.from_rt(torch.eye(2), torch.ones(3), **kw),
+    ),
+    (
+        "SO2.from_complex",
+        lambda off, **kw: SO2.from_complex(_eyes(2, off)[:, 0], **kw),
+        "unit complex numbers",
+        lambda **kw: SO2.from_complex(torch.ones(2, 3), **kw),
+    ),
+    (
+        "SE2.from_rt",
+        lambda off, **kw: SE2.from_rt(_eyes(2, off), torch.ones(2, dtype=F64), **kw),
+        "rotations",
+        lambda **kw: SE2.from_rt(torch.eye(3), torch.ones(2), **kw),
+    ),
+    (
+        "Sim3.from_srt",
+        lambda off, **kw: Sim3.from_srt(
+            torch.tensor(2.0, dtype=F64), _eyes(3, off), torch.ones(3, dtype=F64), **kw
+        ),
+        "rotations",
+        lambda **kw: Sim3.from_srt(torch.tensor(2.0), torch.eye(3), torch.ones(4), **kw),
+    ),
+    (
+        "Sim3.from_se3",
+        lambda off, **kw: Sim3.from_se3(_eyes(4, off), torch.tensor(2.0, dtype=F64), **kw),
+        "rigid poses",
+        lambda **kw: Sim3.from_se3(torch.eye(3), torch.tensor(2.0), **kw),
+    ),
+]
+
+
+@pytest.mark.parametrize(
+    "name, make, what, bad_shape", VALUE_CONSTRUCTORS, ids=[c[0] for c in VALUE_CONSTRUCTORS]
+)
+def test_value_constructors_check_and_atol(name, make, what, bad_shape):
+    cls_name, method = name.split(".")
+    params = inspect.signature(getattr(getattr(torchlie.groups, cls_name), method)).parameters
+    for opt, default in (("check", False), ("atol", None)):
+        assert params[opt].kind is inspect.Parameter.KEYWORD_ONLY and params[opt].default is default
+    good = make(0.0).tensor
+    assert torch.equal(make(0.0, check=True).tensor, good)
+    make(1e-3)  # no value check by default (it would sync a GPU)
+    with pytest.raises(
+        ValueError, match=rf"^torchlie\.{name}: 1 of 2 element\(s\) are not {what}$"
+    ):
+        make(1e-3, check=True)
+    make(1e-3, check=True, atol=1e-2)
+    with pytest.raises(ValueError, match=r"1 of 2 element\(s\)"):
+        make(float("nan"), check=True, atol=1e-2)
+    with pytest.raises(ValueError, match=rf"^torchlie\.{name}: expected atol"):
+        make(0.0, atol=-1.0)  # checked even without check=True
+
+
+@pytest.mark.parametrize(
+    "name, make, what, bad_shape", VALUE_CONSTRUCTORS, ids=[c[0] for c in VALUE_CONSTRUCTORS]
+)
+def test_value_constructors_wrong_shape_error_same_with_and_without_check(
+    name, make, what, bad_shape
+):
+    # the core's error, named through it: SE3.from_pos_quat said "expected pq" with check=True
+    # and "(through torchlie.se3.from_pos_quat): expected x" without
+    errors = []
+    for check in (False, True):
+        with pytest.raises(ValueError, match=rf"^torchlie\.{name} \(through torchlie\.") as e:
+            bad_shape(check=check)
+        errors.append(str(e.value))
+    assert errors[0] == errors[1]
+
+
+def test_sim3_constructors_check_positive_scales():
+    # from_se3 with a negative or zero scale made diag(-2, -2, -2, 1) silently, check= or not
+    T, R, t = torch.eye(4, dtype=F64), torch.eye(3, dtype=F64), torch.zeros(3, dtype=F64)
+    for s in (torch.tensor([2.0, -2.0], dtype=F64), torch.tensor([2.0, 0.0], dtype=F64)):
+        assert Sim3.from_se3(T, s).tensor.shape == (2, 4, 4)  # no value check by default
+        msg = r": 1 of 2 element\(s\) are not positive scales$"
+        with pytest.raises(ValueError, match=r"^torchlie\.Sim3\.from_se3" + msg):
+            Sim3.from_se3(SE3(T), s, check=True)
+        with pytest.raises(ValueError, match=r"^torchlie\.Sim3\.from_srt" + msg):
+            Sim3.from_srt(s, R, t, check=True)
 
 
 def test_from_rt_check():

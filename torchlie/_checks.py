@@ -350,3 +350,10 @@ def out(x: Tensor, dtype: torch.dtype) -> Tensor:
 def default_atol(dtype: torch.dtype) -> float:
     """Default tolerance of the value checks (``is_valid``, ``is_unit``) for an input dtype."""
     return (4 if dtype in _LOW_PRECISION else 100) * torch.finfo(dtype).eps
+
+
+def unit_norm(x: Tensor, tol: float) -> Tensor:
+    """Per element of ``x`` ``(..., k)``: finite and ``| |x| - 1 | <= tol`` (the ``is_unit`` value
+    check of quaternions and of the complex numbers of ``SO2.from_complex``)."""
+    n = torch.linalg.vector_norm(x, dim=-1)
+    return ((n - 1.0).abs() <= tol) & torch.isfinite(x).all(dim=-1)

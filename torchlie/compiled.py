@@ -48,6 +48,7 @@ from . import conversions as _conversions
 from . import quaternion as _quaternion
 from . import se2 as _se2
 from . import se3 as _se3
+from . import sim3 as _sim3
 from . import so2 as _so2
 from . import so3 as _so3
 
@@ -58,6 +59,7 @@ __all__ = [
     "conversions",
     "so2",
     "se2",
+    "sim3",
     "inductor_options",
     "FUSION",
 ]
@@ -86,6 +88,7 @@ _MODULES = {
     "conversions": _conversions,
     "so2": _so2,
     "se2": _se2,
+    "sim3": _sim3,
 }
 
 
@@ -185,3 +188,4 @@ quaternion = _CompiledNamespace(_quaternion)
 conversions = _CompiledNamespace(_conversions)
 so2 = _CompiledNamespace(_so2)
 se2 = _CompiledNamespace(_se2)
+sim3 = _CompiledNamespace(_sim3)

@@ -31,8 +31,9 @@ tensor, cannot be mutated, and cost one Python object per call.
   that maps leaves maps the tensor: ``torch.func.grad`` with respect to an ``SO3`` returns an
   ``SO3`` wrapping the *ambient* gradient ``dL/dR``, which is not a rotation.
 
-Shape and dtype checks in the constructors are free (metadata only).  ``check=True`` also checks
-the values (``is_valid``), which synchronises a GPU; it raises ``ValueError``.  Errors name what
+Shape and dtype checks in the constructors are free (metadata only), and their errors are the
+same with and without ``check=``.  ``check=True`` also checks the values (``is_valid``, unit
+norms, positive scales), which synchronises a GPU; it raises ``ValueError``.  Errors name what
 was called: a bad argument of ``X @ p`` raises ``torchlie.SO3.__matmul__ (through
 torchlie.so3.act): ...``, naming the method first and then the function that checked it (whose
 argument names the message uses).
@@ -522,11 +523,12 @@ class SO3(_Group):
             tensor([0.0000, 0.0000, 3.1416])
         """
         _check_atol("torchlie.SO3.from_quaternion", atol)
+        R = cls._wrap(_quat.to_matrix(q))
         if check:
             _check_valid(
                 "torchlie.SO3.from_quaternion", _quat.is_unit(q, atol=atol), "unit quaternions"
             )
-        return cls._wrap(_quat.to_matrix(q))
+        return R
 
     @_as_method("quaternion")
     def quaternion(self) -> Float[Tensor, "*b 4"]:
@@ -599,9 +601,10 @@ class SE3(_Group):
         if isinstance(R, SO3):
             R = R.tensor
         _check_atol("torchlie.SE3.from_rt", atol)
+        T = cls._wrap(_se3.from_rt(R, t))
         if check:
             _check_valid("torchlie.SE3.from_rt", _so3.is_valid(R, atol=atol), "rotations")
-        return cls._wrap(_se3.from_rt(R, t))
+        return T
 
     @classmethod
     @_as_method("from_pos_quat")
@@ -614,14 +617,14 @@ class SE3(_Group):
         within ``atol`` (:func:`torchlie.quaternion.is_unit`).
         """
         _check_atol("torchlie.SE3.from_pos_quat", atol)
+        T = cls._wrap(_se3.from_pos_quat(pq))
         if check:
-            _checks.tensor(pq, "torchlie.SE3.from_pos_quat", "pq", (7,))
             _check_valid(
                 "torchlie.SE3.from_pos_quat",
                 _quat.is_unit(pq[..., 3:], atol=atol),
                 "unit quaternions",
             )
-        return cls._wrap(_se3.from_pos_quat(pq))
+        return T
 
     @_as_method("to_rt")
     def to_rt(self) -> tuple[Float[Tensor, "*b 3 3"], Float[Tensor, "*b 3"]]:
@@ -701,15 +704,28 @@ class SO2(_Planar):
 
     @classmethod
     @_as_method("from_complex")
-    def from_complex(cls, z: Float[Tensor, "*b 2"]) -> SO2:
+    def from_complex(
+        cls, z: Float[Tensor, "*b 2"], *, check: bool = False, atol: float | None = None
+    ) -> SO2:
         """From complex numbers ``(re, im)`` ``(..., 2)`` (scale-invariant, as
         :func:`torchlie.so2.from_complex`).
+
+        With ``check=True``, raises ``ValueError`` unless every ``|z|`` is 1 within ``atol``
+        (default as :func:`torchlie.quaternion.is_unit`) and finite.
 
         Example:
             >>> SO2.from_complex(torch.tensor([0.0, 2.0])).log()
             tensor([1.5708])
         """
-        return cls._wrap(_so2.from_complex(z))
+        _check_atol("torchlie.SO2.from_complex", atol)
+        R = cls._wrap(_so2.from_complex(z))
+        if check:
+            x, _ = _checks.tensor(z, "torchlie.SO2.from_complex", "z", (2,))  # half: in float32
+            tol = _checks.tolerance(atol, "torchlie.SO2.from_complex", "atol", z.dtype)
+            _check_valid(
+                "torchlie.SO2.from_complex", _checks.unit_norm(x, tol), "unit complex numbers"
+            )
+        return R
 
     @_as_method("complex")
     def complex(self) -> Float[Tensor, "*b 2"]:
@@ -766,9 +782,10 @@ class SE2(_Planar):
         if isinstance(R, SO2):
             R = R.tensor
         _check_atol("torchlie.SE2.from_rt", atol)
+        T = cls._wrap(_se2.from_rt(R, t))
         if check:
             _check_valid("torchlie.SE2.from_rt", _so2.is_valid(R, atol=atol), "rotations")
-        return cls._wrap(_se2.from_rt(R, t))
+        return T
 
     @classmethod
     @_as_method("from_xytheta")
@@ -871,21 +888,39 @@ class Sim3(_Group):
         if isinstance(R, SO3):
             R = R.tensor
         _check_atol("torchlie.Sim3.from_srt", atol)
+        S = cls._wrap(_sim3.from_srt(s, R, t))
         if check:
             _check_valid("torchlie.Sim3.from_srt", _so3.is_valid(R, atol=atol), "rotations")
-            _check_valid("torchlie.Sim3.from_srt", torch.as_tensor(s) > 0, "positive scales")
-        return cls._wrap(_sim3.from_srt(s, R, t))
+            _check_valid("torchlie.Sim3.from_srt", s > 0, "positive scales")
+        return S
 
     @classmethod
     @_as_method("from_se3")
-    def from_se3(cls, T: Float[Tensor, "*b1 4 4"] | SE3, s: Float[Tensor, "*b2"]) -> Sim3:
+    def from_se3(
+        cls,
+        T: Float[Tensor, "*b1 4 4"] | SE3,
+        s: Float[Tensor, "*b2"],
+        *,
+        check: bool = False,
+        atol: float | None = None,
+    ) -> Sim3:
         """From a rigid pose (a matrix or an :class:`SE3`) and a scale: ``[[s R, t], [0, 1]]``.
+
+        With ``check=True``, raises ``ValueError`` unless every ``T`` is a valid rigid pose
+        (:func:`torchlie.se3.is_valid`) and every ``s`` positive.
 
         Example:
             >>> Sim3.from_se3(SE3.identity(), torch.tensor(2.0)).scale
             tensor(2.)
         """
-        return cls._wrap(_sim3.from_se3(T.tensor if isinstance(T, SE3) else T, s))
+        if isinstance(T, SE3):
+            T = T.tensor
+        _check_atol("torchlie.Sim3.from_se3", atol)
+        S = cls._wrap(_sim3.from_se3(T, s))
+        if check:
+            _check_valid("torchlie.Sim3.from_se3", _se3.is_valid(T, atol=atol), "rigid poses")
+            _check_valid("torchlie.Sim3.from_se3", s > 0, "positive scales")
+        return S
 
     @_as_method("to_srt")
     def to_srt(

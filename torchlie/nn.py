@@ -196,9 +196,18 @@ def representation_to_matrix(
 
 
 def _linear(head: nn.Module, features: Tensor, fn: str) -> Tensor:
-    """A head's linear layer of ``features``, whose last dimension is checked first (torch's
-    message names neither the head nor ``in_features``)."""
+    """A head's linear layer of ``features``, whose last dimension and dtype are checked first
+    (torch's messages name neither the head nor ``in_features`` nor the layer's dtype).  Inside
+    ``torch.autocast``, which casts the layer's operands, the dtypes are torch's to reconcile."""
     _checks.tensor(features, _NAME + fn, "features", (head.linear.in_features,))
+    dtype = head.linear.weight.dtype
+    if features.dtype != dtype and not torch.is_autocast_enabled(
+        _checks._autocast_type(features.device)
+    ):
+        raise TypeError(
+            f"{_NAME}{fn}: expected features of the head's dtype {dtype}, got {features.dtype}; "
+            f"convert one of them (features.to({dtype}) or head.to({features.dtype}))"
+        )
     return head.linear(features)
 
 

@@ -610,8 +610,7 @@ def is_unit(q: Float[Tensor, "*b 4"], atol: float | None = None) -> Bool[Tensor,
     """
     x, dtype = _checks.tensor(q, "torchlie.quaternion.is_unit", "q", (4,))
     atol = _checks.tolerance(atol, "torchlie.quaternion.is_unit", "atol", dtype)
-    n = torch.linalg.vector_norm(x, dim=-1)
-    return ((n - 1.0).abs() <= atol) & torch.isfinite(x).all(dim=-1)
+    return _checks.unit_norm(x, atol)
 
 
 # ----------------------------------------------------------------------------------------------
