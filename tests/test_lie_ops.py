@@ -191,6 +191,35 @@ def test_plus_minus_between_consistency(group, dtype):
     close(G.lminus(G.lplus(Z, small), Z), small, tol)
 
 
+#: Every group, with whether ``between(X, X)`` is exactly the identity.
+EQUAL_ELEMENTS = [pytest.param(g, False, id=g.name) for g in GROUPS]
+
+
+@pytest.mark.parametrize("group, exact_between", EQUAL_ELEMENTS)
+@pytest.mark.parametrize("batch", [(), (5,), (2, 3), (70000,)], ids=str)
+def test_minus_of_equal_elements_is_exactly_zero(group, exact_between, batch, dtype):
+    # (70000,): large enough for the kernels of large batches, evaluated block by block
+    G = group.mod
+    X = group.random(*batch, seed=3, dtype=dtype)
+    zero = torch.zeros(*batch, group.dof, dtype=dtype)
+    assert torch.equal(G.rminus(X, X), zero)
+    assert torch.equal(G.lminus(X, X), zero)
+    dist = G.distance(X, X)  # a tensor, or a tuple of them
+    for d in dist if isinstance(dist, tuple) else (dist,):
+        assert torch.equal(d, torch.zeros(batch, dtype=dtype))
+    if exact_between:
+        assert torch.equal(G.between(X, X), G.identity(*batch, dtype=dtype))
+    # and the derivatives there stay right: d rminus(X Exp(d), X) = d lminus(Exp(d) X, X) = d
+    Y = group.random(seed=4, dtype=F64)
+    d0 = torch.zeros(group.dof, dtype=F64)
+    eye = torch.eye(group.dof, dtype=F64)
+    for J in (
+        torch.autograd.functional.jacobian(lambda d: G.rminus(G.rplus(Y, d), Y), d0),
+        torch.autograd.functional.jacobian(lambda d: G.lminus(G.lplus(Y, d), Y), d0),
+    ):
+        close(J, eye, 16 * eps(F64))
+
+
 def test_ops_broadcast_and_keep_half_precision(group):
     G = group.mod
     X = group.random(2, 1, seed=10, dtype=torch.float32)
