@@ -231,8 +231,8 @@ def _inverse(T: Tensor) -> Tensor:
 def _blocks(T: Tensor, inverse: bool) -> tuple[tuple[Tensor, ...], tuple[Tensor, Tensor]]:
     """The planes of the blocks of ``T`` (rotation row by row, translation), or of ``T^-1``'s
     (``R^T`` and ``-R^T t``)."""
-    r = (T[..., 0, 0], T[..., 0, 1], T[..., 1, 0], T[..., 1, 1])
-    x, y = T[..., 0, 2], T[..., 1, 2]
+    e = T.flatten(-2).unbind(-1)  # (one node for autograd, where 6 selections are 6)
+    r, (x, y) = (e[0], e[1], e[3], e[4]), (e[2], e[5])
     if not inverse:
         return r, (x, y)
     r = (r[0], r[2], r[1], r[3])
