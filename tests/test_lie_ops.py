@@ -15,7 +15,7 @@ import pytest
 import torch
 from samplers import ANGLES, PI, eps, rotvecs
 
-from torchlie import se2, se3, so2, so3
+from torchlie import se2, se3, sim3, so2, so3
 
 F64 = torch.float64
 
@@ -191,8 +191,12 @@ def test_plus_minus_between_consistency(group, dtype):
     close(G.lminus(G.lplus(Z, small), Z), small, tol)
 
 
-#: Every group, with whether ``between(X, X)`` is exactly the identity.
-EQUAL_ELEMENTS = [pytest.param(g, False, id=g.name) for g in GROUPS]
+#: Every group, Sim(3) included, with whether ``between(X, X)`` is exactly the identity (Sim(3):
+#: its log reads the scale from the norm of the linear block, so only the identity has log 0).
+EQUAL_ELEMENTS = [
+    pytest.param(g, exact, id=g.name)
+    for g, exact in [(g, False) for g in GROUPS] + [(Group("sim3", sim3, 7, 4), True)]
+]
 
 
 @pytest.mark.parametrize("group, exact_between", EQUAL_ELEMENTS)
