@@ -15,7 +15,7 @@ import pytest
 import torch
 from samplers import ANGLES, PI, eps, rotvecs
 
-from torchlie import se2, se3, so2, so3
+from torchlie import se2, se3, sim3, so2, so3
 
 F64 = torch.float64
 
@@ -189,6 +189,39 @@ def test_plus_minus_between_consistency(group, dtype):
     Z = group.random(small.shape[0], seed=9, dtype=dtype)
     close(G.rminus(G.rplus(Z, small), Z), small, tol)
     close(G.lminus(G.lplus(Z, small), Z), small, tol)
+
+
+#: Every group, Sim(3) included, with whether ``between(X, X)`` is exactly the identity (Sim(3):
+#: its log reads the scale from the norm of the linear block, so only the identity has log 0).
+EQUAL_ELEMENTS = [
+    pytest.param(g, exact, id=g.name)
+    for g, exact in [(g, False) for g in GROUPS] + [(Group("sim3", sim3, 7, 4), True)]
+]
+
+
+@pytest.mark.parametrize("group, exact_between", EQUAL_ELEMENTS)
+@pytest.mark.parametrize("batch", [(), (5,), (2, 3), (70000,)], ids=str)
+def test_minus_of_equal_elements_is_exactly_zero(group, exact_between, batch, dtype):
+    # (70000,): large enough for the kernels of large batches, evaluated block by block
+    G = group.mod
+    X = group.random(*batch, seed=3, dtype=dtype)
+    zero = torch.zeros(*batch, group.dof, dtype=dtype)
+    assert torch.equal(G.rminus(X, X), zero)
+    assert torch.equal(G.lminus(X, X), zero)
+    dist = G.distance(X, X)  # a tensor, or a tuple of them
+    for d in dist if isinstance(dist, tuple) else (dist,):
+        assert torch.equal(d, torch.zeros(batch, dtype=dtype))
+    if exact_between:
+        assert torch.equal(G.between(X, X), G.identity(*batch, dtype=dtype))
+    # and the derivatives there stay right: d rminus(X Exp(d), X) = d lminus(Exp(d) X, X) = d
+    Y = group.random(seed=4, dtype=F64)
+    d0 = torch.zeros(group.dof, dtype=F64)
+    eye = torch.eye(group.dof, dtype=F64)
+    for J in (
+        torch.autograd.functional.jacobian(lambda d: G.rminus(G.rplus(Y, d), Y), d0),
+        torch.autograd.functional.jacobian(lambda d: G.lminus(G.lplus(Y, d), Y), d0),
+    ):
+        close(J, eye, 16 * eps(F64))
 
 
 def test_ops_broadcast_and_keep_half_precision(group):

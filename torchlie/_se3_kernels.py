@@ -6,9 +6,10 @@ forward-mode rule; autograd's own graph of the slices and concatenations costs a
 many passes over memory.  compose and inverse, sums of products over the entries of the blocks,
 take each block as one tensor, entries first (:func:`_top`): each term of a sum is the broadcast
 of a column against a row, a few operations for all twelve entries, each entry summed in the
-same order as one written out alone.  exp and log take their coefficients from
-:mod:`torchlie._rodrigues` and :mod:`torchlie._se3_jacobian`.  :mod:`torchlie.se3` checks the
-inputs and calls these.
+same order as one written out alone; so is ``between`` (``A^-1 B``, and ``A B^-1`` for the
+left minus), whose backward is autograd's of its formula.  exp and log take their coefficients
+from :mod:`torchlie._rodrigues` and :mod:`torchlie._se3_jacobian`.  :mod:`torchlie.se3` checks
+the inputs and calls these.
 """
 
 from __future__ import annotations
@@ -116,16 +117,66 @@ def _compose_entries(A: Tensor, B: Tensor) -> Tensor:
     return _stack_top([fma(fma(fma(_columns_last(a3), a0, b0), a1, b1), a2, b2)])
 
 
-def _inverse_entries(T: Tensor) -> Tensor:
-    """``T^-1 = [[R^T, -R^T t], [0, 1]]`` from the block entries first: ``-R^T t`` as the sum
-    over the rows of ``R``, each term a row broadcast against an entry of ``t`` (negated as it
-    enters the sum: the same bits as negating the sum, one plane instead of three)."""
-    x = _top(T)
-    R = x[:, :3]
-    r0, r1, r2 = R.unbind(0)  # rows of R: (3, *batch)
+def _inverse_translation(x: Tensor) -> Tensor:
+    """``-R^T t`` of the block ``x = [R, t]`` entries first, ``(3, *batch)``: the sum over the
+    rows of ``R``, each term a row broadcast against an entry of ``t`` (negated as it enters the
+    sum: the same bits as negating the sum, one plane instead of three)."""
+    r0, r1, r2 = x[:, :3].unbind(0)  # rows of R: (3, *batch)
     t0, t1, t2 = x[:, 3].unbind(0)
-    t = fma(fma(r0 * torch.neg(t0), r1, t1, value=-1.0), r2, t2, value=-1.0)
-    return _stack_top((R.transpose(0, 1), t.unsqueeze(1)))
+    return fma(fma(r0 * torch.neg(t0), r1, t1, value=-1.0), r2, t2, value=-1.0)
+
+
+def _inverse_entries(T: Tensor) -> Tensor:
+    """``T^-1 = [[R^T, -R^T t], [0, 1]]`` from the block entries first."""
+    x = _top(T)
+    return _stack_top((x[:, :3].transpose(0, 1), _inverse_translation(x).unsqueeze(1)))
+
+
+def _between_entries(
+    RA: Tensor, tA: Tensor, RB: Tensor, tB: Tensor, batch: Sequence[int]
+) -> Tensor:
+    """``A^-1 B`` from the blocks of ``A`` and ``B`` entries first (rotations ``(3, 3, *b)``,
+    translations ``(3, *b)``, the ``b`` broadcasting to ``batch``): entry ``(i, j)`` is
+    ``(RA_0i D_0j + RA_1i D_1j) + RA_2i D_2j`` with ``D = [RB, tB - tA]``, each term a row of
+    ``RA`` broadcast against a row of ``D``.  The difference of the translations comes first,
+    so that where ``A == B`` the translation is exactly 0 and the rotation block exactly
+    symmetric (entries ``(i, j)`` and ``(j, i)`` the same products in the same order): its
+    :func:`log` is exactly 0."""
+    dt = (tB - tA).unsqueeze(1)
+    D = torch.cat((RB.expand((3, 3, *batch)), dt.expand((3, 1, *batch))), dim=1)
+    c0, c1, c2 = RA.unsqueeze(2).unbind(0)  # rows of RA as columns: (3, 1, *b)
+    d0, d1, d2 = D.unbind(0)  # rows of D: (4, *batch)
+    return _stack_top([fma(fma(c0 * d0, c1, d1), c2, d2)])
+
+
+def _between_fwd(A: Tensor, B: Tensor) -> Tensor:
+    batch = _layout.broadcast(A.shape[:-2], B.shape[:-2])
+    a, b = _top(A, len(batch)), _top(B, len(batch))
+    return _between_entries(a[:, :3], a[:, 3], b[:, :3], b[:, 3], batch)
+
+
+def _right_between_fwd(A: Tensor, B: Tensor) -> Tensor:
+    batch = _layout.broadcast(A.shape[:-2], B.shape[:-2])
+    a, b = _top(A, len(batch)), _top(B, len(batch))
+    ta, tb = _inverse_translation(a), _inverse_translation(b)
+    return _between_entries(a[:, :3].transpose(0, 1), ta, b[:, :3].transpose(0, 1), tb, batch)
+
+
+_between_blocked = blocked(_between_fwd, (2, 2))
+_right_between_blocked = blocked(_right_between_fwd, (2, 2))
+
+
+def between(A: Tensor, B: Tensor) -> Tensor:
+    """``A^-1 B`` (batch shapes broadcast; the bottom rows are not read; autograd
+    differentiates the formula).  Where ``A == B`` its :func:`log` is exactly 0."""
+    return _between_blocked(A, B)
+
+
+def right_between(A: Tensor, B: Tensor) -> Tensor:
+    """``A B^-1`` as ``between(A^-1, B^-1)``, from the blocks of the inverses (not stacked):
+    its translation ``R_A (R_A^T t_A - R_B^T t_B)`` is exactly 0 where ``A == B`` (that of
+    ``compose(A, inverse(B))``, ``t_A - R_A R_B^T t_B``, is not), its :func:`log` exactly 0."""
+    return _right_between_blocked(A, B)
 
 
 def _compose_bwd(saved: tuple[Tensor, ...], G: Tensor) -> tuple[Tensor, Tensor]:

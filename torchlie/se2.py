@@ -26,7 +26,7 @@ import torch
 from torch import Tensor
 
 from . import _checks, _coeffs, _components, _layout, so2
-from ._autograd import CustomFunction, blocked
+from ._autograd import CustomFunction, blocked, fma
 from ._typing import Bool, Float
 
 __all__ = [
@@ -228,12 +228,42 @@ def _inverse(T: Tensor) -> Tensor:
     return _components.homogeneous(Rt, -(Rt @ T[..., :2, 2:])[..., 0])
 
 
-def _between(A: Tensor, B: Tensor) -> Tensor:
-    """``A^-1 B`` from blocks."""
-    Rt = A[..., :2, :2].transpose(-1, -2)
-    R = Rt @ B[..., :2, :2]
-    t = (Rt @ (B[..., :2, 2:] - A[..., :2, 2:]))[..., 0]
-    return _components.homogeneous(R, t.expand(*R.shape[:-2], 2))
+def _blocks(T: Tensor, inverse: bool) -> tuple[tuple[Tensor, ...], tuple[Tensor, Tensor]]:
+    """The planes of the blocks of ``T`` (rotation row by row, translation), or of ``T^-1``'s
+    (``R^T`` and ``-R^T t``)."""
+    e = T.flatten(-2).unbind(-1)  # (one node for autograd, where 6 selections are 6)
+    r, (x, y) = (e[0], e[1], e[3], e[4]), (e[2], e[5])
+    if not inverse:
+        return r, (x, y)
+    r = (r[0], r[2], r[1], r[3])
+    return r, (fma(-r[0] * x, r[1], y, value=-1.0), fma(-r[2] * x, r[3], y, value=-1.0))
+
+
+def _between_planes(A: tuple, B: tuple) -> Tensor:
+    """``A^-1 B`` from the planes of the blocks of ``A`` and ``B`` (:func:`_blocks`): entry
+    ``(i, j)`` is ``RA_0i D_0j + RA_1i D_1j`` with ``D = [RB, tB - tA]``.  The difference of
+    the translations comes first, so that where ``A == B`` the translation is exactly 0 and
+    the rotation block exactly symmetric (entries ``(0, 1)`` and ``(1, 0)`` the same products
+    in the same order): its :func:`log` is exactly 0."""
+    (ra, ta), (rb, tb) = A, B
+    d = (rb[0], rb[1], tb[0] - ta[0], rb[2], rb[3], tb[1] - ta[1])  # rows of D
+    out = [fma(ra[i] * d[j], ra[2 + i], d[3 + j]) for i in range(2) for j in range(3)]
+    return so2.assemble((*out, 0.0, 0.0, 1.0), so2.columns(out[0], 9)).unflatten(-1, (3, 3))
+
+
+def _between_fwd(A: Tensor, B: Tensor) -> Tensor:
+    return _between_planes(_blocks(A, False), _blocks(B, False))
+
+
+def _right_between_fwd(A: Tensor, B: Tensor) -> Tensor:
+    # A B^-1 = between(A^-1, B^-1): its translation R_A (R_A^T t_A - R_B^T t_B) is exactly 0
+    # where A == B (that of compose(A, inverse(B)), t_A - R_A R_B^T t_B, is not)
+    return _between_planes(_blocks(A, True), _blocks(B, True))
+
+
+#: ``A^-1 B`` and ``A B^-1`` (batch shapes broadcast; autograd differentiates the formula)
+_between = blocked(_between_fwd, (2, 2))
+_right_between = blocked(_right_between_fwd, (2, 2))
 
 
 def _adjoint(T: Tensor) -> Tensor:
@@ -626,7 +656,8 @@ def rplus(T: Float[Tensor, "*b1 3 3"], xi: Float[Tensor, "*b2 3"]) -> Float[Tens
 
 @_checks.float32_exact
 def rminus(T1: Float[Tensor, "*b1 3 3"], T0: Float[Tensor, "*b2 3 3"]) -> Float[Tensor, "*b 3"]:
-    """Right minus ``Log(T0^-1 T1)``; ``rplus(T0, rminus(T1, T0)) == T1``.
+    """Right minus ``Log(T0^-1 T1)``; ``rplus(T0, rminus(T1, T0)) == T1``; exactly 0 where
+    ``T1 == T0``.
 
     Example:
         >>> T0, xi = exp(torch.tensor([0.5, 0.0, 1.0])), torch.tensor([1.0, 2.0, 0.3])
@@ -652,7 +683,8 @@ def lplus(T: Float[Tensor, "*b1 3 3"], xi: Float[Tensor, "*b2 3"]) -> Float[Tens
 
 @_checks.float32_exact
 def lminus(T1: Float[Tensor, "*b1 3 3"], T0: Float[Tensor, "*b2 3 3"]) -> Float[Tensor, "*b 3"]:
-    """Left minus ``Log(T1 T0^-1)``; ``lplus(T0, lminus(T1, T0)) == T1``.
+    """Left minus ``Log(T1 T0^-1)``; ``lplus(T0, lminus(T1, T0)) == T1``; exactly 0 where
+    ``T1 == T0`` (the translation of ``T1 T0^-1`` is taken as ``R1 (R1^T t1 - R0^T t0)``).
 
     Example:
         >>> T0, xi = exp(torch.tensor([0.5, 0.0, 1.0])), torch.tensor([1.0, 2.0, 0.3])
@@ -660,7 +692,7 @@ def lminus(T1: Float[Tensor, "*b1 3 3"], T0: Float[Tensor, "*b2 3 3"]) -> Float[
         True
     """
     a, b, dtype, _ = _checks.pair(_NAME + "lminus", T1, T0, "T1", "T0", (3, 3), (3, 3))
-    return _checks.out(_LogFn(_compose(a, _inverse(b))), dtype)
+    return _checks.out(_LogFn(_right_between(a, b)), dtype)
 
 
 @_checks.float32_exact

@@ -115,12 +115,7 @@ def _ad(xi: Tensor) -> Tensor:
     return _components.blocks(P, _components.hat(xi[..., :3]), torch.zeros_like(P), P)
 
 
-def _between(A: Tensor, B: Tensor) -> Tensor:
-    """``A^-1 B`` from components."""
-    RA = _rot(A)
-    R = RA.transpose(-1, -2) @ _rot(B)
-    t = _components.mtv(RA, _trans(B) - _trans(A))
-    return _components.homogeneous(R, t.expand(*R.shape[:-2], 3))
+_between = _se3_kernels.between
 
 
 # ----------------------------------------------------------------------------------------------
@@ -545,7 +540,8 @@ def rplus(T: Float[Tensor, "*b1 4 4"], xi: Float[Tensor, "*b2 6"]) -> Float[Tens
 
 @_checks.float32_exact
 def rminus(T1: Float[Tensor, "*b1 4 4"], T0: Float[Tensor, "*b2 4 4"]) -> Float[Tensor, "*b 6"]:
-    """Right minus ``T1 (-) T0 = Log(T0^-1 T1)``, so that ``rplus(T0, rminus(T1, T0)) == T1``.
+    """Right minus ``T1 (-) T0 = Log(T0^-1 T1)``, so that ``rplus(T0, rminus(T1, T0)) == T1``;
+    exactly 0 where ``T1 == T0``.
 
     Example:
         >>> xi = torch.tensor([1.0, 2.0, 3.0, 0.1, 0.2, 0.3])
@@ -573,7 +569,8 @@ def lplus(T: Float[Tensor, "*b1 4 4"], xi: Float[Tensor, "*b2 6"]) -> Float[Tens
 
 @_checks.float32_exact
 def lminus(T1: Float[Tensor, "*b1 4 4"], T0: Float[Tensor, "*b2 4 4"]) -> Float[Tensor, "*b 6"]:
-    """Left minus ``Log(T1 T0^-1)``, so that ``lplus(T0, lminus(T1, T0)) == T1``.
+    """Left minus ``Log(T1 T0^-1)``, so that ``lplus(T0, lminus(T1, T0)) == T1``; exactly 0
+    where ``T1 == T0`` (the translation of ``T1 T0^-1`` is taken as ``R1 (R1^T t1 - R0^T t0)``).
 
     Example:
         >>> xi = torch.tensor([1.0, 2.0, 3.0, 0.1, 0.2, 0.3])
@@ -582,7 +579,7 @@ def lminus(T1: Float[Tensor, "*b1 4 4"], T0: Float[Tensor, "*b2 4 4"]) -> Float[
         True
     """
     a, b, dtype, _ = _checks.pair(_NAME + "lminus", T1, T0, "T1", "T0", (4, 4), (4, 4))
-    return _checks.out(_se3_kernels.log(_se3_kernels.compose(a, _se3_kernels.inverse(b))), dtype)
+    return _checks.out(_se3_kernels.log(_se3_kernels.right_between(a, b)), dtype)
 
 
 @_checks.float32_exact

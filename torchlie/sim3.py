@@ -210,8 +210,45 @@ def _compose(A: Tensor, B: Tensor) -> Tensor:
     return _components.homogeneous(M, t.expand(*batch, 3))
 
 
-def _between(A: Tensor, B: Tensor) -> Tensor:
-    return _compose(_inverse(A), B)
+def _blocks(T: Tensor, inverse: bool) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """``(s, 1/s, R, t)`` of ``T = [[s R, t], [0, 1]]`` (:func:`_scale`), or of ``T^-1``:
+    ``(1/s, s, R^T, -R^T t / s)``."""
+    s, r = _scale(_lin(T))
+    R = _lin(T) * r[..., None, None]
+    if not inverse:
+        return s, r, R, _trans(T)
+    Rt = R.transpose(-1, -2)
+    return r, s, Rt, -_components.mv(Rt, _trans(T)) * r[..., None]
+
+
+def _between_blocks(A: tuple[Tensor, ...], B: tuple[Tensor, ...]) -> Tensor:
+    """``A^-1 B`` from the blocks of ``A`` and ``B`` (:func:`_blocks`): the relative scale and
+    rotation apart, ``(s_B / s_A) (I + R_A^T (R_B - R_A))`` and ``R_A^T (t_B - t_A) / s_A``.
+    Where ``A == B`` the ratio is exactly 1 and the differences exactly 0: the result is
+    exactly the identity (``M_A^-1 M_B`` is neither exactly symmetric nor of norm ``sqrt(3)``,
+    and :func:`log` reads the scale from that norm)."""
+    sA, rA, RA, tA = A
+    sB, _, RB, tB = B
+    eye = _layout.constant(((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)), RA)
+    R = RA.transpose(-1, -2) @ (RB - RA) + eye
+    M = R * (sB / sA)[..., None, None]
+    t = _components.mtv(RA, tB - tA) * rA[..., None]
+    return _components.homogeneous(M, t.expand(*M.shape[:-2], 3))
+
+
+def _between_fwd(A: Tensor, B: Tensor) -> Tensor:
+    return _between_blocks(_blocks(A, False), _blocks(B, False))
+
+
+def _right_between_fwd(A: Tensor, B: Tensor) -> Tensor:
+    # A B^-1 = between(A^-1, B^-1): exactly the identity where A == B (compose(A, inverse(B))
+    # is not; its translation t_A - M_A M_B^-1 t_B does not cancel exactly)
+    return _between_blocks(_blocks(A, True), _blocks(B, True))
+
+
+#: ``A^-1 B`` and ``A B^-1`` (batch shapes broadcast; autograd differentiates the formula)
+_between = blocked(_between_fwd, (2, 2))
+_right_between = blocked(_right_between_fwd, (2, 2))
 
 
 def _hat(xi: Tensor) -> Tensor:
@@ -815,7 +852,8 @@ def rplus(T: Float[Tensor, "*b1 4 4"], xi: Float[Tensor, "*b2 7"]) -> Float[Tens
 
 @_checks.float32_exact
 def rminus(T1: Float[Tensor, "*b1 4 4"], T0: Float[Tensor, "*b2 4 4"]) -> Float[Tensor, "*b 7"]:
-    """Right minus ``T1 (-) T0 = Log(T0^-1 T1)``, so that ``rplus(T0, rminus(T1, T0)) == T1``.
+    """Right minus ``T1 (-) T0 = Log(T0^-1 T1)``, so that ``rplus(T0, rminus(T1, T0)) == T1``;
+    exactly 0 where ``T1 == T0`` (see :func:`between`).
 
     Example:
         >>> xi = torch.tensor([1.0, 2.0, 3.0, 0.1, 0.2, 0.3, 0.5])
@@ -842,7 +880,8 @@ def lplus(T: Float[Tensor, "*b1 4 4"], xi: Float[Tensor, "*b2 7"]) -> Float[Tens
 
 @_checks.float32_exact
 def lminus(T1: Float[Tensor, "*b1 4 4"], T0: Float[Tensor, "*b2 4 4"]) -> Float[Tensor, "*b 7"]:
-    """Left minus ``Log(T1 T0^-1)``, so that ``lplus(T0, lminus(T1, T0)) == T1``.
+    """Left minus ``Log(T1 T0^-1)``, so that ``lplus(T0, lminus(T1, T0)) == T1``; exactly 0
+    where ``T1 == T0`` (``T1 T0^-1`` is taken as ``between(T1^-1, T0^-1)``).
 
     Example:
         >>> xi = torch.tensor([1.0, 2.0, 3.0, 0.1, 0.2, 0.3, 0.5])
@@ -851,12 +890,15 @@ def lminus(T1: Float[Tensor, "*b1 4 4"], T0: Float[Tensor, "*b2 4 4"]) -> Float[
         True
     """
     a, b, dtype, _ = _checks.pair(_NAME + "lminus", T1, T0, "T1", "T0", (4, 4), (4, 4))
-    return _checks.out(_LogFn(_compose(a, _inverse(b))), dtype)
+    return _checks.out(_LogFn(_right_between(a, b)), dtype)
 
 
 @_checks.float32_exact
 def between(T0: Float[Tensor, "*b1 4 4"], T1: Float[Tensor, "*b2 4 4"]) -> Float[Tensor, "*b 4 4"]:
-    """Relative similarity ``T0^-1 T1``.
+    """Relative similarity ``T0^-1 T1``, with the relative scale and rotation apart:
+    ``[[(s1 / s0) (I + R0^T (R1 - R0)), R0^T (t1 - t0) / s0], [0, 1]]``, exactly the identity
+    where ``T0 == T1`` (so that its :func:`log`, which reads the scale from the norm of the
+    linear block, is exactly 0 there).
 
     Example:
         >>> T0 = from_srt(torch.tensor(2.0), torch.eye(3), torch.tensor([1.0, 0.0, 0.0]))
