@@ -10,13 +10,14 @@ module reaches into another's privates for them.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import torch
 from torch import Tensor
 
 from . import _layout
-from ._autograd import fma
+from ._autograd import blocked, fma
 
 
 def planes(M: Tensor | Sequence[Tensor], n: int) -> tuple[Tensor, ...]:
@@ -168,3 +169,22 @@ def homogeneous(M: Tensor, t: Tensor) -> Tensor:
     top = torch.cat((M, t.unsqueeze(-1)), dim=-1)
     bottom = torch.cat((torch.zeros_like(t), torch.ones_like(t[..., :1])), dim=-1)
     return torch.cat((top, bottom.unsqueeze(-2)), dim=-2)
+
+
+def between_kernels(
+    blocks: Callable[[Tensor, bool], Any], combine: Callable[[Any, Any], Tensor]
+) -> tuple[Callable[[Tensor, Tensor], Tensor], Callable[[Tensor, Tensor], Tensor]]:
+    """``A^-1 B`` and ``A B^-1`` of matrix groups, evaluated in blocks (batch shapes broadcast;
+    autograd differentiates the formula), from a group's ``blocks(T, inverse)`` (the blocks of
+    ``T`` or of ``T^-1``) and ``combine(a, b)`` (``a^-1 b`` from the blocks of ``a`` and
+    ``b``).  ``A B^-1`` is ``between(A^-1, B^-1)``: where ``A == B`` it cancels exactly as
+    ``A^-1 B`` does (``compose(A, inverse(B))``'s translation ``t_A - R_A R_B^T t_B`` does
+    not)."""
+
+    def between(A: Tensor, B: Tensor) -> Tensor:
+        return combine(blocks(A, False), blocks(B, False))
+
+    def right_between(A: Tensor, B: Tensor) -> Tensor:
+        return combine(blocks(A, True), blocks(B, True))
+
+    return blocked(between, (2, 2)), blocked(right_between, (2, 2))

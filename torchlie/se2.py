@@ -251,19 +251,8 @@ def _between_planes(A: tuple, B: tuple) -> Tensor:
     return so2.assemble((*out, 0.0, 0.0, 1.0), so2.columns(out[0], 9)).unflatten(-1, (3, 3))
 
 
-def _between_fwd(A: Tensor, B: Tensor) -> Tensor:
-    return _between_planes(_blocks(A, False), _blocks(B, False))
-
-
-def _right_between_fwd(A: Tensor, B: Tensor) -> Tensor:
-    # A B^-1 = between(A^-1, B^-1): its translation R_A (R_A^T t_A - R_B^T t_B) is exactly 0
-    # where A == B (that of compose(A, inverse(B)), t_A - R_A R_B^T t_B, is not)
-    return _between_planes(_blocks(A, True), _blocks(B, True))
-
-
-#: ``A^-1 B`` and ``A B^-1`` (batch shapes broadcast; autograd differentiates the formula)
-_between = blocked(_between_fwd, (2, 2))
-_right_between = blocked(_right_between_fwd, (2, 2))
+#: ``A^-1 B`` and ``A B^-1``, exactly the identity where ``A == B``
+_between, _right_between = _components.between_kernels(_blocks, _between_planes)
 
 
 def _adjoint(T: Tensor) -> Tensor:

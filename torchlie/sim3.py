@@ -236,19 +236,8 @@ def _between_blocks(A: tuple[Tensor, ...], B: tuple[Tensor, ...]) -> Tensor:
     return _components.homogeneous(M, t.expand(*M.shape[:-2], 3))
 
 
-def _between_fwd(A: Tensor, B: Tensor) -> Tensor:
-    return _between_blocks(_blocks(A, False), _blocks(B, False))
-
-
-def _right_between_fwd(A: Tensor, B: Tensor) -> Tensor:
-    # A B^-1 = between(A^-1, B^-1): exactly the identity where A == B (compose(A, inverse(B))
-    # is not; its translation t_A - M_A M_B^-1 t_B does not cancel exactly)
-    return _between_blocks(_blocks(A, True), _blocks(B, True))
-
-
-#: ``A^-1 B`` and ``A B^-1`` (batch shapes broadcast; autograd differentiates the formula)
-_between = blocked(_between_fwd, (2, 2))
-_right_between = blocked(_right_between_fwd, (2, 2))
+#: ``A^-1 B`` and ``A B^-1``, exactly the identity where ``A == B``
+_between, _right_between = _components.between_kernels(_blocks, _between_blocks)
 
 
 def _hat(xi: Tensor) -> Tensor:
