@@ -574,6 +574,115 @@ def test_se3_exp_and_log_gradients_near_the_largest_float(dtype):
     _close(big[:, :3, :3] / s, one[:, :3, :3], dtype, float(one[:, :3, :3].abs().max()))
 
 
+def _sim3_unit_and_scale(dtype: torch.dtype, seed: int):
+    """``(xi, s)``: 8 tangents with ``|rho_i| <= 1``, moderate ``phi`` and ``sigma``, and per row
+    a power of two ``s`` that takes the larger of ``rho`` and the translation ``V rho`` to
+    between a quarter and half the largest float."""
+    g = torch.Generator().manual_seed(seed)
+    u = torch.rand(8, 3, generator=g, dtype=torch.float64) * 2.0 - 1.0
+    phi = torch.randn(8, 3, generator=g, dtype=torch.float64) * 1.5
+    sigma = torch.randn(8, 1, generator=g, dtype=torch.float64) * 0.7
+    xi = torch.cat((u, phi, sigma), -1).to(dtype)
+    size = torch.maximum(xi[:, :3].abs().amax(-1), sim3.exp(xi)[:, :3, 3].abs().amax(-1))
+    top = torch.finfo(dtype).max
+    s = 2.0 ** torch.floor(torch.log2(top / 2 / size.double()))
+    return xi, s.to(dtype)
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+def test_sim3_exp_and_log_of_translations_near_the_largest_float(dtype):
+    """``t = V rho``, ``rho = V^-1 t``: linear in ``rho`` (``t``); the products of ``phi`` and
+    ``rho`` (``t``) overflowed from the largest float over ``|phi|`` (inf and NaN)."""
+    top = torch.finfo(dtype).max
+    c = top / torch.finfo(torch.float64).max
+    # the translation of exp: [-inf, -inf, nan]; of log of an element: [-inf, -inf, -inf]
+    x = torch.tensor(
+        [-1.6183184662942647e306, -4.617988753513921e307, 3.552338921332569e307,
+         -4.821637872663512, -5.353708275269559, -1.5779314739067056, -0.21511260619543326],
+        dtype=torch.float64,
+    )  # fmt: skip
+    x[:3] *= c
+    want = torch.tensor(
+        [-1.7212230124086865e307, -1.8324301655013976e307, 1.3038415572072897e306],
+        dtype=torch.float64,
+    )
+    _close(sim3.exp(x.to(dtype))[:3, 3], want * c, dtype, top)
+    x = torch.tensor(
+        [-1.0987132010365576e308, -8.491380176665809e307, 1.1712778751316592e306,
+         0.554131335828653, 1.1266801580295962, 0.34069310921475, 0.7754704401183692],
+        dtype=torch.float64,
+    )  # fmt: skip
+    x[:3] *= c
+    _close(sim3.log(sim3.exp(x.to(dtype)))[:3], x[:3], dtype, top)
+    # generic directions: the results of rho (t) of size s are s times those of size 1
+    xi, s = _sim3_unit_and_scale(dtype, 21)
+    S = s.double()[:, None]
+    big = torch.cat((xi[:, :3] * s[:, None], xi[:, 3:]), -1)
+    unit = sim3.exp(xi)
+    _close(sim3.exp(big)[:, :3, 3] / S, unit[:, :3, 3], dtype, 1.0)
+    Tb = unit.clone()
+    Tb[:, :3, 3] *= s[:, None]
+    got = sim3.log(Tb)
+    _close(got[:, :3] / S, sim3.log(unit)[:, :3], dtype, 1.0)
+    assert torch.equal(got[:, 3:], sim3.log(unit)[:, 3:])
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+def test_sim3_log_gradients_near_the_largest_float(dtype):
+    """The ``rho`` of ``log`` is linear in ``t``: its gradients in ``M`` from an upstream
+    gradient on ``rho`` scale with ``t``, those in ``t`` do not, up to half the largest float
+    (``u . (phi x t)`` and the like overflowed: inf and NaN)."""
+    xi, s = _sim3_unit_and_scale(dtype, 22)
+    g = torch.Generator().manual_seed(23)
+    gl = torch.zeros(8, 7, dtype=dtype)
+    gl[:, :3] = torch.randn(8, 3, generator=g, dtype=dtype) * 2.0**-6
+    unit = sim3.exp(xi)
+    Tb = unit.clone()
+    Tb[:, :3, 3] *= s[:, None]
+    one, big = _linear_grads(sim3.log, unit, Tb, gl)
+    _close(big[:, :3, 3], one[:, :3, 3], dtype, float(one[:, :3, 3].abs().max()))
+    scale = float(one[:, :3, :3].abs().max())
+    _close(big[:, :3, :3] / s.double()[:, None, None], one[:, :3, :3], dtype, scale)
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+def test_sim3_exp_and_log_of_random_huge_translations(dtype):
+    """Translations of any size up to the largest float with random rotations and scales: exp's
+    translation and log's ``rho`` of the elements are finite and within ``1e-6`` of the
+    reference, computed in float64 from ``rho`` (``t``) scaled down by a power of two.  Results
+    within 8 times of the largest float are left out (there a sum of terms each below it may
+    overflow)."""
+    top = torch.finfo(dtype).max
+    k = 2.0**-900 if dtype == torch.float64 else 2.0**-100
+    g = torch.Generator().manual_seed(24)
+    n = 300
+    r = torch.rand(n, 1, generator=g, dtype=torch.float64)
+    rho = (torch.rand(n, 3, generator=g, dtype=torch.float64) - 0.5) * top * r
+    phi = torch.randn(n, 3, generator=g, dtype=torch.float64) * 3.0
+    phi = phi * torch.rand(n, 1, generator=g, dtype=torch.float64)
+    sigma = torch.randn(n, 1, generator=g, dtype=torch.float64) * 1.5
+    x = torch.cat((rho, phi, sigma), -1).to(dtype)
+    xs = x.double().clone()
+    xs[:, :3] *= k
+    want = sim3.exp(xs)[:, :3, 3] / k
+    keep = want.abs().amax(-1) <= top / 8
+    assert keep.sum() > n // 3
+    T = sim3.exp(x[keep])
+    got = T[:, :3, 3].double()
+    assert torch.isfinite(got).all()
+    err = (got - want[keep]).norm(dim=-1) / want[keep].norm(dim=-1)
+    assert err.max() <= 1e-6, float(err.max())
+    # log of these elements
+    Ts = T.double().clone()
+    Ts[:, :3, 3] *= k
+    want = sim3.log(Ts)[:, :3] / k
+    keep = want.abs().amax(-1) <= top / 8
+    got = sim3.log(T[keep])[:, :3].double()
+    assert torch.isfinite(got).all()
+    err = (got - want[keep]).norm(dim=-1) / want[keep].norm(dim=-1)
+    assert err.max() <= 1e-6, float(err.max())
+
+
 @pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
 def test_exp_gradients_of_huge_upstream_gradients(dtype):
     """The gradients are linear in the upstream gradient: a power of two ``c`` with ``c |w|``

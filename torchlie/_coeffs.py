@@ -557,14 +557,18 @@ def _reduce_guard(w: Tensor) -> tuple[list[Tensor], Callable[..., Tensor]]:
 REDUCE: Guard = _reduce_guard
 
 
-def dot(a: Tensor | Sequence[Tensor], b: Tensor | Sequence[Tensor]) -> Tensor:
-    """``sum_i a_i b_i`` over the last dimension (or planes), component by component from the
-    first."""
+def dot(a: Tensor | Sequence[Tensor], b: Tensor | Sequence[Tensor], value: float = 1.0) -> Tensor:
+    """``value * sum_i a_i b_i`` over the last dimension (or planes), component by component
+    from the first; ``value`` (a power of two, to keep the products of huge vectors finite) is
+    taken on each product before it is rounded, at no extra operation."""
     x = a.unbind(-1) if isinstance(a, Tensor) else a
     y = b.unbind(-1) if isinstance(b, Tensor) else b
-    acc = x[0] * y[0]
+    if value == 1.0:
+        acc = x[0] * y[0]
+    else:
+        acc = fma(_layout.constant(0.0, x[0]), x[0], y[0], value=value)
     for xi, yi in zip(x[1:], y[1:], strict=True):
-        acc = fma(acc, xi, yi)
+        acc = fma(acc, xi, yi, value=value)
     return acc
 
 

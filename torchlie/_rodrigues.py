@@ -83,9 +83,10 @@ def jl_components(
     product before it is rounded) and the factor given back on the coefficients: a power of
     two, so the values are those of the plain products wherever these are normal, and no
     product overflows where ``|w| |v|`` exceeds the largest float but the result does not (a
-    translation near it, or a huge gradient).  For coefficients of at most a few units
-    (Rodrigues'); ``shrink=1``: the plain products, for coefficients that may be near the
-    largest float themselves (Sim(3)'s, of ``e^sigma``)."""
+    translation near it, or a huge gradient).  The coefficients given the factor back must
+    stay finite: the default for those of at most a few units (Rodrigues'), a larger one for
+    Sim(3)'s (of ``e^sigma``, see :data:`torchlie.sim3._SHRINK`); ``shrink=1``: the plain
+    products."""
     x, y, z = xyz
     p, q, r = v
     k, up = shrink, 1.0 / shrink

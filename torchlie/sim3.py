@@ -132,13 +132,20 @@ def _log_scale2(M: Tensor) -> Tensor:
     )
 
 
+#: The power of two that ``V rho`` and ``V^-1 t`` take on the products of ``phi`` and the vector
+#: (:func:`torchlie._rodrigues.jl_components`): room for ``|phi| |rho|`` up to 64 times the
+#: largest float (a reduced angle is below 11), while the coefficients that give it back stay
+#: finite wherever ``e^sigma`` is (``|B|, |C| <= e^sigma / sigma`` for large ``sigma``; the
+#: coefficients of ``V^-1`` are of order ``|sigma|`` at most).
+_SHRINK = 2.0**-6
+
+
 def _poly_planes(a: Tensor, b: Tensor, c: Tensor, phi: Tensor, v: Tensor) -> list[Tensor]:
     """The planes of ``(a I + b hat(phi) + c hat(phi)^2) v``, as
     ``(a - c t2) v + b (phi x v) + c (phi . v) phi`` (coefficients of shape ``(...)``)."""
     x = phi.unbind(-1)
     t2 = _coeffs.dot(x, x)
-    # plain products: the coefficients, of e^+-sigma, may be near the largest float themselves
-    return _rodrigues.jl_components(x, v.unbind(-1), a - c * t2, b, c, shrink=1.0)
+    return _rodrigues.jl_components(x, v.unbind(-1), a - c * t2, b, c, shrink=_SHRINK)
 
 
 def _poly(a: Tensor, b: Tensor, c: Tensor, phi: Tensor, v: Tensor) -> Tensor:
@@ -180,10 +187,12 @@ def _exp(xi: Tensor) -> Tensor:
     A, B, C = _coefficients(_coeffs.sim3_v, sigma, red, diff)
     t2 = _coeffs.dot(red, red)
     v = rho.unbind(-1)
-    t = _rodrigues.jl_components(red, v, A - C * t2, B, C, shrink=1.0)  # as _poly_planes
-    k = (1.0 - lam) * A * _coeffs.dot(red, v) / torch.where(big, t2, 1.0)
+    t = _rodrigues.jl_components(red, v, A - C * t2, B, C, shrink=_SHRINK)  # as _poly_planes
+    # (phi' . rho at _SHRINK times its size, given back in the sum: finite for every rho)
+    k = (1.0 - lam) * A * _coeffs.dot(red, v, _SHRINK) / torch.where(big, t2, 1.0)
     k = torch.where(big, k, 0.0)
-    t = [torch.where(big, fma(c * lam, k, r), c) for c, r in zip(t, red, strict=True)]
+    up = 1.0 / _SHRINK
+    t = [torch.where(big, fma(c * lam, k, r, value=up), c) for c, r in zip(t, red, strict=True)]
     s = torch.exp(sigma)
     R = so3._ExpMapFn(phi).flatten(-2).unbind(-1)
     zero, one = torch.zeros_like(s), torch.ones_like(s)
@@ -381,11 +390,16 @@ def _log_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:
     rho, phi, sigma = xi[..., :3], xi[..., 3:6], xi[..., 6]
     a, b, c = _coefficients(_coeffs.sim3_v_inv, sigma, phi)
     u = _poly(a, -b, c, phi, g[..., :3])
-    _, vjp = torch.func.vjp(_vrho(rho), sigma, phi)
+    # J (linear in rho) at _SHRINK rho, given back in the differences: J^T u is finite wherever
+    # the gradient is, though its factors (u . (phi x rho), ...) may exceed the largest float
+    _, vjp = torch.func.vjp(_vrho(rho * _SHRINK), sigma, phi)
     j_sigma, j_phi = vjp(u)
     diff = torch.is_grad_enabled()
-    h_phi = _rodrigues.jl_apply(phi, g[..., 3:6] - j_phi, inverse=True, differentiable=diff)
-    h_sigma = g[..., 6] - j_sigma
+    up = 1.0 / _SHRINK
+    h_phi = _rodrigues.jl_apply(
+        phi, torch.sub(g[..., 3:6], j_phi, alpha=up), inverse=True, differentiable=diff
+    )
+    h_sigma = torch.sub(g[..., 6], j_sigma, alpha=up)
     r = torch.exp(-sigma)[..., None, None]
     Mt = _lin(T) * r * r
     eye = torch.eye(3, dtype=T.dtype, device=T.device)
@@ -405,8 +419,8 @@ def _log_jvp(saved: tuple[Tensor, ...], dT: Tensor) -> Tensor:
     d_sigma = X.diagonal(dim1=-2, dim2=-1).sum(-1) / 3.0
     d_phi = _rodrigues.jl_apply(phi, _components.vee(X), sign=-1.0, inverse=True)
     # J (dphi, dsigma) row by row from reverse mode (forward mode does not nest in the
-    # forward-mode level this runs under)
-    _, vjp = torch.func.vjp(_vrho(rho), sigma, phi)
+    # forward-mode level this runs under), at _SHRINK rho as in _log_backward
+    _, vjp = torch.func.vjp(_vrho(rho * _SHRINK), sigma, phi)
     rows = []
     for k in range(3):
         e = torch.zeros_like(rho)
@@ -415,7 +429,7 @@ def _log_jvp(saved: tuple[Tensor, ...], dT: Tensor) -> Tensor:
         rows.append(j_sigma * d_sigma + (j_phi * d_phi).sum(-1))
     jv = torch.stack(rows, dim=-1)
     a, b, c = _coefficients(_coeffs.sim3_v_inv, sigma, phi)
-    d_rho = _poly(a, b, c, phi, _trans(dT) - jv)
+    d_rho = _poly(a, b, c, phi, torch.sub(_trans(dT), jv, alpha=1.0 / _SHRINK))
     return torch.cat((d_rho, d_phi, d_sigma.unsqueeze(-1)), dim=-1)
 
 
