@@ -169,6 +169,13 @@ def relerr(x: torch.Tensor, ref: np.ndarray) -> float:
     return float(((x - r).abs() / (1.0 + r.abs())).max())
 
 
+def gravity(m, dtype: torch.dtype) -> torch.Tensor:
+    """The gravity in MuJoCo's forces: ``opt.gravity``, or 0 where ``<flag gravity="disable"/>``
+    is set (MuJoCo keeps ``opt.gravity`` then)."""
+    off = m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_GRAVITY
+    return torch.as_tensor(0.0 if off else np.array(m.opt.gravity), dtype=dtype).expand(3)
+
+
 def check(m, n: int, seed: int = 0) -> dict[str, float]:
     """Compare at ``n`` random states; returns the largest errors (printed with ``-s``)."""
     chain = Chain.from_mjcf(m, dtype=torch.float64)
@@ -176,7 +183,7 @@ def check(m, n: int, seed: int = 0) -> dict[str, float]:
     qpos, qvel, qacc, tau = random_state(m, n, seed)
     r_tau, r_M, r_h, r_qdd = reference(m, qpos, qvel, qacc, tau)
     q, qd, qdd, t = (torch.as_tensor(x) for x in (qpos, qvel, qacc, tau))
-    g = torch.as_tensor(np.array(m.opt.gravity))
+    g = gravity(m, torch.float64)
     M = chain.mass_matrix(q)
     err = {
         "tau": relerr(chain.inverse_dynamics(q, qd, qdd, gravity=g), r_tau),
@@ -220,7 +227,7 @@ def test_float32() -> None:
     qpos, qvel, qacc, tau = random_state(m, 50, seed=4)
     r_tau, r_M, _, _ = reference(m, qpos, qvel, qacc, tau)
     q, qd, qdd = (torch.as_tensor(x, dtype=torch.float32) for x in (qpos, qvel, qacc))
-    g = torch.as_tensor(np.array(m.opt.gravity), dtype=torch.float32)
+    g = gravity(m, torch.float32)
     tau32 = chain.inverse_dynamics(q, qd, qdd, gravity=g)
     assert tau32.dtype == torch.float32
     err_tau = relerr(tau32.double(), r_tau)
@@ -284,6 +291,26 @@ def test_validate_reports_the_dynamics(tmp_path, capsys) -> None:
         line = next(ln for ln in text.splitlines() if ln.strip().startswith(name))
         assert line.endswith("ok")
     assert main([str(path), "--samples", "10", "--dtype", "float32"]) == 0
+
+
+def test_gravity_disabled_by_flag(tmp_path, capsys) -> None:
+    # <flag gravity="disable"/> keeps opt.gravity but leaves gravity out of MuJoCo's forces:
+    # the comparison and python -m torchlie.kinematics.validate take gravity 0 there (they
+    # reported a mismatch of about 10 N m)
+    from torchlie.kinematics.validate import main
+
+    xml = HAND["free_ball"].replace(
+        "<mujoco>", '<mujoco><option><flag gravity="disable"/></option>', 1
+    )
+    assert xml != HAND["free_ball"]
+    m = rigid_model(xml)
+    assert m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_GRAVITY and m.opt.gravity[2] != 0
+    err = check(m, 10)
+    assert err["tau"] <= TOL_TAU and err["qdd"] <= TOL_QDD
+    path = tmp_path / "robot.xml"
+    path.write_text(xml)
+    assert main([str(path), "--samples", "10", "--dtype", "float64"]) == 0
+    assert "PASS" in capsys.readouterr().out
 
 
 def test_sites_change_nothing() -> None:

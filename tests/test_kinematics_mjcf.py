@@ -476,3 +476,14 @@ def test_text_with_a_byte_order_mark():
     )
     for source in ("\ufeff" + text, ("\ufeff" + text).encode("utf-8")):
         assert parse_mjcf(source).joints[0].name == "h"
+
+
+def test_site_joint_names_are_unique():
+    # a site's fixed joint takes a free name, as a body's does (it was "s:fixed" twice here)
+    spec = parse_mjcf(
+        '<mujoco><worldbody><body name="a"><joint name="s:fixed" axis="0 1 0"/>'
+        '<geom size=".1"/><site name="s"/></body></worldbody></mujoco>',
+        sites=True,
+    )
+    names = [j.name for j in spec.joints]
+    assert len(names) == len(set(names)) and "s:fixed_" in names

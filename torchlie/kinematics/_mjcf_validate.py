@@ -108,7 +108,9 @@ def _dynamics(source: Any, dtype: torch.dtype, q: torch.Tensor, seed: int) -> di
     def rel(x: torch.Tensor, r: np.ndarray) -> float:
         return float(np.max(np.abs(x.double().numpy() - r) / (1.0 + np.abs(r)), initial=0.0))
 
-    g = torch.as_tensor(np.array(m.opt.gravity), dtype=dtype)
+    # MuJoCo keeps opt.gravity when <flag gravity="disable"/> is set, and leaves it out
+    off = m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_GRAVITY
+    g = torch.as_tensor(0.0 if off else np.array(m.opt.gravity), dtype=dtype).expand(3)
     q_, qd_, qdd_, tau_ = (x.to(dtype) for x in (q64, qd, qdd, tau))
     M = chain.mass_matrix(q_).double().numpy()
     return {

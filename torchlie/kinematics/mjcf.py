@@ -221,7 +221,8 @@ def parse_mjcf(source: str | os.PathLike[str] | bytes | Any, *, sites: bool = Fa
             inertials.append(None)
             body = bodies[int(m.site_bodyid[s])]
             xyz, quat = vec(m.site_pos[s]), vec(m.site_quat[s])
-            joints.append(JointSpec(f"{site}:fixed", "fixed", body, site, xyz=xyz, quat=quat))
+            fixed = _unique(f"{site}:fixed", jtaken)  # as bodies' fixed joints
+            joints.append(JointSpec(fixed, "fixed", body, site, xyz=xyz, quat=quat))
     # The model's name: the first entry of MuJoCo's name buffer.
     model_name = bytes(m.names).split(b"\0", 1)[0].decode("utf-8", "replace")
     return RobotSpec(
