@@ -229,6 +229,16 @@ def flag(x: object, fn: str, arg: str) -> bool:
     )
 
 
+def generator(x: object, fn: str) -> None:
+    """A ``generator=`` argument: a ``torch.Generator`` or None; anything else (a seed, say)
+    is a ``TypeError``."""
+    if x is not None and not isinstance(x, torch.Generator):
+        raise TypeError(
+            f"{fn}: expected generator to be a torch.Generator or None, got "
+            f"{type(x).__name__} {reprlib.repr(x)}"
+        )
+
+
 def count(x: object, fn: str, arg: str, least: int) -> int:
     """An integer argument of at least ``least`` (``bool`` is not one; numpy and 0-d integer
     tensors are): ``TypeError`` for another type, ``ValueError`` below ``least``."""

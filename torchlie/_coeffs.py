@@ -231,7 +231,7 @@ def atan2(y: Tensor, x: Tensor) -> Tensor:
     return angle(y, x)
 
 
-def _atan_small(n: Tensor, w: Tensor) -> Tensor:
+def atan_small(n: Tensor, w: Tensor) -> Tensor:
     """Where :func:`atan_ratio` takes its series: ``w > 0`` and ``n / w`` small (found without
     dividing by ``w``)."""
     return (w > 0) & (n * n < _plan("atan", n.dtype)[1] * (w * w))
@@ -245,7 +245,7 @@ def atan_ratio(n: Tensor, w: Tensor) -> Tensor:
     series branch is selected without dividing by w, and only its own elements see ``n/w``, so
     no branch overflows in the backward pass (e.g. at w ~ 1e-17, n ~ 1: a rotation by pi).
     """
-    small = _atan_small(n, w)
+    small = atan_small(n, w)
     series = atan_ratio_series(n, w, small)
     ok = n > 0
     n_e = torch.where(small | ~ok, torch.ones_like(n), n)
@@ -255,7 +255,7 @@ def atan_ratio(n: Tensor, w: Tensor) -> Tensor:
 
 
 def atan_ratio_series(n: Tensor, w: Tensor, small: Tensor, name: str = "atan") -> Tensor:
-    """Where ``small`` (of :func:`_atan_small`): ``a = atan2(n, w)/n`` (``name`` ``"atan"``) or
+    """Where ``small`` (of :func:`atan_small`): ``a = atan2(n, w)/n`` (``name`` ``"atan"``) or
     its slope ``c = (1/n) da/dn = (w/(n^2 + w^2) - a)/n^2`` (``"atan_slope"``; the exact form
     cancels there), as series in ``(n/w)^2``; elsewhere finite filler.  Smooth in ``n`` and
     ``w`` to every order."""

@@ -475,7 +475,7 @@ def _log_derivative(q: Tensor, d: Tensor, transpose: bool) -> Tensor:
     k, w, v, n = _log_parts(q)
     d0, dv = d[..., :1], d[..., 1:]
     r2 = fma(w * w, n, n)
-    small = _coeffs._atan_small(n, w)
+    small = _coeffs.atan_small(n, w)
     a = _coeffs.atan_ratio_series(n, w, small)
     c = _coeffs.atan_ratio_series(n, w, small, "atan_slope")
     vdv = _coeffs.dot(v, dv).unsqueeze(-1)

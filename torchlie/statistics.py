@@ -107,11 +107,7 @@ def _randn(
         raise ValueError(
             f"{fn}: expected sample_shape of non-negative sizes, got {tuple(sample_shape)}"
         )
-    if generator is not None and not isinstance(generator, torch.Generator):
-        raise TypeError(
-            f"{fn}: expected generator to be a torch.Generator or None, got "
-            f"{type(generator).__name__} {reprlib.repr(generator)}"
-        )
+    _checks.generator(generator, fn)
     given = [
         k for k, v in (("std", std), ("cov", cov), ("scale_tril", scale_tril)) if v is not None
     ]

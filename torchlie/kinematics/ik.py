@@ -590,11 +590,7 @@ def inverse_kinematics(
             "(revolute, prismatic) and URDF joints"
         )
     items = _targets(chain, targets, link)
-    if generator is not None and not isinstance(generator, torch.Generator):
-        raise TypeError(
-            f"{_FN}: expected generator to be a torch.Generator or None, got "
-            f"{type(generator).__name__} {reprlib.repr(generator)}"
-        )
+    _checks.generator(generator, _FN)
     restarts = _checks.count(restarts, _FN, "restarts", 1)
     if max_iterations is None:
         max_iterations = _BUDGET[restarts >= _MANY_STARTS]
