@@ -436,8 +436,24 @@ def test_sites_as_links():
     clash = HINGE_SLIDE.replace(
         '<geom size="0.1"/></body>', '<geom size="0.1"/><site name="tip"/></body>'
     )
-    with pytest.raises(MJCFError, match="site 'tip' has the name of a body"):
+    with pytest.raises(MJCFError, match="site link 'tip' has the name of a body.*site_prefix"):
         Chain.from_mjcf(clash, sites=True)
+    # a prefix names the sites apart: the site's frame, not the body's
+    m = mujoco.MjModel.from_xml_string(clash)
+    named = Chain.from_mjcf(m, sites=True, site_prefix="site:", dtype=torch.float64)
+    assert named.link_names == ("world", "base", "tip", "site:tip")
+    q = random_qpos(named, 4, 9)
+    T = named.forward_kinematics(q, ["tip", "site:tip"], stacked=True).numpy()
+    d = mujoco.MjData(m)
+    for b in range(4):
+        d.qpos[:] = q[b].numpy()
+        mujoco.mj_kinematics(m, d)
+        assert np.abs(T[b, 1, :3, 3] - d.site_xpos[0]).max() <= 1e-12
+        assert np.abs(T[b, 0, :3, 3] - d.xpos[2]).max() <= 1e-12
+    unnamed = Chain.from_mjcf(xml, sites=True, site_prefix="s/")
+    assert unnamed.link_names[-2:] == ("s/tcp", "s/site_1")
+    with pytest.raises(TypeError, match="parse_mjcf: expected site_prefix to be a str"):
+        Chain.from_mjcf(xml, sites=True, site_prefix=1)
 
 
 @pytest.mark.compile

@@ -265,6 +265,7 @@ class Chain:
         source: str | os.PathLike[str] | bytes | Any,
         *,
         sites: bool = False,
+        site_prefix: str = "",
         dtype: torch.dtype = torch.float32,
         device: torch.device | str | None = None,
     ) -> Chain:
@@ -280,6 +281,8 @@ class Chain:
             source: a path to an ``.xml`` file, MJCF text (a string starting with ``<``) or a
                 ``mujoco.MjModel``.
             sites: also make each site a link (fixed to its body, after the bodies).
+            site_prefix: put before each site's name to name its link (for models whose
+                sites share names with bodies, which is otherwise an error).
             dtype: float32 (default) or float64.
             device: where the constants live (default CPU).
 
@@ -301,7 +304,9 @@ class Chain:
         """
         from .mjcf import parse_mjcf
 
-        return cls(parse_mjcf(source, sites=sites), dtype=dtype, device=device)
+        return cls(
+            parse_mjcf(source, sites=sites, site_prefix=site_prefix), dtype=dtype, device=device
+        )
 
     @classmethod
     def from_sdf(

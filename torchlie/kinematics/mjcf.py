@@ -113,7 +113,9 @@ def _compile(source: Any) -> tuple[Any, str]:
         raise MJCFError(label, str(e).strip()) from None
 
 
-def parse_mjcf(source: str | os.PathLike[str] | bytes | Any, *, sites: bool = False) -> RobotSpec:
+def parse_mjcf(
+    source: str | os.PathLike[str] | bytes | Any, *, sites: bool = False, site_prefix: str = ""
+) -> RobotSpec:
     """Compile an MJCF file (or MJCF text, or take a compiled ``mujoco.MjModel``) with MuJoCo
     and describe its kinematic tree as a :class:`~torchlie.kinematics.RobotSpec`.
 
@@ -124,7 +126,10 @@ def parse_mjcf(source: str | os.PathLike[str] | bytes | Any, *, sites: bool = Fa
         source: a path to an ``.xml`` file, MJCF text (a string starting with ``<``) or a
             ``mujoco.MjModel``.
         sites: also make each ``<site>`` a link (after the bodies, fixed to its body; an
-            unnamed site ``s`` is ``"site_{s}"``; a site named as a body is an error).
+            unnamed site ``s`` is ``"site_{s}"``).
+        site_prefix: put before every site's name to make its link's name, for models whose
+            sites share names with bodies (MuJoCo keeps the two apart; a chain's links cannot:
+            a site link named as a body is an error that names this argument).
 
     Raises:
         MJCFError: MuJoCo's compiler refused the file (its message, with the file name).
@@ -208,13 +213,20 @@ def parse_mjcf(source: str | os.PathLike[str] | bytes | Any, *, sites: bool = Fa
             parent = child
     links = list(bodies)
     inertials: list[InertialSpec | None] = [None] + [_inertial(m, i) for i in range(1, m.nbody)]
+    if not isinstance(site_prefix, str):
+        raise TypeError(
+            f"torchlie.kinematics.parse_mjcf: expected site_prefix to be a str, got "
+            f"{type(site_prefix).__name__}"
+        )
     if sites:
         staken = {name(mujoco.mjtObj.mjOBJ_SITE, s) for s in range(m.nsite)} - {""}
         for s in range(m.nsite):
-            site = name(mujoco.mjtObj.mjOBJ_SITE, s) or _unique(f"site_{s}", staken)
+            site = site_prefix + (name(mujoco.mjtObj.mjOBJ_SITE, s) or _unique(f"site_{s}", staken))
             if site in taken:
                 raise MJCFError(
-                    label, f"site {site!r} has the name of a body: its frame would be ambiguous"
+                    label,
+                    f"site link {site!r} has the name of a body: its frame would be ambiguous "
+                    f"(pass site_prefix, e.g. site_prefix='site:', to name the sites apart)",
                 )
             taken.add(site)
             links.append(site)
