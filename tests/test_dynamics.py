@@ -41,7 +41,7 @@ def _erd_dir() -> str | None:
 
 
 # Fixed-base robots of example-robot-data: arms, a hand (16 DoF), a dual arm with mimic
-# grippers, a humanoid (29 DoF) and a quadruped loaded without a free flyer.
+# grippers, two humanoids (29 and 32 DoF) and a quadruped loaded without a free flyer.
 ERD = {
     "ur5": "ur_description/urdf/ur5_robot.urdf",
     "xarm7": "xarm_description/urdf/xarm7.urdf",
@@ -51,6 +51,7 @@ ERD = {
     "baxter": "baxter_description/urdf/baxter.urdf",
     "g1": "g1_description/urdf/g1_29dof_rev_1_0.urdf",
     "anymal": "anymal_c_simple_description/urdf/anymal.urdf",
+    "talos": "talos_data/robots/talos_reduced.urdf",  # <mimic> on fixed joints
 }
 ROBOTS = ["arm7", "panda", "tree", *ERD]
 

@@ -232,18 +232,31 @@ def test_mimic_pointing_at_nothing():
     assert e.problem == "mimicked joint 'ghost' does not exist"
 
 
-def test_mimic_of_a_fixed_joint_and_mimic_on_a_fixed_joint():
+def test_mimic_of_a_fixed_joint_and_mimic_on_fixed_and_floating_joints():
     text = robot(
         joint("f", "fixed", "a", "b") + joint("m", "prismatic", "b", "c",
                                                '<limit/><mimic joint="f"/>'),
         ("a", "b", "c"),
     )  # fmt: skip
     assert bad(text).problem == "mimicked joint 'f' is fixed, not a one-DoF joint"
+    # a fixed joint has no value to set: its <mimic> is ignored (urdfdom's reading), even one
+    # naming no joint
+    for target in ("j", "ghost"):
+        text = robot(
+            joint("j", "revolute", "a", "b", "<limit/>")
+            + joint("f", "fixed", "b", "c", f'<origin xyz="0 0 1"/><mimic joint="{target}"/>'),
+            ("a", "b", "c"),
+        )
+        chain = Chain.from_urdf(text, dtype=torch.float64)
+        assert chain.joint_names == ("j",)
+        T = chain.forward_kinematics(torch.tensor([0.0], dtype=torch.float64), "c")["c"]
+        assert torch.equal(T[:3, 3], torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64))
     text = robot(
-        joint("j", "revolute", "a", "b") + joint("f", "fixed", "b", "c", '<mimic joint="j"/>'),
+        joint("j", "revolute", "a", "b", "<limit/>")
+        + joint("f", "floating", "b", "c", '<mimic joint="j"/>'),
         ("a", "b", "c"),
     )
-    assert bad(text).problem == "a fixed joint cannot mimic another joint"
+    assert bad(text).problem == "a floating joint cannot mimic another joint"
 
 
 def test_mimic_cycle():

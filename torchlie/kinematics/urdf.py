@@ -25,7 +25,9 @@ with values beyond its dtype's range is in :mod:`torchlie.kinematics.chain`.
 
 Defaults follow the URDF specification: a missing ``<origin>`` is the identity, missing
 ``xyz``/``rpy`` are zeros, a missing ``<axis>`` is ``(1, 0, 0)``, ``<limit lower/upper>``
-default to 0, ``<mimic multiplier>`` to 1 and ``offset`` to 0.
+default to 0, ``<mimic multiplier>`` to 1 and ``offset`` to 0.  A ``<mimic>`` on a fixed
+joint, which has no value to set, is ignored (as urdfdom does: robots such as TALOS carry
+one); on a planar or floating joint it is an error.
 
 Every problem raises :class:`URDFError` (a :class:`ValueError`) naming the file (or
 ``"<string>"``), the element and what is wrong.  Names and values taken from the file are
@@ -305,7 +307,7 @@ def _read_joint(r: _Reader, el: ET.Element, index: int) -> JointSpec:
 
     mimic = None
     mimic_el = r.single(subs, "mimic", where)
-    if mimic_el is not None:
+    if mimic_el is not None and jtype != "fixed":  # a fixed joint has no value to set
         w = _describe("joint", name, index, "mimic")
         if jtype not in _ONE_DOF:
             raise r.fail(w, f"a {jtype} joint cannot mimic another joint")
