@@ -741,13 +741,33 @@ def test_singular_mass_matrix():
     # The same joint turning instead moves inertia: not singular.
     chain = Chain.from_urdf(_two_joints(no_mass + 'izz="0.1"/></inertial>', "revolute"), dtype=F64)
     assert bool(torch.isfinite(chain.forward_dynamics(q, one, one)).all())
-    # A point mass on the axis of the joint turning it: M(q) is not positive definite; that
-    # state's accelerations are NaN (documented), never what the failed factor gives.
-    point = '<inertial><origin xyz="0.3 0 0"/><mass value="1"/><inertia ixx="0" ixy="0" ixz="0" '
-    chain = Chain.from_urdf(
-        _two_joints(point + 'iyy="0" iyz="0" izz="0"/></inertial>', "revolute"), dtype=F64
-    )
-    assert bool(torch.isnan(chain.forward_dynamics(q, one, one)).all())
+    # A point mass on the axis of the joint turning the last link: M(q) is singular at every
+    # state (its computed diagonal entry may round to a tiny positive number, and the
+    # accelerations to 1e17): named, as a subtree without mass.  On the axis away from the
+    # anchor, at the anchor, on a slanted axis; with a thin rod's inertia along the axis.
+    rod = 'ixx="0" ixy="0" ixz="0" iyy="0.2" iyz="0" izz="0.2"'
+    for origin, axis, inertia in (
+        ("0.3 0 0", "1 0 0", 'ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"'),
+        ("0 0 0", "0 1 0", 'ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"'),
+        ("0.3 0.6 -0.9", "1 2 -3", 'ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"'),
+        ("0.3 0 0", "1 0 0", rod),
+    ):
+        point = f'<inertial><origin xyz="{origin}"/><mass value="1"/><inertia {inertia}/>'
+        text = _two_joints(point + "</inertial>", "revolute").replace(
+            '<axis xyz="1 0 0"/>', f'<axis xyz="{axis}"/>'
+        )
+        chain = Chain.from_urdf(text, dtype=F64)
+        with pytest.raises(ValueError, match=r"the mass matrix is singular.*'j2'.*on its joint's"):
+            chain.forward_dynamics(q, one, one)
+        # inverse dynamics and the mass matrix stay defined
+        assert bool(torch.isfinite(chain.inverse_dynamics(q, one, one)).all())
+        # off the axis, or with inertia about it: not singular
+        for off in (
+            text.replace(f'xyz="{origin}"/><mass', 'xyz="0 0 0.1"/><mass'),
+            text.replace(inertia, 'ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.01"'),
+        ):
+            acc = Chain.from_urdf(off, dtype=F64).forward_dynamics(q, one, one)
+            assert bool(torch.isfinite(acc).all()) and float(acc.abs().max()) < 1e3
     # Inertials given per state: only the singular state is NaN.
     full = Chain.from_urdf(_two_joints(no_mass + 'izz="0.1"/></inertial>', "revolute"), dtype=F64)
     ins = full.inertials

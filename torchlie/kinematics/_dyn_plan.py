@@ -20,6 +20,8 @@ from .. import _layout
 from ._joints import _Link, _unit_floats, quat_rows, rpy_rows
 from .urdf import RobotSpec
 
+_EPS64 = 2.0**-52  # float64's machine epsilon: the plan is built in float64
+
 #: Gravity in the root frame when none is given, m/s^2.
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
 
@@ -238,8 +240,9 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
             armature[d] = float(lk.joint.armature)
 
     # DoFs that move nothing resisting their motion (M has a zero row there): a subtree with
-    # neither mass nor inertia, or a translation (prismatic, floating, free) moving no mass,
-    # and no armature; a DoF is named when every column it drives is such a column.
+    # neither mass nor inertia, a translation (prismatic, floating, free) moving no mass, or a
+    # rotation of an end body about an axis holding its mass (below), and no armature; a DoF
+    # is named when every column it drives is such a column.
     subtrees = [[c for c in range(nb) if b in anc_sets[c]] for b in range(nb)]
     empty = [
         all(merged[c][0] == 0.0 and not any(any(r) for r in merged[c][2]) for c in sub_b)
@@ -247,7 +250,22 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
     ]
     no_mass = [all(merged[c][0] == 0.0 for c in sub_b) for sub_b in subtrees]
     n_turn = len(rot) + 3 * len(floats_raw)  # the columns after these translate
-    inert = [empty[col_body[k]] or (k >= n_turn and no_mass[col_body[k]]) for k in range(K)]
+    # A body at the end of the tree turned about an axis through its anchor that holds all its
+    # mass, with no inertia about it (a point mass on a hinge's axis): its diagonal entry of M,
+    # v.I v + m |v x r|^2, is 0 in every state (up to the rounding of a rotated inertia).
+    flat = [False] * K
+    for k, (_, v, b, _, _) in enumerate(rot):
+        if len(subtrees[b]) == 1:
+            m_b, c_b, I_b = merged[b]
+            r = [c_b[i] - anchors[k][i] for i in range(3)]
+            vr = [v[1] * r[2] - v[2] * r[1], v[2] * r[0] - v[0] * r[2], v[0] * r[1] - v[1] * r[0]]
+            m_kk = sum(x * y for x, y in zip(v, _mv3(I_b, list(v)), strict=True))
+            m_kk += m_b * sum(x * x for x in vr)
+            scale = I_b[0][0] + I_b[1][1] + I_b[2][2] + m_b * sum(x * x for x in r)
+            flat[k] = m_kk <= 4 * _EPS64 * scale
+    inert = [
+        empty[col_body[k]] or flat[k] or (k >= n_turn and no_mass[col_body[k]]) for k in range(K)
+    ]
     massless = sorted(
         {
             joint_names[d]
