@@ -308,3 +308,36 @@ def test_joint_names_with_colons():
         torch.testing.assert_close(T[link], ref[link], atol=1e-14, rtol=0)
     report, out = run(text, samples=20)
     assert report.ok and "PASS" in out
+
+
+@needs_pk
+def test_fixed_zero_axis_fixed_leaf_and_singular_mass_matrix():
+    """Robots that validate crashed on: a fixed joint with ``<axis xyz="0 0 0"/>`` (SO-101),
+    an end link fixed to the root (no joint of pytorch-kinematics' serial chain to it), and a
+    chain whose mass matrix is singular in every state (a finger without mass: romeo's hands),
+    where the forward dynamics are left out with a note instead."""
+    pytest.importorskip("pinocchio")
+    inertia = '<inertial><mass value="1"/><inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" iyz="0" '
+    inertia += 'izz="0.1"/></inertial>'
+    text = (
+        f'<robot name="r"><link name="a"/><link name="b">{inertia}</link><link name="c"/>'
+        '<link name="tool"/><link name="mount"/>'
+        '<joint name="j" type="revolute"><parent link="a"/><child link="b"/>'
+        '<axis xyz="0 0 1"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>'
+        '<joint name="finger" type="revolute"><parent link="b"/><child link="c"/>'
+        '<origin xyz="1 0 0"/><axis xyz="0 1 0"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>'
+        '<joint name="t" type="fixed"><parent link="c"/><child link="tool"/>'
+        '<origin xyz="0 0 0.2"/><axis xyz="0 0 0"/></joint>'
+        '<joint name="m" type="fixed"><parent link="a"/><child link="mount"/>'
+        '<origin xyz="0 1 0"/></joint></robot>'
+    )
+    report, out = run(text, samples=20)
+    assert report.ok and "PASS" in out
+    assert {r.link for r in report.jacobians} == {"tool", "mount"}
+    assert report.dynamics is not None and "qdd" not in report.dynamics
+    assert "forward dynamics not compared: the mass matrix is singular ('finger')" in out
+    # with the finger's mass, the forward dynamics are compared
+    report, out = run(
+        text.replace('<link name="c"/>', f'<link name="c">{inertia}</link>'), samples=20
+    )
+    assert report.ok and report.dynamics is not None and "qdd" in report.dynamics

@@ -91,7 +91,8 @@ class _PK:
     def serial(self, link: str):
         if link not in self._serial:
             s = self.pk.SerialChain(self.chain, link)
-            idx = torch.tensor([self.names.index(n) for n in s.get_joint_parameter_names()])
+            names = s.get_joint_parameter_names()
+            idx = torch.tensor([self.names.index(n) for n in names], dtype=torch.long)
             self._serial[link] = (s, idx)
         return self._serial[link]
 

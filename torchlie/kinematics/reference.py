@@ -100,8 +100,11 @@ def _motion(j: JointSpec, vals: Tensor) -> Tensor:
     """``(B, 4, 4)`` joint motion ``M(q)`` for the joint's values ``vals`` ``(B, k)``."""
     B = vals.shape[0]
     M = torch.eye(4, dtype=torch.float64).repeat(B, 1, 1)
-    norm = math.hypot(*j.axis)  # no overflow for huge components (ax @ ax would be inf)
-    ax = torch.tensor([x / norm for x in j.axis], dtype=torch.float64)
+    if j.type == "fixed":  # its axis is not read (and may be zero)
+        return M
+    if j.type != "floating":
+        norm = math.hypot(*j.axis)  # no overflow for huge components (ax @ ax would be inf)
+        ax = torch.tensor([x / norm for x in j.axis], dtype=torch.float64)
     if j.type in ("revolute", "continuous"):
         M[:, :3, :3] = _rodrigues(ax, vals[:, 0])
     elif j.type == "prismatic":

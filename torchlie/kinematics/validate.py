@@ -65,7 +65,9 @@ accelerations: :meth:`Chain.inverse_dynamics <torchlie.kinematics.Chain.inverse_
 ``rnea``, ``crba``, ``nonLinearEffects``, ``computeGeneralizedGravity`` and ``aba`` (forward
 dynamics against the accelerations that produced the torques where mimic joints make
 Pinocchio's coordinates differ), largest error relative to ``1 + |reference|``, at
-:data:`TOL_DYNAMICS`.
+:data:`TOL_DYNAMICS`; the forward dynamics are left out, with a note, where the mass matrix is
+singular in every state (:meth:`Chain.forward_dynamics
+<torchlie.kinematics.Chain.forward_dynamics>` refuses those chains).
 
 It prints a table (per link: largest position error in m and rotation error in rad, per end
 link: largest Jacobian error per comparison) and timings of torchlie and pytorch-kinematics
@@ -106,6 +108,7 @@ from ._pin_reference import PIN_FRAMES, _Pin, _pin_setup
 from ._pk_reference import _PK, TOL_PK, _pk_setup
 from ._pk_reference import _pk_text as _pk_text  # imported from here by benchmarks/bench_ik.py
 from .chain import Chain
+from .dynamics import _plan as _dyn_plan
 from .reference import reference_forward_kinematics, reference_jacobians
 from .urdf import JointSpec, RobotSpec, URDFError, parse_urdf
 
@@ -475,7 +478,7 @@ def validate(
         report.jacobians.append(JacobianResult(n, js[0], js[1], ok, js[2]))
     report.ok = all(r.ok for r in report.links) and all(r.ok for r in report.jacobians)
     if pinc is not None and spec.inertials and not pinc.skipped:
-        report.dynamics = _pin_dynamics(pinc, chain, q, seed)
+        report.dynamics = _pin_dynamics(pinc, chain, q, seed, report.pin_deviations)
         tol = TOL_DYNAMICS[dtype]
         report.ok = report.ok and all(v <= tol[k] for k, v in report.dynamics.items())
     report.status = PASS if report.ok else FAIL
@@ -512,8 +515,12 @@ def _pin_compare(
             jstats[n][2][kind] = _worse(jstats[n][2][kind], err)
 
 
-def _pin_dynamics(pinc: _Pin, chain: Chain, q: Tensor, seed: int) -> dict[str, float]:
-    """Largest errors of the dynamics against Pinocchio, relative to ``1 + |reference|``."""
+def _pin_dynamics(
+    pinc: _Pin, chain: Chain, q: Tensor, seed: int, notes: list[str]
+) -> dict[str, float]:
+    """Largest errors of the dynamics against Pinocchio, relative to ``1 + |reference|``; the
+    forward dynamics left out (and why, in ``notes``) where the mass matrix is singular in
+    every state (``forward_dynamics`` refuses those chains)."""
     gen = torch.Generator().manual_seed(seed + 1)
     q64 = q.to(torch.float64)
     qd64 = torch.randn(q.shape, generator=gen, dtype=torch.float64)
@@ -527,13 +534,19 @@ def _pin_dynamics(pinc: _Pin, chain: Chain, q: Tensor, seed: int) -> dict[str, f
         return math.nan if math.isnan(e) or math.isinf(e) else e
 
     square = pinc.model.nv == chain.n_dof
-    return {
+    out = {
         "tau": rel(chain.inverse_dynamics(q, qd, qdd), ref["tau"]),
         "M": rel(chain.mass_matrix(q), ref["M"]),
         "bias": rel(chain.bias_forces(q, qd), ref["bias"]),
         "gravity": rel(chain.gravity_torques(q), ref["gravity"]),
-        "qdd": rel(chain.forward_dynamics(q, qd, tau_ref), ref["aba"] if square else qdd64),
     }
+    singular = _dyn_plan(chain).massless
+    if singular:
+        names = ", ".join(repr(n) for n in singular)
+        notes.append(f"forward dynamics not compared: the mass matrix is singular ({names})")
+    else:
+        out["qdd"] = rel(chain.forward_dynamics(q, qd, tau_ref), ref["aba"] if square else qdd64)
+    return out
 
 
 def _time_all(
