@@ -796,7 +796,7 @@ BATCHED += [
     _on("statistics.se2_mean", "T2set", "wset"),
     _on("nn.sim3_geodesic_loss", "S", "S"),
     *(_param(tnn.Sim3Parametrization, rep, k) for rep, k in (("pos_quat_sigma", "v8"),
-                                                             ("tangent", "v7"))),
+                                                             ("matrix", "S"), ("tangent", "v7"))),
 ]  # fmt: skip
 _BATCHED_IDS = [f"{n}-{i}" for i, (n, _) in enumerate(BATCHED)]
 

@@ -437,12 +437,27 @@ for _kind in ("angle", "chordal"):
     )
 _Q8 = torch.cat((POS_QUATS[::5], torch.zeros(len(POS_QUATS[::5]), 1, dtype=DT)), -1)
 case("nn.Sim3Parametrization[pos_quat_sigma]", tnn.Sim3Parametrization(), (ambient(8), _Q8))
+# similarities, and blocks that are not: a reflection's multiple, rank 2, a shear
+_M4 = torch.cat(
+    (
+        SIMS,
+        torch.diag(_t([-2.0, 1.0, 3.0, 1.0]))[None],
+        torch.diag(_t([1.0, 3.0, 0.0, 0.0]))[None],
+        _t([[[1.0, 1.0, 0.0, 0.5], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, -1.0], [0, 0, 0, 1]]]),
+    )
+)
+case("nn.Sim3Parametrization[matrix]", tnn.Sim3Parametrization("matrix"), (ambient(4, 4), _M4))
 case(
     "nn.Sim3Parametrization[tangent]",
     tnn.Sim3Parametrization("tangent"),
     (ambient(7), SIM_TANGENTS),
 )
-for _rep in ("pos_quat_sigma", "tangent"):
+case(
+    "nn.Sim3Parametrization[tangent]",
+    tnn.Sim3Parametrization("tangent"),
+    (ambient(7), SIM_TANGENTS),
+)
+for _rep in ("pos_quat_sigma", "matrix", "tangent"):
     case(
         f"nn.Sim3Parametrization[{_rep}].right_inverse",
         tnn.Sim3Parametrization(_rep).right_inverse,
