@@ -153,6 +153,18 @@ MIXED = [
     ),
     ("torchlie.statistics.so3_randn", lambda: st.so3_randn(_R32, _t64)),
     (
+        "torchlie.statistics.se2_randn",
+        lambda: st.se2_randn(torch.eye(3), cov=torch.eye(3, dtype=F64)),
+    ),
+    (
+        "torchlie.statistics.sim3_integrate",
+        lambda: st.sim3_integrate(torch.eye(4), torch.ones(7, dtype=F64), 0.1),
+    ),
+    (
+        "torchlie.statistics.so2_integrate",
+        lambda: st.so2_integrate(torch.eye(2), torch.ones(1), _t64),
+    ),
+    (
         "torchlie.statistics.so3_mean",
         lambda: st.so3_mean(_R32.expand(2, 3, 3), torch.ones(2, dtype=F64)),
     ),
@@ -169,6 +181,12 @@ MIXED = [
     (
         "torchlie.statistics.so3_interpolate_keyframes",
         lambda: st.so3_interpolate_keyframes(torch.tensor([0.0, 1.0]), _R32.expand(2, 3, 3), _t64),
+    ),
+    (
+        "torchlie.statistics.so2_interpolate_keyframes",
+        lambda: st.so2_interpolate_keyframes(
+            torch.tensor([0.0, 1.0], dtype=F64), torch.eye(2).expand(2, 2, 2), 0.5
+        ),
     ),
     ("torchlie.SO3.interpolate", lambda: SO3(_R32).interpolate(SO3(_R32), _t64)),
 ]
@@ -226,6 +244,22 @@ REAL_PARAMS = [
     (
         "torchlie.statistics.so3_randn",
         lambda x: st.so3_randn(_RZ1, x, generator=torch.Generator().manual_seed(0)),
+    ),
+    (
+        "torchlie.statistics.sim3_randn",
+        lambda x: st.sim3_randn(
+            torch.eye(4, dtype=F64), x, generator=torch.Generator().manual_seed(0)
+        ),
+    ),
+    (
+        "torchlie.statistics.se2_integrate",
+        lambda x: st.se2_integrate(torch.eye(3, dtype=F64), torch.ones(3, dtype=F64), x),
+    ),
+    (
+        "torchlie.statistics.so2_interpolate_keyframes",
+        lambda x: st.so2_interpolate_keyframes(
+            _TIMES, so2.exp(torch.tensor([[0.0], [1.0]], dtype=F64)), x
+        ),
     ),
     (
         "torchlie.SO3.interpolate",
@@ -634,6 +668,9 @@ _SETS = {
     "Qset": (2 * _P1 + 1, lambda b: b[1:]),
     "Rkeys": (_R1, lambda b: (2, *b[1:])),
     "Tkeys": (_T1, lambda b: (2, *b[1:])),
+    "R2keys": (so2.exp(torch.tensor([0.3], dtype=F64)), lambda b: (2, *b[1:])),
+    "T2keys": (se2.exp(torch.tensor([0.1, 0.2, 0.3], dtype=F64)), lambda b: (2, *b[1:])),
+    "Skeys": (sim3.exp(torch.full((7,), 0.2, dtype=F64)), lambda b: (2, *b[1:])),
 }
 
 
@@ -794,9 +831,17 @@ BATCHED += [
     _on("statistics.sim3_mean", "Sset", "wset"),
     _on("statistics.so2_mean", "R2set", "wset"),
     _on("statistics.se2_mean", "T2set", "wset"),
+    _on("statistics.sim3_randn", "S", 0.1),
+    _on("statistics.so2_randn", "R20", "s"),
+    _on("statistics.se2_randn", "T2", scale_tril=0.1 * torch.eye(3, dtype=F64)),
+    *(_on(f"statistics.{g}_interpolate_keyframes", torch.tensor([0.0, 1.0], dtype=F64), k, q)
+      for g, k, q in (("sim3", "Skeys", 0.5), ("so2", "R2keys0", "s"), ("se2", "T2keys", 0.5))),
+    _on("statistics.sim3_integrate", "S", "v7", 0.1),
+    _on("statistics.so2_integrate", "R2", "v1", 0.1),
+    _on("statistics.se2_integrate", "T2", "v3", "s"),
     _on("nn.sim3_geodesic_loss", "S", "S"),
     *(_param(tnn.Sim3Parametrization, rep, k) for rep, k in (("pos_quat_sigma", "v8"),
-                                                             ("tangent", "v7"))),
+                                                             ("matrix", "S"), ("tangent", "v7"))),
 ]  # fmt: skip
 _BATCHED_IDS = [f"{n}-{i}" for i, (n, _) in enumerate(BATCHED)]
 

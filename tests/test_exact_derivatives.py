@@ -437,12 +437,22 @@ for _kind in ("angle", "chordal"):
     )
 _Q8 = torch.cat((POS_QUATS[::5], torch.zeros(len(POS_QUATS[::5]), 1, dtype=DT)), -1)
 case("nn.Sim3Parametrization[pos_quat_sigma]", tnn.Sim3Parametrization(), (ambient(8), _Q8))
+# similarities, and blocks that are not: a reflection's multiple, rank 2, a shear
+_M4 = torch.cat(
+    (
+        SIMS,
+        torch.diag(_t([-2.0, 1.0, 3.0, 1.0]))[None],
+        torch.diag(_t([1.0, 3.0, 0.0, 0.0]))[None],
+        _t([[[1.0, 1.0, 0.0, 0.5], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, -1.0], [0, 0, 0, 1]]]),
+    )
+)
+case("nn.Sim3Parametrization[matrix]", tnn.Sim3Parametrization("matrix"), (ambient(4, 4), _M4))
 case(
     "nn.Sim3Parametrization[tangent]",
     tnn.Sim3Parametrization("tangent"),
     (ambient(7), SIM_TANGENTS),
 )
-for _rep in ("pos_quat_sigma", "tangent"):
+for _rep in ("pos_quat_sigma", "matrix", "tangent"):
     case(
         f"nn.Sim3Parametrization[{_rep}].right_inverse",
         tnn.Sim3Parametrization(_rep).right_inverse,
@@ -543,7 +553,13 @@ def _keyframes(fn):
 
 _TIMES = _t([[0.0, 1.0, 3.0]])
 _QUERY = _t([0.0, 0.5, 1.0, 2.0, 3.0, -1.0, 4.0])
-for _g, _kind, _sets_of in (("so3", _rot_set(3), ROT_SETS), ("se3", _pose_set(3), POSE_SETS)):
+for _g, _kind, _sets_of in (
+    ("so3", _rot_set(3), ROT_SETS),
+    ("se3", _pose_set(3), POSE_SETS),
+    ("so2", _ROT2_SET, _sets(ROTS2, 3, 24)),
+    ("se2", _POSE2_SET, _sets(POSES2[::2], 3, 24)),
+    ("sim3", _SIM_SET, _sets(torch.cat((SIMS[:4], SIMS[18:22])), 3, 24)),
+):
     _name = f"{_g}_interpolate_keyframes"
     _args = ((FIXED, _TIMES), (_kind, _sets_of[:8]), (ambient(), _QUERY))
     case(f"statistics.{_name}", _keyframes(getattr(statistics, _name)), *_args, chunk=1)
@@ -562,7 +578,13 @@ for _scale, _translation in itertools.product((False, True), repeat=2):
         (ambient(4), WEIGHTS4),
     )
 for _frame in ("body", "world"):
-    for _g, _args in (("so3", (R_, O_, DT_)), ("se3", (P_, T_, DT_))):
+    for _g, _args in (
+        ("so3", (R_, O_, DT_)),
+        ("se3", (P_, T_, DT_)),
+        ("so2", ((ROT2, ROTS2), (ambient(1), ANGLES2), DT_)),
+        ("se2", ((POSE2, POSES2), (ambient(3), TWISTS2), DT_)),
+        ("sim3", (SIM_, (ambient(7), SIM_TANGENTS), DT_)),
+    ):
         _fn = partial(getattr(statistics, f"{_g}_integrate"), frame=_frame)
         case(f"statistics.{_g}_integrate[{_frame}]", _fn, *_args)
 
@@ -710,6 +732,10 @@ EXCLUDED = {
     "quaternion.is_unit": "boolean result",
     "statistics.so3_randn": "random draw (its differentiable part is so3.exp and compose)",
     "statistics.se3_randn": "random draw (its differentiable part is se3.exp and compose)",
+    **{
+        f"statistics.{g}_randn": f"random draw (its differentiable part is {g}.rplus)"
+        for g in ("sim3", "so2", "se2")
+    },
     "statistics.Alignment": "the result type of align",
     "nn.REPRESENTATIONS": "a table of sizes",
     "nn.RotationHead": "nn.Linear then nn.representation_to_matrix (checked)",

@@ -124,6 +124,16 @@ def _keys(dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
     return so3.exp(w[:, 3:]).to(dtype), se3.exp(w).to(dtype)
 
 
+def _more_keys(dtype: torch.dtype) -> dict[str, torch.Tensor]:
+    """Keyframes of SO(2), SE(2) and Sim(3) at :data:`_KEY_TIMES`."""
+    g = torch.Generator().manual_seed(98)
+    return {
+        "so2": so2.exp(torch.randn(3, 1, generator=g, dtype=torch.float64)).to(dtype),
+        "se2": se2.exp(torch.randn(3, 3, generator=g, dtype=torch.float64)).to(dtype),
+        "sim3": sim3.exp(0.5 * torch.randn(3, 7, generator=g, dtype=torch.float64)).to(dtype),
+    }
+
+
 def _randn(core_fn):
     def run(mean, std):
         return core_fn(mean, std, generator=torch.Generator().manual_seed(3))
@@ -349,6 +359,22 @@ OPS += [
      ("Sset",)),
     ("statistics.sim3_mean.geodesic", lambda T, w: statistics.sim3_mean(T, w, iterations=3),
      ("Sset", "weights")),
+    *[
+        (f"statistics.{g}_randn", _randn(getattr(statistics, f"{g}_randn")), (X, "scalar"))
+        for g, X in (("so2", "R2"), ("se2", "T2"), ("sim3", "S"))
+    ],
+    *[
+        (f"statistics.{g}_interpolate_keyframes",
+         lambda s, g=g: getattr(statistics, f"{g}_interpolate_keyframes")(
+             _KEY_TIMES.to(s.dtype), _more_keys(s.dtype)[g], s, extrapolate=True),
+         ("query",))
+        for g in ("so2", "se2", "sim3")
+    ],
+    ("statistics.so2_integrate", statistics.so2_integrate, ("R2", "angle", "scalar")),
+    ("statistics.se2_integrate.world",
+     lambda T, xi, dt: statistics.se2_integrate(T, xi, dt, frame="world"),
+     ("T2", "twist2", "scalar")),
+    ("statistics.sim3_integrate", statistics.sim3_integrate, ("S", "tangent7", "scalar")),
     *[
         (f"nn.so2_geodesic_loss.{kind}",
          lambda a, b, kind=kind: nn.so2_geodesic_loss(a, b, kind=kind, reduction="none"),

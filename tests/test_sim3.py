@@ -833,7 +833,7 @@ def test_sim3_geodesic_loss():
         tnn.sim3_geodesic_loss(A, B, scale_weight=-1.0)
 
 
-@pytest.mark.parametrize("rep", ["pos_quat_sigma", "tangent"])
+@pytest.mark.parametrize("rep", ["pos_quat_sigma", "matrix", "tangent"])
 def test_sim3_parametrization(rep):
     from torch.nn.utils import parametrize
 
@@ -857,7 +857,153 @@ def test_sim3_parametrization(rep):
     assert bool(sim3.is_valid(holder.T).all())
     assert float(tnn.sim3_geodesic_loss(holder.T, target, kind="chordal").detach()) < 0.5 * first
     with pytest.raises(ValueError, match=r"torchlie\.nn\.Sim3Parametrization"):
-        tnn.Sim3Parametrization("matrix")
+        tnn.Sim3Parametrization("twist")
+
+
+def _nearest_similarity_parts(X: torch.Tensor):
+    """What Sim3Parametrization("matrix") reads from X: (s, R, t)."""
+    A = X[..., :3, :3]
+    R = so3.project(A)
+    return (R * A).sum((-2, -1)) / 3, R, X[..., :3, 3]
+
+
+def test_sim3_parametrization_matrix_reads_the_nearest_similarity():
+    """The block A is read as s R with R = so3.project(A) and s = tr(R^T A) / 3 > 0: the
+    minimiser of |s R - A|_F, whatever the matrix (reflections, rank 2, huge and tiny ones)."""
+    from torchlie import nn as tnn
+
+    p = tnn.Sim3Parametrization("matrix")
+    g = torch.Generator().manual_seed(15)
+    X = torch.randn(64, 4, 4, generator=g, dtype=F64)
+    X[1, :3, :3] = -torch.eye(3, dtype=F64)  # a reflection: s = 1/3, R = diag(-1, -1, 1) up to axes
+    X[2, :3, :3] = torch.diag(torch.tensor([1.0, 3.0, 0.0], dtype=F64))
+    X[3] *= 1e300
+    X[4] *= 1e-300
+    T = p(X)
+    assert T.shape == X.shape and bool(sim3.is_valid(T).all())
+    assert torch.equal(T[:, 3], torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=F64).expand(64, 4))
+    s, R, t = _nearest_similarity_parts(X)
+    s_T, R_T, t_T = sim3.to_srt(T)
+    assert bool((s_T > 0).all())
+    torch.testing.assert_close(s_T, s, rtol=1e-14, atol=0)
+    torch.testing.assert_close(R_T, R, rtol=0, atol=1e-14)
+    assert torch.equal(t_T, t)
+    torch.testing.assert_close(s_T[1], torch.tensor(1 / 3, dtype=F64), rtol=1e-15, atol=0)
+    # a minimum: other scales and nearby rotations are farther from the block
+    A = X[..., :3, :3] / X[..., :3, :3].abs().amax((-2, -1), keepdim=True)
+    s, R = s / X[..., :3, :3].abs().amax((-2, -1)), R_T
+    best = (s[:, None, None] * R - A).square().sum((-2, -1))
+    for ds, w in ((1e-3, [0.0, 0.0, 0.0]), (-1e-3, [0.0, 0.0, 0.0]), (0.0, [1e-3, -2e-3, 1e-3])):
+        other = (s + ds)[:, None, None] * so3.rplus(R, torch.tensor(w, dtype=F64))
+        assert bool(((other - A).square().sum((-2, -1)) > best).all())
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, F64])
+def test_sim3_parametrization_matrix_degenerate_blocks(dtype):
+    """The zero block (and one without a normal-sized entry) reads as s = 1, R = I: never NaN,
+    never a scale <= 0, and a finite (zero) gradient; the translation is read as it is."""
+    from torchlie import nn as tnn
+
+    tiny = torch.finfo(dtype).tiny
+    X = torch.zeros(4, 4, 4, dtype=dtype)
+    X[1, :3, :3] = tiny / 4 * torch.eye(3, dtype=dtype)  # subnormal entries
+    X[2, :3, :3] = tiny * torch.eye(3, dtype=dtype)  # the smallest normal number: read as it is
+    X[3, :3, :3] = torch.diag(torch.tensor([-2.0, 1.0, 3.0], dtype=dtype))  # a reflection
+    X[:, :3, 3] = torch.tensor([1.0, -2.0, 3.0], dtype=dtype)
+    X.requires_grad_()
+    T = tnn.Sim3Parametrization("matrix")(X)
+    assert bool(torch.isfinite(T).all()) and bool(sim3.is_valid(T).all())
+    s, R, t = sim3.to_srt(T.detach())
+    assert bool((s > 0).all())
+    I4 = torch.eye(4, dtype=dtype)
+    for i in (0, 1):
+        assert torch.equal(T[i, :3, :3].detach(), I4[:3, :3]) and torch.equal(t[i], X[i, :3, 3])
+    assert float(s[2]) == tiny and torch.equal(R[2], I4[:3, :3])
+    # R = diag(-1, -1, 1) (the smallest singular value's axis flipped), s = (2 - 1 + 3) / 3
+    torch.testing.assert_close(R[3], torch.diag(torch.tensor([-1.0, -1.0, 1.0], dtype=dtype)))
+    torch.testing.assert_close(s[3], torch.tensor(4 / 3, dtype=dtype))
+    # (the rotation's derivative at the smallest normal block, ~1 / tiny, is left out)
+    W = torch.arange(16.0, dtype=dtype).reshape(4, 4)
+    (grad,) = torch.autograd.grad((T[[0, 1, 3]] * W).sum(), X)
+    assert bool(torch.isfinite(grad).all())
+    assert not bool(grad[:2, :3, :3].any())  # the identity's, constant
+    assert torch.equal(grad[:, 3], torch.zeros_like(grad[:, 3]))  # the bottom row is not read
+
+
+def test_sim3_parametrization_matrix_gradcheck():
+    from torchlie import nn as tnn
+
+    p = tnn.Sim3Parametrization("matrix")
+    g = torch.Generator().manual_seed(16)
+    X = torch.randn(3, 4, 4, generator=g, dtype=F64)
+    X[0] = sim3.random(generator=g, dtype=F64)
+    X.requires_grad_()
+    assert gradcheck(p, (X,))
+    assert gradgradcheck(p, (X,))
+    T = sim3.random(3, generator=g, dtype=F64).requires_grad_()
+    assert gradcheck(p.right_inverse, (T,))
+
+
+def test_sim3_parametrization_matrix_round_trip_and_state_dict():
+    import io
+
+    from torch.nn.utils import parametrize
+
+    from torchlie import nn as tnn
+
+    g = torch.Generator().manual_seed(17)
+    T0 = sim3.random(2, 3, generator=g, dtype=F64)
+    holder = torch.nn.Module()
+    holder.T = torch.nn.Parameter(T0.clone())
+    parametrize.register_parametrization(holder, "T", tnn.Sim3Parametrization("matrix"))
+    original = holder.parametrizations.T.original
+    assert original.shape == (2, 3, 4, 4)
+    torch.testing.assert_close(holder.T, T0, rtol=0, atol=1e-14 * float(T0.abs().max()))
+    T1 = sim3.random(2, 3, generator=g, dtype=F64)
+    holder.T = T1  # right_inverse: the matrix itself, a copy
+    assert torch.equal(holder.parametrizations.T.original, T1)
+    assert holder.parametrizations.T.original.data_ptr() != T1.data_ptr()
+    torch.testing.assert_close(holder.T, T1, rtol=0, atol=1e-14 * float(T1.abs().max()))
+    with torch.no_grad():  # an arbitrary step
+        holder.parametrizations.T.original.add_(torch.randn(2, 3, 4, 4, generator=g, dtype=F64))
+    assert bool(sim3.is_valid(holder.T).all())
+    buf = io.BytesIO()
+    torch.save(holder.state_dict(), buf)
+    buf.seek(0)
+    other = torch.nn.Module()
+    other.T = torch.nn.Parameter(sim3.identity(2, 3, dtype=F64))
+    parametrize.register_parametrization(other, "T", tnn.Sim3Parametrization("matrix"))
+    other.load_state_dict(torch.load(buf))
+    assert torch.equal(other.T, holder.T)
+
+
+@pytest.mark.compile
+def test_sim3_parametrization_matrix_under_compile():
+    """Forward and backward of a Sim(3)-parametrized parameter (a zero block included) under
+    torch.compile(fullgraph=True) match eager."""
+    from torch.nn.utils import parametrize
+
+    from torchlie import nn as tnn
+
+    torch._dynamo.reset()
+    holder = torch.nn.Module()
+    X = torch.randn(4, 4, 4, generator=torch.Generator().manual_seed(18))
+    X[1, :3, :3] = 0.0
+    holder.T = torch.nn.Parameter(X)
+    parametrize.register_parametrization(holder, "T", tnn.Sim3Parametrization("matrix"))
+    holder.parametrizations.T.original.data.copy_(X)
+    p = torch.randn(4, 3, generator=torch.Generator().manual_seed(19))
+
+    def f(p):
+        return sim3.act(holder.T, p)
+
+    ref = f(p)
+    (g_ref,) = torch.autograd.grad(ref.square().sum(), holder.parametrizations.T.original)
+    out = torch.compile(f, fullgraph=True)(p)
+    (g,) = torch.autograd.grad(out.square().sum(), holder.parametrizations.T.original)
+    torch.testing.assert_close(out, ref)
+    torch.testing.assert_close(g, g_ref)
+    assert bool(torch.isfinite(g).all())
 
 
 # ----------------------------------------------------------------------------------------------

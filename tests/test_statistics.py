@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from functools import partial
 
 import numpy as np
 import pytest
@@ -16,12 +17,14 @@ from torchlie import se2, se3, sim3, so2, so3
 from torchlie.statistics import (
     Alignment,
     align,
+    se2_integrate,
     se2_mean,
     se3_integrate,
     se3_interpolate_keyframes,
     se3_mean,
     se3_randn,
     sim3_mean,
+    sim3_randn,
     so2_mean,
     so3_integrate,
     so3_interpolate_keyframes,
@@ -43,6 +46,17 @@ MEANS = pytest.mark.parametrize(
     [(so3, so3_mean), (se3, se3_mean), (so2, so2_mean), (se2, se2_mean), (sim3, sim3_mean)],
     ids=["so3", "se3", "so2", "se2", "sim3"],
 )
+
+
+def _fn(core, verb: str):
+    """The statistics function ``<group>_<verb>`` of a group's functional module."""
+    return getattr(torchlie.statistics, f"{core.__name__.rsplit('.', 1)[-1]}_{verb}")
+
+
+#: Every group, for the sampling, keyframe and integration properties they share.
+GROUPS = pytest.mark.parametrize("core", [so3, se3, so2, se2, sim3], ids=lambda c: c.__name__[9:])
+#: The groups other than SO(3), whose tests of their own run on SO(3) only.
+OTHER_GROUPS = pytest.mark.parametrize("core", [se3, so2, se2, sim3], ids=lambda c: c.__name__[9:])
 
 
 def cluster(core, n: int, spread: float, *batch: int, seed: int = 0, dtype=F64) -> torch.Tensor:
@@ -101,22 +115,32 @@ def test_so3_randn_covariance():
     torch.testing.assert_close(R2, R, rtol=0, atol=1e-14)
 
 
-def test_se3_randn_covariance():
-    A = torch.randn(6, 6, generator=gen(2), dtype=F64) * 0.1
-    cov = A @ A.T + 0.01 * torch.eye(6, dtype=F64)
-    mean = se3.random(generator=gen(3), dtype=F64)
-    T = se3_randn(mean, cov=cov, sample_shape=(20000,), generator=gen(4))
-    assert se3.is_valid(T).all()
-    _check_cov(se3.rminus(T, mean), cov)
+@OTHER_GROUPS
+def test_randn_covariance(core):
+    """log(mean^-1 X) of the samples has the requested mean (0) and covariance, and scale_tril
+    gives the same draws as the covariance's Cholesky factor."""
+    n = _DOF[core]
+    A = torch.randn(n, n, generator=gen(2), dtype=F64) * 0.1
+    cov = A @ A.T + 0.01 * torch.eye(n, dtype=F64)
+    mean = core.random(generator=gen(3), dtype=F64)
+    X = _fn(core, "randn")(mean, cov=cov, sample_shape=(20000,), generator=gen(4))
+    assert X.shape == (20000, *mean.shape) and X.dtype == F64
+    assert core.is_valid(X).all()
+    _check_cov(core.rminus(X, mean), cov)
+    L = torch.linalg.cholesky(cov)
+    X2 = _fn(core, "randn")(mean, scale_tril=L, sample_shape=(20000,), generator=gen(4))
+    torch.testing.assert_close(X2, X, rtol=0, atol=1e-13 * float(X.abs().max()))
 
 
-def test_randn_isotropic_and_right_perturbation():
-    mean = so3.random(generator=gen(5), dtype=F64)
-    R = so3_randn(mean, 0.2, sample_shape=(20000,), generator=gen(6))
-    _check_cov(so3.rminus(R, mean), 0.04 * torch.eye(3, dtype=F64))
+@GROUPS
+def test_randn_isotropic_and_right_perturbation(core):
+    n, randn = _DOF[core], _fn(core, "randn")
+    mean = core.random(generator=gen(5), dtype=F64)
+    X = randn(mean, 0.2, sample_shape=(20000,), generator=gen(6))
+    _check_cov(core.rminus(X, mean), 0.04 * torch.eye(n, dtype=F64))
     # the noise is on the right: the same draw with the identity as the mean, left-multiplied
-    R0 = so3_randn(torch.eye(3, dtype=F64), 0.2, sample_shape=(20000,), generator=gen(6))
-    torch.testing.assert_close(R, mean @ R0, rtol=0, atol=1e-14)
+    X0 = randn(core.identity(dtype=F64), 0.2, sample_shape=(20000,), generator=gen(6))
+    torch.testing.assert_close(X, mean @ X0, rtol=0, atol=1e-14 * float(mean.abs().max()))
 
 
 def test_randn_singular_scale_tril():
@@ -141,6 +165,43 @@ def test_randn_shapes_and_broadcast(dtype):
     R = so3_randn(mean.expand(4, 2, 3, 3), torch.tensor([0.0, 0.5], dtype=dtype), generator=gen(2))
     assert torch.equal(R[:, 0], mean[:, 0])
     assert (so3.distance(R[:, 1], mean[:, 0]) > 0).all()
+
+
+@OTHER_GROUPS
+def test_randn_shapes_dtype_and_generator(core, dtype):
+    n, randn = _DOF[core], _fn(core, "randn")
+    mean = core.random(4, 1, generator=gen(0), dtype=dtype)
+    std = torch.tensor([0.1, 0.2, 0.3], dtype=dtype)
+    X = randn(mean, std, sample_shape=(2,), generator=gen(1))
+    assert X.shape == (2, 4, 3, *mean.shape[-2:]) and X.dtype == dtype
+    assert core.is_valid(X).all()
+    # the same generator state gives the same draws, another seed others
+    assert torch.equal(randn(mean, std, sample_shape=(2,), generator=gen(1)), X)
+    assert not torch.equal(randn(mean, std, sample_shape=(2,), generator=gen(2)), X)
+    cov = torch.eye(n, dtype=dtype).expand(5, n, n) * 0.01
+    assert randn(core.identity(dtype=dtype), cov=cov, generator=gen(1)).shape == (5, *X.shape[-2:])
+    # per-element std: zero std gives the mean exactly
+    X = randn(
+        mean.expand(4, 2, *mean.shape[-2:]), torch.tensor([0.0, 0.5], dtype=dtype), generator=gen(2)
+    )
+    assert torch.equal(X[:, 0], mean[:, 0])
+    assert (core.rminus(X[:, 1], mean[:, 0]).abs().amax(-1) > 0).all()
+
+
+@OTHER_GROUPS
+def test_randn_gradcheck(core):
+    """X = M Exp(std z) with z fixed by the generator: derivatives in the mean (tangent
+    coordinates), the standard deviation and the covariance's factor."""
+    n, randn = _DOF[core], _fn(core, "randn")
+    M = core.random(generator=gen(12), dtype=F64)
+    d = torch.zeros(n, dtype=F64, requires_grad=True)
+    std = torch.tensor([0.3, 0.1], dtype=F64, requires_grad=True)
+    L = (0.1 * torch.eye(n, dtype=F64) + 0.01).tril().requires_grad_()
+    assert gradcheck(lambda d, s: randn(core.rplus(M, d), s, generator=gen(13)), (d, std))
+    assert gradcheck(
+        lambda d, L: randn(core.rplus(M, d), scale_tril=L, sample_shape=(2,), generator=gen(13)),
+        (d, L),
+    )
 
 
 def test_randn_non_pd_cov_is_nan_for_its_element_only():
@@ -199,6 +260,31 @@ def test_randn_errors():
     with pytest.raises(TypeError, match=r"torchlie\.statistics\.se3_randn: expected generator"):
         se3_randn(torch.eye(4), 0.1, generator=7)
     assert so3_randn(I3, 0.1, sample_shape=[2]).shape == (2, 3, 3)
+    with pytest.raises(
+        ValueError, match=r"torchlie.statistics.sim3_randn: expected cov of shape \(\.\.\., 7, 7\)"
+    ):
+        sim3_randn(torch.eye(4), cov=torch.eye(6))
+
+
+@OTHER_GROUPS
+def test_randn_errors_name_the_function(core):
+    randn = _fn(core, "randn")
+    fn, n, k = rf"torchlie\.statistics\.{randn.__name__}", core.identity().shape[-1], _DOF[core]
+    I = torch.eye(n)
+    with pytest.raises(ValueError, match=rf"^{fn}: expected mean of shape \(\.\.\., {n}, {n}\)"):
+        randn(torch.eye(n + 1), 0.1)
+    with pytest.raises(
+        ValueError, match=rf"^{fn}: expected scale_tril of shape \(\.\.\., {k}, {k}\)"
+    ):
+        randn(I, scale_tril=torch.eye(k + 1))
+    with pytest.raises(
+        ValueError, match=rf"^{fn}: expected exactly one of std, cov and scale_tril"
+    ):
+        randn(I, 0.1, cov=torch.eye(k))
+    with pytest.raises(TypeError, match=rf"^{fn}: expected generator to be a torch.Generator"):
+        randn(I, 0.1, generator=0)
+    with pytest.raises(ValueError, match=rf"^{fn}: expected sample_shape of non-negative sizes"):
+        randn(I, 0.1, sample_shape=(-1,))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -433,17 +519,14 @@ def test_keyframes_hit_keyframes_and_clamp_or_extrapolate():
     torch.testing.assert_close(ext[1], so3.interpolate(R[-2], R[-1], u1), rtol=0, atol=1e-14)
 
 
-@pytest.mark.parametrize(
-    "group, fn",
-    [(so3, so3_interpolate_keyframes), (se3, se3_interpolate_keyframes)],
-    ids=["so3", "se3"],
-)
-def test_keyframes_are_the_end_keyframes_exactly(group, fn):
+@GROUPS
+def test_keyframes_are_the_end_keyframes_exactly(core):
     """At and beyond the ends (clamped) the result is the first / last keyframe bit for bit,
     and at the last time with extrapolate=True too; the derivative there is the last
     segment's."""
+    fn = _fn(core, "interpolate_keyframes")
     times = torch.tensor([0.0, 1.0, 2.5], dtype=F64)
-    K = group.exp(torch.randn(3, 6 if group is se3 else 3, generator=gen(4), dtype=F64))
+    K = core.exp(torch.randn(3, _DOF[core], generator=gen(4), dtype=F64))
     q = torch.tensor([-1.0, 0.0, 2.5, 3.0, 1e300], dtype=F64)
     out = fn(times, K, q)
     for i, k in enumerate((0, 0, 2, 2, 2)):
@@ -499,6 +582,32 @@ def test_se3_keyframes():
     torch.testing.assert_close(se3_interpolate_keyframes(times, T, times), T, rtol=0, atol=1e-14)
 
 
+@OTHER_GROUPS
+def test_keyframes_hit_the_keyframes_and_agree_with_interpolate(core):
+    """At the times, the keyframes; between, the group's geodesic interpolate of the two
+    neighbours; before and after, the end keyframes or (extrapolate) the end segments'
+    geodesics; several trajectories sharing the times."""
+    fn = _fn(core, "interpolate_keyframes")
+    times, _ = _keys(6, seed=8)
+    K = core.random(6, 2, generator=gen(9), dtype=F64)  # two trajectories
+    tol = 1e-13 * float(K.abs().max())
+    torch.testing.assert_close(fn(times, K, times), K, rtol=0, atol=tol)
+    q = torch.linspace(float(times[0]) - 1.0, float(times[-1]) + 1.0, 41, dtype=F64)
+    out = fn(times, K, q)
+    assert out.shape == (41, 2, *K.shape[-2:]) and out.dtype == F64
+    k = (torch.searchsorted(times, q, right=True) - 1).clamp(0, 4)
+    u = (q - times[k]) / (times[k + 1] - times[k])
+    ref = core.interpolate(K[k], K[k + 1], u.clamp(0, 1)[:, None])
+    torch.testing.assert_close(out, ref, rtol=0, atol=tol)
+    assert torch.equal(out[0], K[0]) and torch.equal(out[-1], K[-1])
+    ext = fn(times, K, q, extrapolate=True)
+    torch.testing.assert_close(ext, core.interpolate(K[k], K[k + 1], u[:, None]), rtol=0, atol=tol)
+    # a scalar query, one keyframe
+    assert fn(times, K, 1.5).shape == K.shape[1:]
+    one = fn(times[:1], K[:1], q)
+    assert one.shape == out.shape and torch.equal(one[3], K[0])
+
+
 def test_keyframes_gradcheck():
     times, R = _keys(4, seed=10)
     q = torch.tensor([times[0] + 0.1, (times[1] + times[2]) / 2, times[3] - 0.2], dtype=F64)
@@ -517,11 +626,25 @@ def test_keyframes_gradcheck():
     )
 
 
-def test_keyframes_vmap_over_queries():
-    times, R = _keys(5, seed=12)
+@OTHER_GROUPS
+def test_keyframes_gradcheck_every_group(core):
+    fn = _fn(core, "interpolate_keyframes")
+    times = torch.tensor([0.0, 1.0, 2.5], dtype=F64)
+    K = core.random(3, generator=gen(14), dtype=F64)
+    d = torch.zeros(3, _DOF[core], dtype=F64, requires_grad=True)
+    q = torch.tensor([0.3, 1.7, 2.4, 3.0], dtype=F64, requires_grad=True)
+    assert gradcheck(lambda d, q: fn(times, core.rplus(K, d), q, extrapolate=True), (d, q))
+
+
+@GROUPS
+def test_keyframes_vmap_over_queries(core):
+    fn = _fn(core, "interpolate_keyframes")
+    times, _ = _keys(5, seed=12)
+    K = core.random(5, generator=gen(15), dtype=F64)
     q = torch.rand(8, generator=gen(13), dtype=F64) * 10
-    out = torch.func.vmap(lambda s: so3_interpolate_keyframes(times, R, s))(q)
-    torch.testing.assert_close(out, so3_interpolate_keyframes(times, R, q), rtol=0, atol=0)
+    out = torch.func.vmap(lambda s: fn(times, K, s))(q)
+    tol = 4 * eps(F64) * float(K.abs().max())  # the batched products may round otherwise
+    torch.testing.assert_close(out, fn(times, K, q), rtol=0, atol=tol)
 
 
 def test_keyframes_errors():
@@ -540,6 +663,24 @@ def test_keyframes_errors():
         so3_interpolate_keyframes(times, R, torch.tensor([1]))
     with pytest.raises(ValueError, match="torchlie.statistics.se3_interpolate_keyframes"):
         se3_interpolate_keyframes(times, R, 1.0)
+
+
+@OTHER_GROUPS
+def test_keyframes_errors_name_the_function(core):
+    fn = _fn(core, "interpolate_keyframes")
+    name, n = rf"torchlie\.statistics\.{fn.__name__}", core.identity().shape[-1]
+    times, K = torch.tensor([0.0, 1.0, 2.0]), core.random(3)
+    with pytest.raises(
+        ValueError,
+        match=rf"^{name}: expected keyframes of shape \(K, \.\.\., {n}, {n}\) with K = 3",
+    ):
+        fn(times, K[:2], 1.0)
+    with pytest.raises(
+        ValueError, match=rf"^{name}: expected keyframes of shape \(\.\.\., {n}, {n}\)"
+    ):
+        fn(times, torch.eye(n + 1).expand(3, n + 1, n + 1), 1.0)
+    with pytest.raises(TypeError, match=rf"^{name}: expected extrapolate to be True or False"):
+        fn(times, K, 1.0, extrapolate=1)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -816,51 +957,100 @@ def test_align_errors():
 # ----------------------------------------------------------------------------------------------
 
 
-def test_integrate_against_matrix_exp(dtype):
+@GROUPS
+def test_integrate_against_matrix_exp(core, dtype):
     g = gen(40)
-    R = so3.random(4, generator=g, dtype=F64)
-    w = torch.randn(4, 3, generator=g, dtype=F64)
+    X = core.random(4, generator=g, dtype=F64)
+    v = torch.randn(4, _DOF[core], generator=g, dtype=F64)
     dt = torch.rand(4, generator=g, dtype=F64)
-    E = torch.linalg.matrix_exp(so3.hat(w) * dt[:, None, None])
-    tol = 16 * eps(dtype)
-    out = so3_integrate(R.to(dtype), w.to(dtype), dt.to(dtype))
-    torch.testing.assert_close(out.double(), R @ E, rtol=0, atol=tol)
-    out = so3_integrate(R.to(dtype), w.to(dtype), dt.to(dtype), frame="world")
-    torch.testing.assert_close(out.double(), E @ R, rtol=0, atol=tol)
-    T = se3.random(4, generator=g, dtype=F64)
-    xi = torch.randn(4, 6, generator=g, dtype=F64)
-    E = torch.linalg.matrix_exp(se3.hat(xi) * dt[:, None, None])
-    out = se3_integrate(T.to(dtype), xi.to(dtype), dt.to(dtype))
-    torch.testing.assert_close(out.double(), T @ E, rtol=0, atol=tol * 8)
-    out = se3_integrate(T.to(dtype), xi.to(dtype), dt.to(dtype), frame="world")
-    torch.testing.assert_close(out.double(), E @ T, rtol=0, atol=tol * 8)
+    E = torch.linalg.matrix_exp(core.hat(v) * dt[:, None, None])
+    tol = 16 * eps(dtype) * float(X.abs().max())
+    integrate = _fn(core, "integrate")
+    out = integrate(X.to(dtype), v.to(dtype), dt.to(dtype))
+    assert out.dtype == dtype
+    torch.testing.assert_close(out.double(), X @ E, rtol=0, atol=tol)
+    out = integrate(X.to(dtype), v.to(dtype), dt.to(dtype), frame="world")
+    torch.testing.assert_close(out.double(), E @ X, rtol=0, atol=tol)
 
 
-def test_integrate_body_world_agree_and_compose():
+@GROUPS
+def test_integrate_is_rplus_or_lplus_of_the_step(core):
+    g = gen(42)
+    X = core.random(3, generator=g, dtype=F64)
+    v = torch.randn(3, _DOF[core], generator=g, dtype=F64)
+    dt = torch.tensor([0.0, 0.5, -1.5], dtype=F64)
+    integrate, tol = _fn(core, "integrate"), 4 * eps(F64) * float(X.abs().max())
+    step = dt[:, None] * v
+    torch.testing.assert_close(integrate(X, v, dt), core.rplus(X, step), rtol=0, atol=tol)
+    torch.testing.assert_close(integrate(X, v, dt, "world"), core.lplus(X, step), rtol=0, atol=tol)
+    assert torch.equal(integrate(X, v, dt)[0], X[0])  # dt = 0: Exp(0) = I
+
+
+@GROUPS
+def test_integrate_body_world_agree_and_compose(core):
     g = gen(41)
-    T = se3.random(3, generator=g, dtype=F64)
-    xi = torch.randn(3, 6, generator=g, dtype=F64)
-    xi_world = (se3.adjoint(T) @ xi[..., None])[..., 0]
+    X = core.random(3, generator=g, dtype=F64)
+    v = torch.randn(3, _DOF[core], generator=g, dtype=F64)
+    v_world = (core.adjoint(X) @ v[..., None])[..., 0]
+    integrate, tol = _fn(core, "integrate"), 1e-13 * float(X.abs().max())
     torch.testing.assert_close(
-        se3_integrate(T, xi, 0.7), se3_integrate(T, xi_world, 0.7, "world"), rtol=0, atol=1e-13
+        integrate(X, v, 0.7), integrate(X, v_world, 0.7, "world"), rtol=0, atol=tol
     )
-    two = se3_integrate(se3_integrate(T, xi, 0.3), xi, 0.4)
-    torch.testing.assert_close(two, se3_integrate(T, xi, 0.7), rtol=0, atol=1e-13)
-    R = so3.random(3, generator=g, dtype=F64)
-    w = torch.randn(3, 3, generator=g, dtype=F64)
-    torch.testing.assert_close(
-        so3_integrate(R, w, 0.5),
-        so3_integrate(R, (R @ w[..., None])[..., 0], 0.5, "world"),
-        rtol=0,
-        atol=1e-14,
-    )
-    # a constant body twist with forward speed v and yaw rate r traces a circle of radius v/r
+    two = integrate(integrate(X, v, 0.3), v, 0.4)
+    torch.testing.assert_close(two, integrate(X, v, 0.7), rtol=0, atol=tol)
+
+
+def test_integrate_a_constant_body_twist_traces_a_circle():
+    # forward speed v and yaw rate r: a circle of radius v/r, half of it after pi/r
     circle = se3_integrate(
         se3.identity(dtype=F64), torch.tensor([2.0, 0, 0, 0, 0, 0.5], dtype=F64), math.pi / 0.5
     )
     torch.testing.assert_close(
         circle[:3, 3], torch.tensor([0.0, 8.0, 0.0], dtype=F64), rtol=0, atol=1e-14
     )
+    planar = se2_integrate(
+        se2.identity(dtype=F64), torch.tensor([2.0, 0, 0.5], dtype=F64), math.pi / 0.5
+    )
+    torch.testing.assert_close(
+        se2.to_xytheta(planar), torch.tensor([0.0, 8.0, math.pi], dtype=F64), rtol=0, atol=1e-14
+    )
+
+
+@OTHER_GROUPS
+def test_integrate_gradcheck(core):
+    """Derivatives in the element (tangent coordinates), the velocity and the time step."""
+    integrate = _fn(core, "integrate")
+    X = core.random(2, generator=gen(43), dtype=F64)
+    d = torch.zeros(2, _DOF[core], dtype=F64, requires_grad=True)
+    v = torch.randn(2, _DOF[core], generator=gen(44), dtype=F64).requires_grad_()
+    dt = torch.tensor([0.3, -0.8], dtype=F64, requires_grad=True)
+    for frame in ("body", "world"):
+        f = partial(lambda d, v, dt, frame: integrate(core.rplus(X, d), v, dt, frame), frame=frame)
+        assert gradcheck(f, (d, v, dt))
+
+
+@OTHER_GROUPS
+def test_integrate_errors_name_the_function(core):
+    integrate = _fn(core, "integrate")
+    name, n, k = (
+        rf"torchlie\.statistics\.{integrate.__name__}",
+        core.identity().shape[-1],
+        _DOF[core],
+    )
+    X, v = ("R", "omega") if core is so2 else ("T", "xi")
+    with pytest.raises(
+        ValueError, match=rf"^{name}: expected frame 'body' or 'world', got 'space'"
+    ):
+        integrate(torch.eye(n), torch.zeros(k), 1.0, frame="space")
+    with pytest.raises(ValueError, match=rf"^{name}: expected {v} of shape \(\.\.\., {k}\)"):
+        integrate(torch.eye(n), torch.zeros(k + 1), 1.0)
+    with pytest.raises(ValueError, match=rf"^{name}: expected {X} of shape \(\.\.\., {n}, {n}\)"):
+        integrate(torch.eye(n + 1), torch.zeros(k), 1.0)
+    with pytest.raises(TypeError, match=rf"^{name}: expected inputs of one dtype"):
+        integrate(torch.eye(n), torch.zeros(k, dtype=F64), 1.0)
+    with pytest.raises(ValueError, match=rf"^{name}: .*do not broadcast"):
+        integrate(torch.eye(n).expand(2, n, n), torch.zeros(3, k), 1.0)
+    assert integrate(torch.eye(n), torch.randn(4, 1, k), torch.rand(5)).shape == (4, 5, n, n)
 
 
 def test_integrate_broadcast_and_errors():
@@ -905,6 +1095,34 @@ def test_compile_fullgraph():
     for a, b in zip(got, want, strict=True):
         assert a.dtype == F32
         torch.testing.assert_close(a, b)
+
+
+@pytest.mark.slow
+@pytest.mark.compile
+@OTHER_GROUPS
+def test_compile_fullgraph_every_group(core):
+    """Keyframes, integration and sampling of each group in one fullgraph-compiled function."""
+    torch._dynamo.reset()
+    keyframes, integrate, randn = (
+        _fn(core, v) for v in ("interpolate_keyframes", "integrate", "randn")
+    )
+
+    def f(times, K, q, v, dt, L):
+        traj = keyframes(times, K, q, extrapolate=True)
+        return traj, integrate(traj, v, dt, "world"), randn(K, scale_tril=L, generator=None)
+
+    F32 = torch.float32
+    K = core.random(5, generator=gen(55), dtype=F32)
+    times = torch.arange(5, dtype=F32)
+    q = torch.tensor([-0.5, 0.0, 1.25, 3.5, 4.0, 4.5], dtype=F32)
+    v = torch.randn(_DOF[core], generator=gen(56), dtype=F32)
+    dt = torch.rand(6, generator=gen(57), dtype=F32)
+    L = torch.zeros(_DOF[core], _DOF[core], dtype=F32)  # zero noise: the draw is the mean
+    got = torch.compile(f, fullgraph=True, backend="aot_eager")(times, K, q, v, dt, L)
+    want = f(times, K, q, v, dt, L)
+    for a, b in zip(got, want, strict=True):
+        assert a.dtype == F32
+        torch.testing.assert_close(a, b, rtol=0, atol=64 * eps(F32) * float(b.abs().max()))
 
 
 def test_align_nan_is_confined():

@@ -858,7 +858,23 @@ def sim3_geodesic_loss(
     return _checks.out(_reduce(loss, reduction), dtype)
 
 
-_SIM3_PARAMS = {"pos_quat_sigma": (8,), "tangent": (7,)}
+_SIM3_PARAMS = {"pos_quat_sigma": (8,), "matrix": (4, 4), "tangent": (7,)}
+
+
+def _nearest_similarity(A: Tensor) -> tuple[Tensor, Tensor]:
+    """Scale ``(...)`` and rotation ``(..., 3, 3)`` of the multiple ``s R`` of a rotation nearest
+    to the 3x3 blocks ``A`` in the Frobenius norm (rule: :class:`Sim3Parametrization`)."""
+    m = A.detach().abs().amax((-2, -1), keepdim=True)
+    # No normal-sized entry (the zero block included): the identity, with a zero gradient (the
+    # rotation's true derivative, of the order of 1 / |A|, is not finite there).
+    small = m < torch.finfo(A.dtype).tiny
+    B = torch.where(small, torch.eye(3, dtype=A.dtype, device=A.device), A)
+    R = so3.project(B)
+    # s = tr(R^T B) / 3 >= (largest |B_ij|) / 3 > 0, summed on B / k (exact, k the power of two
+    # of its largest entry) so that the sum cannot overflow before the division.
+    k = _coeffs.power_of_two(torch.where(small, torch.ones_like(m), m))
+    s = k[..., 0, 0] * ((R * (B / k)).sum((-2, -1)) / 3)
+    return s, R
 
 
 class Sim3Parametrization(nn.Module):
@@ -871,6 +887,15 @@ class Sim3Parametrization(nn.Module):
       :func:`torchlie.sim3.from_srt` of ``exp(sigma)``, the rotation of ``q / |q|`` (``q = 0``
       reads as the identity rotation) and ``t``: translation, rotation and log scale
       decoupled, and the scale positive whatever the optimiser does.
+    * ``"matrix"``: an unconstrained ``(..., 4, 4)`` matrix; its top-left 3x3 block ``A`` is
+      read as the nearest similarity ``s R`` in the Frobenius norm: ``R`` its nearest rotation
+      (:func:`torchlie.so3.project`) and ``s = tr(R^T A) / 3``, which is at least a third of
+      ``A``'s largest entry, so positive for every nonzero block; the translation column as it
+      is; the bottom row is not read (and gets no gradient).  A block with no entry of
+      magnitude at least the smallest normal number (the zero block above all) reads as
+      ``s = 1``, ``R = I`` with a zero gradient, never NaN.  ``right_inverse`` stores the
+      assigned similarity as it is.  Costs and drift as :class:`SO3Parametrization`'s
+      ``"matrix"``; keep it out of weight decay.
     * ``"tangent"``: ``(..., 7)`` ``(rho, phi, sigma)`` read as :func:`torchlie.sim3.exp`;
       ``right_inverse`` is :func:`torchlie.sim3.log` (the parts coupled, as SE(3)'s twist).
 
@@ -896,9 +921,14 @@ class Sim3Parametrization(nn.Module):
 
     def forward(self, X: Tensor) -> Float[Tensor, "*b 4 4"]:
         """The similarities ``(..., 4, 4)`` of the stored parameter ``X``."""
-        _checks.tensor(X, _NAME + "Sim3Parametrization", "X", _SIM3_PARAMS[self.representation])
+        x, dtype = _checks.tensor(
+            X, _NAME + "Sim3Parametrization", "X", _SIM3_PARAMS[self.representation]
+        )
         if self.representation == "tangent":
             return sim3.exp(X)
+        if self.representation == "matrix":
+            s, R = _nearest_similarity(x[..., :3, :3])
+            return _checks.out(sim3.from_srt(s, R, x[..., :3, 3]), dtype)
         R = _quat.to_matrix(_identity_if_zero(X[..., 3:7]))
         return sim3.from_srt(torch.exp(X[..., 7]), R, X[..., :3])
 
@@ -907,5 +937,7 @@ class Sim3Parametrization(nn.Module):
         _checks.tensor(T, _NAME + "Sim3Parametrization.right_inverse", "T", (4, 4))
         if self.representation == "tangent":
             return sim3.log(T)
+        if self.representation == "matrix":
+            return T.clone()  # never alias the caller's tensor
         s, R, t = sim3.to_srt(T)
         return torch.cat((t, _quat.from_matrix(R), torch.log(s).unsqueeze(-1)), -1)

@@ -1,28 +1,34 @@
 """Statistics, interpolation, alignment and kinematics on SO(3), SE(3), Sim(3), SO(2) and SE(2).
 
-Functions are named ``so3_*`` / ``se3_*`` by group and take plain tensors in the conventions of
-:mod:`torchlie`: rotations ``(..., 3, 3)``, poses ``(..., 4, 4)``, rotation vectors ``(..., 3)``,
-twists ``(rho, phi)`` ``(..., 6)``, right perturbations ``X Exp(eps)``.
+Functions are named ``so3_*`` / ``se3_*`` / ``sim3_*`` / ``so2_*`` / ``se2_*`` by group and take
+plain tensors in the conventions of :mod:`torchlie`: rotations ``(..., 3, 3)``, poses
+``(..., 4, 4)``, rotation vectors ``(..., 3)``, twists ``(rho, phi)`` ``(..., 6)``, the planar and
+similarity groups as in :mod:`torchlie.so2`, :mod:`torchlie.se2` and :mod:`torchlie.sim3`, right
+perturbations ``X Exp(eps)``.
 
-* :func:`so3_randn`, :func:`se3_randn`: Gaussian noise in the tangent space about a mean,
-  ``X = M Exp(eps)``, ``eps ~ N(0, Sigma)``.
+* :func:`so3_randn`, :func:`se3_randn`, :func:`sim3_randn`, :func:`so2_randn`,
+  :func:`se2_randn`: Gaussian noise in the tangent space about a mean, ``X = M Exp(eps)``,
+  ``eps ~ N(0, Sigma)``.
 * :func:`so3_mean`, :func:`se3_mean`, :func:`sim3_mean`, :func:`so2_mean`, :func:`se2_mean`:
   weighted means of a set
   ``(..., N, n, n)`` (the last batch dimension is the set), ``"chordal"`` (closed form) or
   ``"geodesic"`` (Karcher iteration with a fixed iteration count, so nothing synchronises a
   device and the result is differentiable).
-* :func:`so3_interpolate_keyframes`, :func:`se3_interpolate_keyframes`: piecewise-geodesic
-  trajectories through timed keyframes, evaluated at any query times.
+* :func:`so3_interpolate_keyframes`, :func:`se3_interpolate_keyframes`,
+  :func:`sim3_interpolate_keyframes`, :func:`so2_interpolate_keyframes`,
+  :func:`se2_interpolate_keyframes`: piecewise-geodesic trajectories through timed keyframes,
+  evaluated at any query times.
 * :func:`align`: weighted Kabsch / Umeyama alignment of point sets (rotation, translation and
   optionally scale).
-* :func:`so3_integrate`, :func:`se3_integrate`: exact integration of a constant angular velocity
-  or twist in the body or world frame.  (The relative transform ``T1^-1 T2`` is
+* :func:`so3_integrate`, :func:`se3_integrate`, :func:`sim3_integrate`, :func:`so2_integrate`,
+  :func:`se2_integrate`: exact integration of a constant velocity (angular velocity, twist) in
+  the body or world frame.  (The relative transform ``T1^-1 T2`` is
   :func:`torchlie.se3.between` / :func:`torchlie.so3.between`.)
 
 Nothing here branches in Python on tensor values, so every function works under
-``torch.compile(fullgraph=True)`` and ``torch.func.vmap`` (except that :func:`so3_randn` and
-:func:`se3_randn` draw random numbers, which ``vmap`` supports only with
-``randomness="different"`` or ``"same"``).  float16/bfloat16 inputs are computed in float32
+``torch.compile(fullgraph=True)`` and ``torch.func.vmap`` (except that the ``*_randn`` functions
+draw random numbers, which ``vmap`` supports only with ``randomness="different"`` or
+``"same"``).  float16/bfloat16 inputs are computed in float32
 and returned in the input dtype.
 """
 
@@ -43,6 +49,9 @@ from ._typing import Float
 __all__ = [
     "so3_randn",
     "se3_randn",
+    "sim3_randn",
+    "so2_randn",
+    "se2_randn",
     "so3_mean",
     "se3_mean",
     "sim3_mean",
@@ -50,10 +59,16 @@ __all__ = [
     "se2_mean",
     "so3_interpolate_keyframes",
     "se3_interpolate_keyframes",
+    "sim3_interpolate_keyframes",
+    "so2_interpolate_keyframes",
+    "se2_interpolate_keyframes",
     "Alignment",
     "align",
     "so3_integrate",
     "se3_integrate",
+    "sim3_integrate",
+    "so2_integrate",
+    "se2_integrate",
 ]
 
 
@@ -201,6 +216,91 @@ def se3_randn(
         torch.Size([5, 2, 4, 4])
     """
     return _randn(_SE3, mean, std, cov, scale_tril, sample_shape, generator)
+
+
+@_checks.float32_exact
+def sim3_randn(
+    mean: Float[Tensor, "*b1 4 4"],
+    std: Float[Tensor, "*b2"] | float | None = None,
+    *,
+    cov: Float[Tensor, "*b2 7 7"] | None = None,
+    scale_tril: Float[Tensor, "*b2 7 7"] | None = None,
+    sample_shape: tuple[int, ...] | torch.Size = (),
+    generator: torch.Generator | None = None,
+) -> Float[Tensor, "*sample_batch 4 4"]:
+    """Gaussian similarities about ``mean``: ``T = mean Exp(eps)``, ``eps ~ N(0, Sigma)``.
+
+    ``eps`` is a tangent ``(rho, phi, sigma)`` (translation part, rotation vector, log scale) in
+    the body frame of ``mean``, so ``Sigma`` is ``7x7`` in that order; ``sim3.rminus(T, mean)``
+    recovers ``eps`` exactly while ``|phi| < pi``.  The scale is the mean's times
+    ``exp(sigma)``: log-normal, always positive.  Give exactly one of ``std``, ``cov`` or
+    ``scale_tril`` (as :func:`se3_randn`).  Shape ``(*sample_shape, *batch, 4, 4)``.
+
+    Example:
+        >>> cov = torch.diag(torch.tensor([1.0, 1.0, 1.0, 0.01, 0.01, 0.01, 0.04]))
+        >>> g = torch.Generator().manual_seed(0)
+        >>> T = sim3_randn(torch.eye(4), cov=cov, sample_shape=(1000,), generator=g)
+        >>> T.shape
+        torch.Size([1000, 4, 4])
+        >>> round(torch.log(sim3.scale(T)).std().item(), 1)  # the log scale's std
+        0.2
+    """
+    return _randn(_SIM3, mean, std, cov, scale_tril, sample_shape, generator)
+
+
+@_checks.float32_exact
+def so2_randn(
+    mean: Float[Tensor, "*b1 2 2"],
+    std: Float[Tensor, "*b2"] | float | None = None,
+    *,
+    cov: Float[Tensor, "*b2 1 1"] | None = None,
+    scale_tril: Float[Tensor, "*b2 1 1"] | None = None,
+    sample_shape: tuple[int, ...] | torch.Size = (),
+    generator: torch.Generator | None = None,
+) -> Float[Tensor, "*sample_batch 2 2"]:
+    """Gaussian planar rotations about ``mean``: ``R = mean Exp(eps)``, ``eps ~ N(0, Sigma)``.
+
+    ``eps`` is an angle ``(..., 1)`` in radians (right and left perturbations agree on SO(2)),
+    so ``so2.rminus(R, mean)`` recovers it exactly while ``|eps| < pi`` (beyond, it wraps: the
+    angles follow the wrapped normal distribution).  Give exactly one of ``std``, ``cov`` or
+    ``scale_tril`` (``1x1``; as :func:`so3_randn`).  Shape ``(*sample_shape, *batch, 2, 2)``.
+
+    Example:
+        >>> g = torch.Generator().manual_seed(0)
+        >>> R = so2_randn(torch.eye(2), 0.1, sample_shape=(1000,), generator=g)
+        >>> R.shape
+        torch.Size([1000, 2, 2])
+        >>> round(so2.log(R).square().mean().sqrt().item(), 2)  # the angle's std
+        0.1
+    """
+    return _randn(_SO2, mean, std, cov, scale_tril, sample_shape, generator)
+
+
+@_checks.float32_exact
+def se2_randn(
+    mean: Float[Tensor, "*b1 3 3"],
+    std: Float[Tensor, "*b2"] | float | None = None,
+    *,
+    cov: Float[Tensor, "*b2 3 3"] | None = None,
+    scale_tril: Float[Tensor, "*b2 3 3"] | None = None,
+    sample_shape: tuple[int, ...] | torch.Size = (),
+    generator: torch.Generator | None = None,
+) -> Float[Tensor, "*sample_batch 3 3"]:
+    """Gaussian planar poses about ``mean``: ``T = mean Exp(eps)``, ``eps ~ N(0, Sigma)``.
+
+    ``eps`` is a twist ``(rho_x, rho_y, theta)`` (translation part first) in the body frame of
+    ``mean``, so ``Sigma`` is ``3x3`` in that order; ``se2.rminus(T, mean)`` recovers ``eps``
+    exactly while ``|theta| < pi``.  Give exactly one of ``std``, ``cov`` or ``scale_tril`` (as
+    :func:`se3_randn`).  Shape ``(*sample_shape, *batch, 3, 3)``.
+
+    Example:
+        >>> cov = torch.diag(torch.tensor([0.25, 0.25, 0.01]))
+        >>> g = torch.Generator().manual_seed(0)
+        >>> T = se2_randn(torch.eye(3), cov=cov, sample_shape=(5, 2), generator=g)
+        >>> T.shape
+        torch.Size([5, 2, 3, 3])
+    """
+    return _randn(_SE2, mean, std, cov, scale_tril, sample_shape, generator)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -603,6 +703,80 @@ def se3_interpolate_keyframes(
     return _keyframes(_SE3, times, keyframes, query_times, extrapolate)
 
 
+@_checks.float32_exact
+def sim3_interpolate_keyframes(
+    times: Float[Tensor, " K"],
+    keyframes: Float[Tensor, "K *b 4 4"],
+    query_times: Float[Tensor, "*q"] | float,
+    *,
+    extrapolate: bool = False,
+) -> Float[Tensor, "*query_batch 4 4"]:
+    """Similarity trajectory through timed keyframes (as :func:`so3_interpolate_keyframes`).
+
+    Each segment is :func:`torchlie.sim3.interpolate`, the Sim(3) geodesic: the rotation part is
+    the rotations' slerp, the log scale moves linearly in time (the scale geometrically) and the
+    translation follows the group's exponential.  Same sorting, clamping / ``extrapolate`` rules
+    and shapes as the SO(3) version.
+
+    Example:
+        >>> times = torch.tensor([0.0, 2.0])
+        >>> keys = sim3.from_srt(torch.tensor([1.0, 4.0]), torch.eye(3), torch.zeros(2, 3))
+        >>> sim3.scale(sim3_interpolate_keyframes(times, keys, torch.tensor([1.0, 3.0])))
+        tensor([2., 4.])
+    """
+    return _keyframes(_SIM3, times, keyframes, query_times, extrapolate)
+
+
+@_checks.float32_exact
+def so2_interpolate_keyframes(
+    times: Float[Tensor, " K"],
+    keyframes: Float[Tensor, "K *b 2 2"],
+    query_times: Float[Tensor, "*q"] | float,
+    *,
+    extrapolate: bool = False,
+) -> Float[Tensor, "*query_batch 2 2"]:
+    """Planar rotation trajectory through timed keyframes (as :func:`so3_interpolate_keyframes`).
+
+    Each segment is :func:`torchlie.so2.interpolate`: the angle moves linearly along the shorter
+    arc between the two neighbours (counter-clockwise at an exact half turn).  Same sorting,
+    clamping / ``extrapolate`` rules and shapes as the SO(3) version.
+
+    Example:
+        >>> times = torch.tensor([0.0, 1.0, 3.0])
+        >>> keys = so2.exp(torch.tensor([[0.0], [1.0], [2.0]]))
+        >>> so2.log(so2_interpolate_keyframes(times, keys, torch.tensor([0.5, 2.0, 4.0])))
+        tensor([[0.5000],
+                [1.5000],
+                [2.0000]])
+    """
+    return _keyframes(_SO2, times, keyframes, query_times, extrapolate)
+
+
+@_checks.float32_exact
+def se2_interpolate_keyframes(
+    times: Float[Tensor, " K"],
+    keyframes: Float[Tensor, "K *b 3 3"],
+    query_times: Float[Tensor, "*q"] | float,
+    *,
+    extrapolate: bool = False,
+) -> Float[Tensor, "*query_batch 3 3"]:
+    """Planar pose trajectory through timed keyframes (as :func:`so3_interpolate_keyframes`).
+
+    Each segment is :func:`torchlie.se2.interpolate`, the SE(2) geodesic: the heading moves
+    linearly and the translation along a circular arc (a straight line where the heading does
+    not change).  Same sorting, clamping / ``extrapolate`` rules and shapes as the SO(3)
+    version.
+
+    Example:
+        >>> times = torch.tensor([0.0, 2.0])
+        >>> keys = se2.from_xytheta(torch.tensor([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]]))
+        >>> se2.to_xytheta(se2_interpolate_keyframes(times, keys, torch.tensor([1.0, 3.0])))
+        tensor([[1., 0., 0.],
+                [2., 0., 0.]])
+    """
+    return _keyframes(_SE2, times, keyframes, query_times, extrapolate)
+
+
 # ----------------------------------------------------------------------------------------------
 # Point-set alignment
 # ----------------------------------------------------------------------------------------------
@@ -770,7 +944,8 @@ def _integrate(g: _Group, X: Tensor, v: Tensor, dt: Tensor | float, frame: str) 
     fn = _NAME + g.name + "_integrate"
     if frame not in ("body", "world"):
         raise ValueError(f"{fn}: expected frame 'body' or 'world', got {frame!r}")
-    nx, nv = ("R", "omega") if g is _SO3 else ("T", "xi")  # the public argument names
+    # the public argument names: a rotation and its angular velocity, or an element and its twist
+    nx, nv = ("T", "xi") if g.affine else ("R", "omega")
     x, dtype = _checks.tensor(X, fn, nx, (g.n, g.n))
     vel, _ = _checks.tensor(v, fn, nv, (g.dof,))
     _checks.same_dtype(fn, **{nx: X, nv: v})
@@ -823,3 +998,70 @@ def se3_integrate(
         True
     """
     return _integrate(_SE3, T, xi, dt, frame)
+
+
+@_checks.float32_exact
+def sim3_integrate(
+    T: Float[Tensor, "*b1 4 4"],
+    xi: Float[Tensor, "*b2 7"],
+    dt: Float[Tensor, "*b3"] | float,
+    frame: str = "body",
+) -> Float[Tensor, "*b 4 4"]:
+    """Similarity after moving with a constant velocity ``xi = (v, omega, sigma_dot)`` for
+    ``dt`` (exact).
+
+    ``frame="body"``: ``xi`` in the body frame, ``T Exp(xi dt)``; ``frame="world"``: ``xi`` in
+    the world frame, ``Exp(xi dt) T``.  They agree when ``xi_world = Ad_T xi_body``
+    (:func:`torchlie.sim3.adjoint`).  ``sigma_dot`` is the rate of the log scale: the scale is
+    multiplied by ``exp(sigma_dot dt)``.  Batch shapes of ``T``, ``xi`` and ``dt`` broadcast.
+
+    Example:
+        >>> xi = torch.tensor([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.5])  # the log scale's rate
+        >>> sim3.scale(sim3_integrate(torch.eye(4), xi, 2.0))
+        tensor(2.7183)
+    """
+    return _integrate(_SIM3, T, xi, dt, frame)
+
+
+@_checks.float32_exact
+def so2_integrate(
+    R: Float[Tensor, "*b1 2 2"],
+    omega: Float[Tensor, "*b2 1"],
+    dt: Float[Tensor, "*b3"] | float,
+    frame: str = "body",
+) -> Float[Tensor, "*b 2 2"]:
+    """Planar rotation after turning at a constant rate ``omega`` ``(..., 1)`` for ``dt`` (exact).
+
+    ``R Exp(omega dt)``; the group is commutative, so ``frame="body"`` and ``frame="world"``
+    (``Exp(omega dt) R``) agree (both are accepted, as for the other groups).  Batch shapes of
+    ``R``, ``omega`` and ``dt`` broadcast.
+
+    Example:
+        >>> so2.log(so2_integrate(torch.eye(2), torch.tensor([2.0]), 0.25))
+        tensor([0.5000])
+    """
+    return _integrate(_SO2, R, omega, dt, frame)
+
+
+@_checks.float32_exact
+def se2_integrate(
+    T: Float[Tensor, "*b1 3 3"],
+    xi: Float[Tensor, "*b2 3"],
+    dt: Float[Tensor, "*b3"] | float,
+    frame: str = "body",
+) -> Float[Tensor, "*b 3 3"]:
+    """Planar pose after moving with a constant twist ``xi = (v_x, v_y, omega)`` for ``dt``
+    (exact).
+
+    ``frame="body"``: ``xi`` is the body twist, ``T Exp(xi dt)`` (a unicycle's forward speed and
+    yaw rate trace a circular arc); ``frame="world"``: ``xi`` is the spatial twist,
+    ``Exp(xi dt) T``.  They agree when ``xi_world = Ad_T xi_body`` (:func:`torchlie.se2.adjoint`).
+    Batch shapes of ``T``, ``xi`` and ``dt`` broadcast.
+
+    Example:
+        >>> xi = torch.tensor([1.0, 0.0, torch.pi])  # drive forward, turn left
+        >>> T = se2_integrate(torch.eye(3), xi, 1.0)  # half a circle of radius 1/pi
+        >>> torch.allclose(se2.to_xytheta(T)[:2], torch.tensor([0.0, 2 / torch.pi]), atol=1e-6)
+        True
+    """
+    return _integrate(_SE2, T, xi, dt, frame)
