@@ -342,3 +342,41 @@ def test_fixed_zero_axis_fixed_leaf_and_singular_mass_matrix():
         text.replace('<link name="c"/>', f'<link name="c">{inertia}</link>'), samples=20
     )
     assert report.ok and report.dynamics is not None and "qdd" in report.dynamics
+
+
+def test_forward_dynamics_by_the_residual_of_the_equations_of_motion(monkeypatch):
+    """The forward dynamics pass on a chain so ill-conditioned that two exact solvers'
+    accelerations differ (a heavy link of next to no inertia beside a light one, as iCub's),
+    and fail when the accelerations are off by a small fraction."""
+    pytest.importorskip("pinocchio")
+    from torchlie.kinematics import Chain
+
+    def inertial(m: float, i: float) -> str:
+        return (
+            f'<inertial><mass value="{m}"/><origin xyz="0.3 0 0"/><inertia ixx="{i}" ixy="0" '
+            f'ixz="0" iyy="{i}" iyz="0" izz="{i}"/></inertial>'
+        )
+
+    limit = '<limit lower="-1" upper="1" effort="1" velocity="1"/>'
+    text = (
+        f'<robot name="r"><link name="a"/><link name="b">{inertial(1e3, 1e-12)}</link>'
+        f'<link name="c">{inertial(1e-3, 1e-12)}</link>'
+        f'<joint name="j1" type="revolute"><parent link="a"/><child link="b"/>'
+        f'<axis xyz="0 0 1"/>{limit}</joint>'
+        f'<joint name="j2" type="revolute"><parent link="b"/><child link="c"/>'
+        f'<origin xyz="0.6 0 0"/><axis xyz="1 0 0"/>{limit}</joint></robot>'
+    )
+    chain = Chain.from_urdf(text, dtype=torch.float64)
+    q = chain.random_configuration(20, generator=torch.Generator().manual_seed(3))
+    assert float(torch.linalg.cond(chain.mass_matrix(q)).max()) > 1e11
+    report, out = run(text, samples=20)
+    assert report.ok and report.dynamics["qdd"] <= 1e-12
+    assert "the residual |M qdd + h - tau|" in out
+    real = Chain.forward_dynamics
+
+    def off(self, *args, **kw):
+        return real(self, *args, **kw) * (1 + 1e-7)
+
+    monkeypatch.setattr(Chain, "forward_dynamics", off)
+    report, out = run(text, samples=20)
+    assert not report.ok and "FAIL: outside tolerance: forward dynamics" in out
