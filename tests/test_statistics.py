@@ -637,6 +637,24 @@ def test_keyframes_gradcheck_every_group(core):
 
 
 @GROUPS
+def test_keyframes_derivative_in_time_at_a_keyframe_time(core):
+    """At a keyframe time the derivative in the query time is the starting segment's (the
+    right-sided one), whatever torch does at the bounds of ``clamp`` (its derivative there is
+    0 since torch 2.15: it was 0 here at every keyframe time); at the first time too."""
+    fn = _fn(core, "interpolate_keyframes")
+    times = torch.tensor([0.0, 1.0, 3.0], dtype=F64)
+    K = core.random(3, generator=gen(16), dtype=F64)
+    G = torch.randn(K.shape[1:], generator=gen(17), dtype=F64)
+    h = 1e-6
+    for t in (0.0, 1.0):
+        s = torch.tensor(t, dtype=F64, requires_grad=True)
+        (g,) = torch.autograd.grad((fn(times, K, s) * G).sum(), s)
+        right = ((fn(times, K, t + h) - fn(times, K, t)) * G).sum() / h
+        torch.testing.assert_close(g, right, rtol=1e-5, atol=1e-8)
+        assert float(g.abs()) > 1e-3
+
+
+@GROUPS
 def test_keyframes_vmap_over_queries(core):
     fn = _fn(core, "interpolate_keyframes")
     times, _ = _keys(5, seed=12)

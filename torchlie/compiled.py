@@ -7,13 +7,17 @@ functions mirror the eager ones name for name, with the same conventions, errors
     from torchlie.compiled import so3
     R = so3.exp(omega)      # first call compiles (seconds); later calls run the fused kernel
 
-Each function is compiled on its first call and kept; a call with a new batch shape or dtype may
-compile once more (torch's automatic dynamic shapes take over after the second shape), as does
-each new string argument (an Euler sequence, a frame) and rank.  Python floats (``t``, angles)
-are passed as 0-dim tensors of the operands' dtype, so new values do not compile again.  Past
-torch's limit of recompilations of one function (8) that function runs eagerly, with a
-warning.  Nothing global changes: ``torchlie.so3`` stays eager.  Constructors that take a
-``torch.Generator`` or only shapes (``identity``, ``random``) are passed through uncompiled.
+Each function is compiled on its first call and kept.  A variant of the call compiles once more:
+a new dtype, rank, string argument (an Euler sequence, a frame), or inputs that now record a
+gradient (or no longer do).  Within a variant a new batch shape compiles once more, after which
+torch's automatic dynamic shapes cover every batch size.  Python floats (``t``, angles) are
+passed as 0-dim tensors of the operands' dtype, so new values do not compile again.  Past
+torch's limit of compiled graphs of one function (8) that function runs eagerly, with a
+warning: two dtypes, two ranks, with and without gradients already make 8 graphs, so a
+program that calls one function in that many ways should compile its own code instead
+(``torch.compile`` of the caller, with :func:`inductor_options`).  Nothing global changes:
+``torchlie.so3`` stays eager.  Constructors that take a ``torch.Generator`` or only shapes
+(``identity``, ``random``) are passed through uncompiled.
 
 Vectorised CPU loops.  Inductor's C++ code generator leaves a fused loop scalar when strided
 loads and stores are many against its arithmetic (its ``cpp.enable_tiling_heuristics``); the ops
@@ -138,12 +142,14 @@ def _compile(fn: Callable, options: dict[str, bool | int]) -> Callable:
         try:
             return compiled(*args, **kwargs)
         except torch._dynamo.exc.FailOnRecompileLimitHit:
-            # Each string argument (an Euler sequence, a frame), rank and dtype is a variant
-            # of its own; past torch's limit of them the function runs eagerly (same results).
+            # Each dtype, rank, string argument (an Euler sequence, a frame) and gradient
+            # recording is a variant of its own; past torch's limit of them the function runs
+            # eagerly (same results).
             warnings.warn(
                 f"torchlie.compiled: {fn.__qualname__} reached torch.compile's limit of "
-                "recompilations (one per string argument, rank and dtype); it runs eagerly "
-                "from now on",
+                "recompilations (one per dtype, rank, string argument and whether the inputs "
+                "record a gradient, and one more per new batch shape); it runs eagerly from now "
+                "on",
                 stacklevel=2,
             )
             eager = True

@@ -637,7 +637,10 @@ def _keyframes(
     den = torch.where(ok, torch.where(wide, t1 / 2 - t0 / 2, dt), torch.ones_like(dt))
     u = torch.where(ok, num / den, torch.zeros_like(q))
     if not extrapolate:
-        u = u.clamp(0.0, 1.0)
+        # not clamp: its derivative at the bounds is torch's choice (1 up to torch 2.14, 0
+        # since), and u = 0 at every keyframe time; there the derivative is the segment's
+        # that starts at that time
+        u = torch.where(u < 0.0, 0.0, torch.where(u > 1.0, 1.0, u))
     u = u[(...,) + lead]
     k1 = kf[idx + 1]
     out = g.core.interpolate(kf[idx], k1, u)
@@ -666,7 +669,8 @@ def so3_interpolate_keyframes(
     clamped to the first / last keyframe, or with ``extrapolate=True`` continues along the first
     / last segment's geodesic.  ``keyframes`` may carry extra batch dimensions ``(K, *b, 3, 3)``
     (several trajectories sharing the times); the result has shape ``(*q, *b, 3, 3)``.
-    Differentiable in the keyframes and in the query times.
+    Differentiable in the keyframes and in the query times; at a keyframe time (where the
+    velocity may jump) the derivative in the query time is that of the segment starting there.
 
     Example:
         >>> times = torch.tensor([0.0, 1.0, 3.0])
