@@ -10,14 +10,14 @@ body from the world origin over the samples (m).
 
 When the model has mass, the dynamics are compared too (inverse dynamics, mass matrix, bias
 forces against ``mj_inverse``, ``mj_fullM`` and ``qfrc_bias``; the forward dynamics by the
-residual of MuJoCo's equations of motion, ``|M qacc + bias - tau|``, as against Pinocchio), on
-the model compiled again from its ``MjSpec`` with what MuJoCo adds
-to the rigid bodies and their joints' armature zeroed or disabled (damping, friction loss,
-springs, gravity compensation, tendons' and actuators' armature, contacts, constraints, limits,
-actuators), with the tolerances of the URDF dynamics against Pinocchio
-(:data:`torchlie.kinematics.validate.TOL_DYNAMICS`).  The joints' armature is kept: the chain
-adds it as MuJoCo does.  A source given as a compiled ``MjModel`` has no spec to recompile:
-its dynamics are not compared.
+backward error of MuJoCo's equations of motion, ``|M qdd + bias - tau|`` relative to
+``|M| |qdd| + |bias| + |tau|``, as against Pinocchio), on the model compiled again from its
+``MjSpec`` with what MuJoCo adds to the rigid bodies and their joints' armature zeroed or
+disabled (damping, friction loss, springs, gravity compensation, tendons' and actuators'
+armature, contacts, constraints, limits, actuators), with the tolerances of the URDF dynamics
+against Pinocchio (:data:`torchlie.kinematics.validate.TOL_DYNAMICS`).  The joints' armature
+is kept: the chain adds it as MuJoCo does.  A source given as a compiled ``MjModel`` has no
+spec to recompile: its dynamics are not compared.
 """
 
 from __future__ import annotations
@@ -99,7 +99,7 @@ def _dynamics(source: Any, dtype: torch.dtype, q: torch.Tensor, seed: int) -> di
     ref = {k: np.zeros((B, m.nv)) for k in ("tau", "bias")}
     ref_M = np.zeros((B, m.nv, m.nv))
     for b in range(B):
-        d.qpos[:], d.qvel[:], d.qfrc_applied[:] = q64[b].numpy(), qd[b].numpy(), tau[b].numpy()
+        d.qpos[:], d.qvel[:] = q64[b].numpy(), qd[b].numpy()
         mujoco.mj_forward(m, d)
         mujoco.mj_fullM(m, d, ref_M[b])
         ref["bias"][b] = d.qfrc_bias

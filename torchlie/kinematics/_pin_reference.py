@@ -147,12 +147,19 @@ class _Pin:
         return dD @ qd.numpy()
 
     def dynamics(
-        self, q64: Tensor, qd64: Tensor, qdd64: Tensor, gravity=None, derivatives: bool = True
+        self,
+        q64: Tensor,
+        qd64: Tensor,
+        qdd64: Tensor,
+        gravity=None,
+        derivatives: bool = True,
+        aba: bool = True,
     ) -> dict[str, Tensor]:
         """Pinocchio's inverse dynamics, mass matrix, bias and gravity forces in torchlie's
         coordinates (``tau = D^T tau_pin`` at ``v = D qd``, ``a = D qdd + (dD/dt) qd``), the
-        accelerations for ``tau = inverse dynamics`` by its ABA (where ``D`` is square) and the
-        RNEA derivatives (``D^T dtau D``, where ``D`` is constant), per configuration."""
+        accelerations for ``tau = inverse dynamics`` by its ABA (with ``aba``, where ``D`` is
+        square) and the RNEA derivatives (with ``derivatives``, where ``D`` is constant), per
+        configuration."""
         import numpy as np
 
         pin, model, data = self.pin, self.model, self.data
@@ -176,7 +183,7 @@ class _Pin:
             out["M"][b] = D.T @ Mp @ D
             out["bias"][b] = D.T @ (pin.nonLinearEffects(model, data, qp, v) + Mp @ c)
             out["gravity"][b] = D.T @ pin.computeGeneralizedGravity(model, data, qp)
-            if square:
+            if aba and square:
                 ap = pin.aba(model, data, qp, v, tau_p)
                 out["aba"][b] = np.linalg.solve(D, ap - c)
             if derivatives and not self.has_moving_map():

@@ -142,6 +142,11 @@ def parse_mjcf(
         >>> spec.root, spec.links, [(j.name, j.type, j.xyz) for j in spec.joints]
         ('world', ('world', 'arm'), [('shoulder', 'continuous', (0.0, 0.0, 1.0))])
     """
+    if not isinstance(site_prefix, str):
+        raise TypeError(
+            f"torchlie.kinematics.parse_mjcf: expected site_prefix to be a str, got "
+            f"{type(site_prefix).__name__}"
+        )
     m, label = _compile(source)
     mujoco = _mujoco()
 
@@ -213,11 +218,6 @@ def parse_mjcf(
             parent = child
     links = list(bodies)
     inertials: list[InertialSpec | None] = [None] + [_inertial(m, i) for i in range(1, m.nbody)]
-    if not isinstance(site_prefix, str):
-        raise TypeError(
-            f"torchlie.kinematics.parse_mjcf: expected site_prefix to be a str, got "
-            f"{type(site_prefix).__name__}"
-        )
     if sites:
         staken = {name(mujoco.mjtObj.mjOBJ_SITE, s) for s in range(m.nsite)} - {""}
         for s in range(m.nsite):
