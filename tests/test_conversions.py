@@ -369,6 +369,25 @@ def test_matrix_to_axis_angle_at_zero_and_pi():
     assert angle == PI
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_matrix_to_axis_angle_derivative_at_a_half_turn(dtype, axis):
+    # The rotation by the float64 pi (below the true pi, where the angle is differentiable)
+    # about a coordinate axis: |log R| is exactly the float pi, and d angle / d s along
+    # R Exp(s e) is 1 there, in reverse and forward mode, as just below it.
+    e = torch.zeros(3, dtype=dtype)
+    e[axis] = 1.0
+    for theta in (PI, PI - 1e-3):
+        R = so3.exp(theta * e.double()).to(dtype)
+
+        def angle(s, R=R):
+            return C.matrix_to_axis_angle(R @ so3.exp(s * e))[1]
+
+        s = torch.zeros((), dtype=dtype)
+        for d in (torch.func.grad(angle)(s), torch.func.jacfwd(angle)(s)):
+            assert (d - 1.0).abs() <= 8 * eps(dtype)
+
+
 def test_zero_axis_is_nan_only_there():
     axis = torch.tensor([[0.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
     R = C.axis_angle_to_matrix(axis, torch.tensor([0.5, 0.5]))

@@ -74,39 +74,64 @@ def test_se2_chordal_mean_averages_the_translations():
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_log_derivatives_at_every_magnitude_of_the_rotation_block(dtype):
-    # se2.log and to_xytheta of poses whose rotation block is s R (its polar factor R): reverse
-    # and forward mode against central differences of the float64 function in the block
+    # se2.log and to_xytheta of poses whose rotation block is s R (its polar factor R): the
+    # Jacobian in the block's entries, row by row in reverse mode and column by column in
+    # forward mode, against central differences of the float64 function (its norm the scale)
     mags = (1e20, 1e-20, 1e-25, 1e35) if dtype == torch.float32 else (1e160, 1e-160, 1e300)
     rtol = 4 * torch.finfo(dtype).eps if dtype == torch.float32 else 1e-8
     a = torch.tensor([0.0, 0.3, math.pi / 2, 2.0, -1.2], dtype=torch.float64)
-    w = torch.tensor([0.7, -1.3, 2.1], dtype=torch.float64)  # weights of the outputs
+    entries = ((0, 0), (0, 1), (1, 0), (1, 1))
+    E = torch.zeros(4, 3, 3, dtype=dtype)
+    for n, (i, j) in enumerate(entries):
+        E[n, i, j] = 1.0
     for fn in (se2.log, se2.to_xytheta):
         for s in (1.0, *mags):
             T = se2.from_xytheta(torch.stack((torch.ones_like(a), -2.0 * a, a), -1))
             T[..., :2, :2] *= s
             T = T.to(dtype)
             T64 = T.double()
-            want = torch.zeros_like(T64)
-            for i in range(2):
-                for j in range(2):
-                    e = torch.zeros_like(T64)
-                    e[..., i, j] = 1e-6 * s
-                    d = (fn(T64 + e) - fn(T64 - e)) @ w
-                    want[..., i, j] = d / (2e-6 * s)
-            Tg = T.clone().requires_grad_()
-            (got,) = torch.autograd.grad((fn(Tg) @ w.to(dtype)).sum(), Tg)
-            E = torch.zeros(4, 3, 3, dtype=dtype)
-            for n, (i, j) in enumerate(((0, 0), (0, 1), (1, 0), (1, 1))):
-                E[n, i, j] = 1.0
-            fwd = torch.stack(
-                [torch.func.jvp(fn, (T,), (E[n].expand_as(T),))[1] @ w.to(dtype) for n in range(4)],
+            want = torch.stack(  # (batch, output, entry)
+                [
+                    (fn(T64 + 1e-6 * s * E[n].double()) - fn(T64 - 1e-6 * s * E[n].double()))
+                    / (2e-6 * s)
+                    for n in range(4)
+                ],
                 -1,
             )
-            for g in (got[..., :2, :2].flatten(-2), fwd):
+            Tg = T.clone().requires_grad_()
+            out = fn(Tg)
+            rev = torch.stack(
+                [
+                    torch.autograd.grad(out[..., k].sum(), Tg, retain_graph=True)[0]
+                    for k in range(3)
+                ],
+                -3,
+            )
+            fwd = torch.stack(
+                [torch.func.jvp(fn, (T,), (E[n].expand_as(T),))[1] for n in range(4)], -1
+            )
+            for g in (rev[..., :2, :2].flatten(-2), fwd):
                 g = g.double() * s  # (the derivatives are ~ 1 / s)
-                ref = want[..., :2, :2].flatten(-2) * s
+                ref = want * s
                 assert bool(g.isfinite().all()), (fn, s, g)
-                err = float(((g - ref).norm(dim=-1) / ref.norm(dim=-1)).max())
+                err = float(
+                    ((g - ref).flatten(-2).norm(dim=-1) / ref.flatten(-2).norm(dim=-1)).max()
+                )
                 assert err <= rtol, (fn, s, err)
             # the translation block's gradient and the bottom row (0) are unchanged by the scale
-            assert got[..., 2, :].abs().max().item() == 0.0
+            assert rev[..., 2, :].abs().max().item() == 0.0
+
+
+@pytest.mark.parametrize("name", ["jac_left", "jac_right", "jac_left_inv", "jac_right_inv"])
+@pytest.mark.parametrize("transform", [torch.func.jacfwd, torch.func.jacrev])
+def test_float32_derivatives_of_the_jacobians_at_every_angle(name, transform):
+    # The Jacobians' own derivatives (second derivatives of exp and log) in float32 agree with
+    # float64's to float32's precision, small angles and the coefficients' switches included.
+    fn = getattr(se2, name)
+    t = torch.logspace(-4.0, 0.7, 64, dtype=torch.float64)
+    t = torch.cat((t, -t))
+    x = torch.stack((torch.full_like(t, 0.3), torch.full_like(t, -0.7), t), dim=-1)
+    J32 = torch.func.vmap(transform(fn))(x.float()).double()
+    J64 = torch.func.vmap(transform(fn))(x)
+    err = (J32 - J64).abs().flatten(1).amax(1) / J64.abs().flatten(1).amax(1)
+    assert err.max() <= 16 * torch.finfo(torch.float32).eps

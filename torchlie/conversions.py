@@ -335,7 +335,9 @@ def matrix_to_axis_angle(
     zero = n == 0
     # Double where: the zero-angle branch never sees 1/|w|; a NaN element stays NaN.
     axis = torch.where(zero, w.new_tensor([1.0, 0.0, 0.0]), w / torch.where(zero, 1.0, n))
-    angle = torch.clamp(n[..., 0], max=math.pi)  # |w| may round one ulp above pi
+    # |w| may round one ulp above pi.  Not clamp: its derivative at the bound is torch's
+    # choice (0 since torch 2.15), and |w| is exactly pi at every half turn about an axis.
+    angle = torch.where(n[..., 0] > math.pi, math.pi, n[..., 0])
     return _checks.out(axis, dtype), _checks.out(angle, dtype)
 
 

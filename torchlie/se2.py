@@ -90,11 +90,14 @@ def _coefficients(t: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
 def _vinv(t: Tensor) -> tuple[Tensor, Tensor]:
     """``(e, de/dt)``: ``e = (t/2) cot(t/2) = cos(t/2) / sinc(t/2)`` and
     ``e' = -t sinc3(t^2) / sinc(t/2)^2 = -c1 / sinc(t/2)^2``, differentiable to every order
-    where autograd records, forward-only otherwise."""
+    where autograd records (float32 in float64, as :func:`torchlie._coeffs.planar`),
+    forward-only otherwise."""
     if torch.is_grad_enabled():
-        h2 = 0.25 * t * t
+        w = t.double() if t.dtype == torch.float32 else t
+        h2 = 0.25 * w * w
         r = _coeffs.sinc(h2)
-        return _coeffs.cos_sqrt(h2) / r, -t * _coeffs.sinc3(t * t) / (r * r)
+        e, de = _coeffs.cos_sqrt(h2) / r, -w * _coeffs.sinc3(w * w) / (r * r)
+        return e.to(t.dtype), de.to(t.dtype)
     _, _, c1, _, r, ch = _coeffs.planar_values(t)
     return ch / r, -c1 / (r * r)
 
