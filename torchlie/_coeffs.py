@@ -61,18 +61,22 @@ _ATAN = [(-1) ** k / (2 * k + 1) for k in range(_N_MAX)]
 #: (1/n) d/dn [atan2(n, w)/n] w^3 = sum_k (-1)^(k+1) (2k + 2)/(2k + 3) (n/w)^(2k)
 _ATAN_SLOPE = [(-1) ** (k + 1) * (2 * k + 2) / (2 * k + 3) for k in range(_N_MAX)]
 
-# Number of series terms per function: (float32, float64).  Functions whose exact formula is
-# free of cancellation need few terms; those whose exact formula cancels (sinc3, cosc4, q3)
-# use more terms, so that the series reaches angles where the exact formula is accurate again.
+# Number of series terms per function: (float32, float64).  Enough that the series reaches
+# t2 where the exact formula is accurate again, in its value and in its derivatives (autograd
+# differentiates it term by term): sin(t)/t's derivatives cancel as eps / t2 and eps / t2^2
+# though its value does not, and sinc3, cosc4, q3 cancel in their values too.  With three
+# terms of sinc, switching at t2 = 1e-4, the derivatives of the SO(3) Jacobians were 500 ulp
+# off there.  Only the differentiable evaluations (double where) use these; the forward-only
+# ones clamp instead.
 _TERMS = {
-    "sinc": (2, 3),
-    "cosc": (2, 3),
-    "atan": (2, 3),
+    "sinc": (6, 10),
+    "cosc": (6, 10),
+    "atan": (4, 5),
     # evaluated where the atan series is (its threshold is larger than atan's)
-    "atan_slope": (3, 4),
-    "sinc3": (4, 8),
-    "cosc4": (5, 10),
-    "q3": (5, 10),
+    "atan_slope": (5, 6),
+    "sinc3": (5, 9),
+    "cosc4": (6, 11),
+    "q3": (6, 11),
 }
 _SERIES = {
     "sinc": _SINC,
@@ -86,13 +90,15 @@ _SERIES = {
 
 
 def _make_plan(name: str, dtype: torch.dtype) -> tuple[tuple[float, ...], float]:
-    """Series coefficients used and the t2 threshold below which the series is exact to eps."""
+    """Series coefficients used and the t2 threshold below which the series and its first
+    derivative are exact to eps: the first omitted term ``c_n t2^n`` below ``eps |c_0|`` and its
+    derivative ``n c_n t2^(n - 1)`` below ``eps |c_1|``."""
     n = _TERMS[name][1 if dtype == torch.float64 else 0]
     c = _SERIES[name]
     eps = torch.finfo(dtype).eps
-    # first omitted term |c_n| t2^n below eps * |c_0|
-    thr2 = (eps * abs(c[0]) / abs(c[n])) ** (1.0 / n)
-    return tuple(c[:n]), thr2
+    value = (eps * abs(c[0]) / abs(c[n])) ** (1.0 / n)
+    slope = (eps * abs(c[1]) / (n * abs(c[n]))) ** (1.0 / (n - 1))
+    return tuple(c[:n]), min(value, slope)
 
 
 # Precomputed once: plain dict look-ups trace cleanly under torch.compile.
@@ -813,7 +819,7 @@ def planar_values(t: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Te
 # --------------------------------------------------------------------------------------------
 
 _SINHC = [1.0 / math.factorial(2 * k + 1) for k in range(_N_MAX)]
-_TERMS["sinhc"] = (5, 8)
+_TERMS["sinhc"] = (6, 9)
 _SERIES["sinhc"] = _SINHC
 for _dt in (torch.float16, torch.bfloat16, torch.float32, torch.float64):
     _PLANS[("sinhc", _dt)] = _make_plan("sinhc", _dt)
