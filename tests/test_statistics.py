@@ -1157,6 +1157,20 @@ def test_align_nan_is_confined():
     torch.testing.assert_close(fit.rotation[2], align(P[2], Q[2]).rotation, rtol=0, atol=0)
 
 
+@pytest.mark.parametrize("where", ["P", "weights"])
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+def test_align_nan_or_inf_in_p_or_the_weights_gives_a_nan_scale(where, bad):
+    # every part of that element's fit is NaN, its scale too (not the scale of coinciding points)
+    P = torch.randn(3, 6, 3, generator=gen(62), dtype=F64)
+    Q = 2.0 * P + 1.0
+    w = torch.ones(3, 6, dtype=F64)
+    (P if where == "P" else w)[1, 4, ...] = bad
+    fit = align(P, Q, w, scale=True)
+    for x in fit:
+        assert torch.isnan(x[1]).all()
+        assert torch.isfinite(x[0]).all() and torch.isfinite(x[2]).all()
+
+
 def test_vmap_mean_and_align():
     R = cluster(so3, 5, 0.4, 4, seed=70)
     w = torch.rand(4, 5, generator=gen(71), dtype=F64)

@@ -36,7 +36,8 @@ none; every function here is compiled with :data:`FUSION` as well, which lets su
 share the op's loop.  The compiled functions run the same formulas as the eager ones; their
 values agree with eager's within a few ulp, not bit for bit (eager CPU multiply-adds round once,
 Inductor's CPU loops round the product and the sum separately).  The first call of each
-function compiles it, which takes seconds.
+function compiles it: seconds for most ops, a minute or more on a CPU for the largest graphs
+(Sim(3)'s exponential and Jacobians, with their backward).
 """
 
 from __future__ import annotations

@@ -254,7 +254,8 @@ def _between_planes(A: tuple, B: tuple) -> Tensor:
     return so2.assemble((*out, 0.0, 0.0, 1.0), so2.columns(out[0], 9)).unflatten(-1, (3, 3))
 
 
-#: ``A^-1 B`` and ``A B^-1``, exactly the identity where ``A == B``
+#: ``A^-1 B`` and ``A B^-1``; where ``A == B`` exactly symmetric with a zero translation (a log of
+#: exactly 0)
 _between, _right_between = _components.between_kernels(_blocks, _between_planes)
 
 

@@ -923,8 +923,9 @@ def align(
     if scale:
         # All points of P at one place (zero spread): every scale fits equally, and s = 1 is
         # returned, with zero gradient (the double where keeps 0/0 out of the backward too).
+        # A NaN spread (NaN or inf in P or the weights) gives a NaN scale, not that 1.
         spread = _sum(w * _sum(p * p, -1), -1)
-        some = spread > 0
+        some = spread != 0
         s = _sum(R * H, (-1, -2)) / torch.where(some, spread, torch.ones_like(spread))
         s = torch.where(some, s, torch.ones_like(s))  # (of the scaled sets)
         if translation:  # t = b (q_bar - s R p_bar) of the scaled sets
