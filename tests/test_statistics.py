@@ -204,6 +204,20 @@ def test_randn_gradcheck(core):
     )
 
 
+@pytest.mark.parametrize("core", [so3, se3, so2, se2, sim3], ids=lambda c: c.__name__[9:])
+def test_randn_covariance_derivatives(core):
+    # A covariance is read as its symmetric part: reverse and forward mode both give the
+    # derivatives of that function, in every entry (not one triangle's in one of the modes).
+    n, randn = _DOF[core], _fn(core, "randn")
+    M = core.random(generator=gen(14), dtype=F64)
+    C = 0.01 * torch.eye(n, dtype=F64) + 1e-3 * torch.arange(n * n, dtype=F64).reshape(n, n) / n**2
+    assert gradcheck(
+        lambda C: randn(M, cov=C, sample_shape=(2,), generator=gen(15)),
+        (C.requires_grad_(),),
+        check_forward_ad=True,
+    )
+
+
 def test_randn_non_pd_cov_is_nan_for_its_element_only():
     cov = torch.stack((0.01 * torch.eye(3, dtype=F64), -torch.eye(3, dtype=F64)))
     R = so3_randn(torch.eye(3, dtype=F64), cov=cov, generator=gen(0))

@@ -140,7 +140,9 @@ def _randn(
         L, _ = _checks.tensor(cov if cov is not None else scale_tril, fn, name, (g.dof, g.dof))
         _checks.same_dtype(fn, mean=mean, **{name: cov if cov is not None else scale_tril})
         if cov is not None:
-            L, info = torch.linalg.cholesky_ex(L)
+            # Its symmetric part, so that forward and reverse mode agree: the factorization
+            # reads one triangle, and torch's backward of it returns the symmetric gradient.
+            L, info = torch.linalg.cholesky_ex(0.5 * L + 0.5 * L.mT)
             # A covariance that is not positive definite gives NaN for its element only.
             L = torch.where((info == 0)[..., None, None], L, torch.full_like(L, float("nan")))
         else:
@@ -173,9 +175,10 @@ def so3_randn(
     ``eps`` is a rotation vector in the body frame of ``mean`` (right perturbation), so
     ``so3.rminus(R, mean)`` recovers it exactly while ``|eps| < pi``.  Give exactly one of
     ``std`` (isotropic, ``Sigma = std^2 I``, in radians; a float or a tensor broadcasting with
-    the batch), ``cov`` (full ``3x3`` covariance, positive definite; one that is not gives NaN
-    for its element) or ``scale_tril`` (a lower-triangular factor ``L``, ``Sigma = L L^T``; use
-    it for singular covariances).  The result has shape ``(*sample_shape, *batch, 3, 3)`` with
+    the batch), ``cov`` (full ``3x3`` covariance, positive definite, read as its symmetric part
+    ``(C + C^T)/2`` in value and derivatives; one that is not gives NaN for its element) or
+    ``scale_tril`` (a lower-triangular factor ``L``, ``Sigma = L L^T``; use it for singular
+    covariances).  The result has shape ``(*sample_shape, *batch, 3, 3)`` with
     ``batch`` the broadcast of the batch shapes of ``mean`` and ``std`` / ``cov``.
 
     Example:
@@ -204,8 +207,9 @@ def se3_randn(
     ``eps`` is a twist ``(rho, phi)`` (translation part first) in the body frame of ``mean``, so
     ``Sigma`` is ``6x6`` in that order; ``se3.rminus(T, mean)`` recovers ``eps`` exactly while
     ``|phi| < pi``.  Give exactly one of ``std`` (isotropic; it mixes metres and radians, so it
-    is mostly useful for tests), ``cov`` (positive definite) or ``scale_tril`` (``Sigma = L L^T``,
-    for singular covariances such as rotation-only noise).  Shape
+    is mostly useful for tests), ``cov`` (positive definite; its symmetric part, as
+    :func:`so3_randn`) or ``scale_tril`` (``Sigma = L L^T``, for singular covariances such as
+    rotation-only noise).  Shape
     ``(*sample_shape, *batch, 4, 4)``.
 
     Example:
