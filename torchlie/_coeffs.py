@@ -64,10 +64,9 @@ _ATAN_SLOPE = [(-1) ** (k + 1) * (2 * k + 2) / (2 * k + 3) for k in range(_N_MAX
 # Number of series terms per function: (float32, float64).  Enough that the series reaches
 # t2 where the exact formula is accurate again, in its value and in its derivatives (autograd
 # differentiates it term by term): sin(t)/t's derivatives cancel as eps / t2 and eps / t2^2
-# though its value does not, and sinc3, cosc4, q3 cancel in their values too.  With three
-# terms of sinc, switching at t2 = 1e-4, the derivatives of the SO(3) Jacobians were 500 ulp
-# off there.  Only the differentiable evaluations (double where) use these; the forward-only
-# ones clamp instead.
+# though its value does not (a switch at t2 = 1e-4 would leave the Jacobians' derivatives
+# hundreds of ulp off), and sinc3, cosc4, q3 cancel in their values too.  Only the
+# differentiable evaluations (double where) use these; the forward-only ones clamp instead.
 _TERMS = {
     "sinc": (6, 10),
     "cosc": (6, 10),
