@@ -731,6 +731,12 @@ def q_far(t: Tensor, s: Tensor, c: Tensor) -> tuple[Tensor, Tensor, Tensor, Tens
     return (1.0 - s * it) * it, 3.0 * v - s * it - 0.5, 0.5 - v, k4
 
 
+def wide(x: Tensor) -> Tensor:
+    """``x`` in the dtype the coefficients are evaluated in: float64 for float32 (see
+    :func:`theta2`), unchanged otherwise."""
+    return x.double() if x.dtype == torch.float32 else x
+
+
 def theta2(w: Tensor | Sequence[Tensor], keepdim: bool = False) -> Tensor:
     """|w|^2 over the last dimension, in the dtype the coefficients are evaluated in.
 
@@ -741,9 +747,7 @@ def theta2(w: Tensor | Sequence[Tensor], keepdim: bool = False) -> Tensor:
     components (tensors of one shape).
     """
     # Component-wise: a reduction over a trailing dimension of 3 costs several times more.
-    x, y, z = w.unbind(-1) if isinstance(w, Tensor) else w
-    if x.dtype == torch.float32:
-        x, y, z = x.double(), y.double(), z.double()
+    x, y, z = (wide(c) for c in (w.unbind(-1) if isinstance(w, Tensor) else w))
     t2 = fma(fma(x * x, y, y), z, z)
     return t2.unsqueeze(-1) if keepdim else t2
 
@@ -762,9 +766,7 @@ def planar(t: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     float32 series are sized for values, and their derivatives miss up to ``t2/10`` relative
     (a few 1e-4 at the switches) where the float64 ones are exact to float32's precision.
     """
-    dtype = t.dtype
-    if dtype == torch.float32:
-        t = t.double()
+    dtype, t = t.dtype, wide(t)
     small = t.abs() < 1.0
     tn = torch.where(small, t, torch.zeros_like(t))
     t2 = tn * tn

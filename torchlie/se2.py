@@ -93,7 +93,7 @@ def _vinv(t: Tensor) -> tuple[Tensor, Tensor]:
     where autograd records (float32 in float64, as :func:`torchlie._coeffs.planar`),
     forward-only otherwise."""
     if torch.is_grad_enabled():
-        w = t.double() if t.dtype == torch.float32 else t
+        w = _coeffs.wide(t)
         h2 = 0.25 * w * w
         r = _coeffs.sinc(h2)
         e, de = _coeffs.cos_sqrt(h2) / r, -w * _coeffs.sinc3(w * w) / (r * r)

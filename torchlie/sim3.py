@@ -83,11 +83,6 @@ def _trans(T: Tensor) -> Tensor:
     return T[..., :3, 3]
 
 
-def _wide(x: Tensor) -> Tensor:
-    """The precision coefficients are evaluated in (float64 for float32, as ``_coeffs``)."""
-    return x.double() if x.dtype == torch.float32 else x
-
-
 def _scaled_entries(M: Tensor) -> tuple[list[Tensor], Tensor, Tensor]:
     """``(entries of M / k, k, out)``: ``k`` a power of two near the largest ``|M_ij|`` (an
     exact division; detached) where that lies outside the range whose squares are normal and
@@ -156,7 +151,7 @@ def _poly(a: Tensor, b: Tensor, c: Tensor, phi: Tensor, v: Tensor) -> Tensor:
 def _coefficients(
     fn, sigma: Tensor, phi: Tensor | Sequence[Tensor], differentiable: bool = True
 ) -> tuple[Tensor, Tensor, Tensor]:
-    out = fn(_wide(sigma), _coeffs.theta2(phi), sigma.dtype, differentiable)
+    out = fn(_coeffs.wide(sigma), _coeffs.theta2(phi), sigma.dtype, differentiable)
     return tuple(x.to(sigma.dtype) for x in out)  # type: ignore[return-value]
 
 
@@ -307,7 +302,7 @@ def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
     block triangular: ``[[V^-1, -V^-1 Q Jl(phi)^-1, -V^-1 W], [0, Jl(phi)^-1, 0], [0, 0, 1]]``.
     """
     dtype = xi.dtype  # evaluated in float64 for float32: the products of up to three
-    xi = _wide(xi)  # components of phi overflow float32 below the angle reduction's range
+    xi = _coeffs.wide(xi)  # components of phi overflow float32 below the angle reduction's range
     rho, phi, sigma = xi[..., :3], xi[..., 3:6], xi[..., 6]
     if not inverse:  # the inverse is meant for angles below 2 pi
         phi, lam, big, u = _huge(phi)
