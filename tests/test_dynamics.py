@@ -585,6 +585,36 @@ def test_gradcheck_small_chain():
     assert torch.autograd.gradcheck(chain.forward_dynamics, fd_args)
 
 
+@pytest.mark.parametrize("fn", ["inverse_dynamics", "mass_matrix", "forward_dynamics"])
+def test_inertia_derivatives_in_every_entry(tree, fn):
+    # The derivative in each of the 9 entries of each body's inertia, one at a time (the
+    # symmetric pairs split apart: the inertia is read as its symmetric part), against a
+    # fourth-order difference with a step relative to the body's inertia; every perturbed copy is
+    # one batch of per-state inertials.
+    q, qd, qdd = _state(tree, 2, seed=10)
+    ins = tree.inertials
+    nb = ins.inertia.shape[0]
+
+    def f(inertia):
+        i2 = Inertials(ins.mass, ins.com, inertia)
+        batch = torch.broadcast_shapes(inertia.shape[:-3], q.shape[:-1])
+        x = [v.expand(*batch, -1) for v in (q, qd, qdd)]
+        if fn == "mass_matrix":
+            return tree.mass_matrix(x[0], inertials=i2)
+        return getattr(tree, fn)(*x, inertials=i2)
+
+    I = ins.inertia.clone().requires_grad_()
+    out = f(I)
+    w = torch.randn(out.shape, generator=torch.Generator().manual_seed(11), dtype=F64)
+    (grad,) = torch.autograd.grad((out * w).sum(), I)
+    step = 1e-2 * ins.inertia.diagonal(dim1=-2, dim2=-1).mean(-1)  # (nb,)
+    E = torch.eye(nb * 9, dtype=F64).view(nb * 9, nb, 3, 3) * step.view(1, nb, 1, 1)
+    stencil = ((-2, 1 / 12), (-1, -8 / 12), (1, 8 / 12), (2, -1 / 12))
+    fd = sum(c * (f((ins.inertia + k * E).unsqueeze(1)) * w).flatten(1).sum(1) for k, c in stencil)
+    fd = fd.view(nb, 3, 3) / step.view(nb, 1, 1)
+    torch.testing.assert_close(grad, fd, rtol=1e-5, atol=1e-8 * float(fd.abs().max()))
+
+
 def test_finite_true_gradients_at_exact_inputs(tree):
     # q = 0 puts the floating joint's rotation vector at exactly 0 (its series branch) and
     # every revolute joint at an axis-aligned pose: autograd equals central differences.

@@ -81,7 +81,9 @@ class Inertials(NamedTuple):
         mass: ``(..., n_bodies)`` kg.
         com: ``(..., n_bodies, 3)`` centre of mass in the body's frame, m.
         inertia: ``(..., n_bodies, 3, 3)`` rotational inertia about the centre of mass, axes of
-            the body's frame, kg m^2.
+            the body's frame, kg m^2; read as its symmetric part ``(I + I^T) / 2``, so that
+            every function sees the same matrix and the derivative in one off-diagonal entry
+            is half that in the symmetric pair.
         armature: ``(..., n_v)`` per velocity coordinate (:attr:`Chain.velocity_names`), the
             inertia added to the mass matrix's diagonal (rotor inertia reflected to the joint:
             kg m^2 for a rotation, kg for a translation; MuJoCo's joint ``armature``,
@@ -537,6 +539,8 @@ def _check_inertials(
             continue
         t, _ = _checks.tensor(x, _NAME + fn, f"inertials.{name}", trailing)
         chain._check_like(t, _NAME + fn, f"inertials.{name}", x.dtype)
+        if name == "inertia":  # the recursions read both triangles, the factorization one
+            t = 0.5 * (t + t.mT)
         lead = tuple(t.shape[: t.dim() - len(trailing)])
         try:
             ok = torch.broadcast_shapes(lead, batch) == batch
