@@ -590,6 +590,24 @@ def _sim3_unit_and_scale(dtype: torch.dtype, seed: int):
 
 
 @pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
+def test_sim3_inverse_whose_translation_overflows(dtype):
+    # A tiny scale and a huge translation: -R^T t / s exceeds the largest float, so each
+    # component is an infinity of the true sign (or 0 where R^T t is 0), never NaN.
+    g = torch.Generator().manual_seed(23)
+    R = so3.random(16, generator=g, dtype=torch.float64)
+    R[:4] = torch.eye(3, dtype=torch.float64)  # exact zeros in R^T t
+    fi = torch.finfo(dtype)
+    t = ((torch.rand(16, 3, generator=g, dtype=torch.float64) * 2 - 1) * fi.max / 4).to(dtype)
+    t[:4, 1:] = 0
+    T = sim3.from_srt(torch.full((16,), 2.0**-10, dtype=dtype), R.to(dtype), t)
+    got = sim3.inverse(T)[:, :3, 3]
+    want = -(R.mT @ t.double().unsqueeze(-1)).squeeze(-1)  # the sign of the true result
+    assert not bool(got.isnan().any())
+    torch.testing.assert_close(got.sign(), want.sign().to(dtype), rtol=0, atol=0)
+    assert bool(got[want != 0].isinf().all())
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["f32", "f64"])
 def test_sim3_exp_and_log_of_translations_near_the_largest_float(dtype):
     """``t = V rho``, ``rho = V^-1 t``: linear in ``rho`` (``t``); the products of ``phi`` and
     ``rho`` (``t``) overflowed from the largest float over ``|phi|`` (inf and NaN)."""

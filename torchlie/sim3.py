@@ -201,10 +201,15 @@ _exp_blocked = blocked(_exp, (1,))
 
 def _inverse(T: Tensor) -> Tensor:
     """``[[M^-1, -M^-1 t], [0, 1]]`` with ``M^-1 = (M^T / s) / s`` (``s^2`` may not be
-    representable where ``s`` is)."""
+    representable where ``s`` is).  The translation's products are those of
+    ``compose(T^-1, T)``, whose translation is then exactly 0; where they overflow (a sum of
+    infinities) it is ``-(R^T t) / s`` instead, rotated before it is scaled."""
     r = _scale(_lin(T))[1][..., None, None]
-    Mi = _lin(T).transpose(-1, -2) * r * r
-    return _components.homogeneous(Mi, -_components.mv(Mi, _trans(T)))
+    Rt = _lin(T).transpose(-1, -2) * r
+    Mi = Rt * r
+    t = -_components.mv(Mi, _trans(T))
+    t = torch.where(t.isfinite(), t, -_components.mv(Rt, _trans(T)) * r[..., 0])
+    return _components.homogeneous(Mi, t)
 
 
 def _compose(A: Tensor, B: Tensor) -> Tensor:
