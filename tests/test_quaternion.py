@@ -268,6 +268,24 @@ def test_hard_rotvecs_accuracy(dtype):
     assert rel_err(r[far], w[far]).max() <= tol
 
 
+def test_from_rotvec_is_canonical_just_below_pi(dtype):
+    # Angles just below pi (random axes at 1 to 4 floats below pi in float32, which evaluates
+    # the angle in float64; 16 to 64 in float64, past its own rounding of the angle): w > 0
+    # wherever the input's exact angle is below pi by more than float64 resolves.
+    g = torch.Generator().manual_seed(31)
+    n = torch.nn.functional.normalize(torch.randn(4000, 3, generator=g, dtype=F64), dim=-1)
+    t = torch.tensor(math.pi, dtype=dtype)
+    below = [t := torch.nextafter(t, torch.tensor(0.0, dtype=dtype)) for _ in range(64)]
+    below = below[:4] if dtype == torch.float32 else below[15::16]
+    omega = torch.cat([(n[i::4] * float(b)).to(dtype) for i, b in enumerate(below)])
+    with mp.workdps(40):
+        angle = [mp.sqrt(sum(mp.mpf(float(c)) ** 2 for c in row)) for row in omega.tolist()]
+        inside = torch.tensor([a < mp.pi * (1 - 8 * torch.finfo(F64).eps) for a in angle])
+    assert int(inside.sum()) > 1000
+    q = Q.from_rotvec(omega)
+    assert bool((q[inside, 0] > 0).all())
+
+
 def test_hard_quaternions_antipodal(dtype):
     h = samplers.hard_quaternions(dtype)
     assert torch.equal(Q.to_matrix(h), Q.to_matrix(-h))

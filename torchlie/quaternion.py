@@ -208,11 +208,13 @@ def _exp_pure(a: Tensor) -> Tensor:
     """``exp([0, a]) = [cos|a|, sin|a| a/|a|]`` for ``a`` of shape ``(..., 3)``; smooth at 0.
 
     ``|a|`` is reduced modulo ``2 pi`` first where it is too large for the formulas
-    (:func:`torchlie._coeffs.reduced`; the same value and derivatives)."""
+    (:func:`torchlie._coeffs.reduced`; the same value and derivatives).  ``|a|^2`` and the
+    coefficients as :func:`torchlie._coeffs.theta2` evaluates them (float64 for float32: a
+    float32 ``|a|^2`` rounds angles just below ``pi`` onto it, and ``cos`` to the wrong sign)."""
     x, y, z = _coeffs.reduced_planes(a.unbind(-1))
-    t2 = fma(fma(x * x, y, y), z, z)
-    s = _coeffs.sinc(t2)
-    return torch.stack((_coeffs.cos_sqrt(t2), s * x, s * y, s * z), dim=-1)
+    t2 = _coeffs.theta2((x, y, z))
+    s = _coeffs.sinc(t2).to(x.dtype)
+    return torch.stack((_coeffs.cos_sqrt(t2).to(x.dtype), s * x, s * y, s * z), dim=-1)
 
 
 @_checks.float32_exact
@@ -582,7 +584,8 @@ def random(
 
     Normalised Gaussian 4-vectors: uniform on the unit quaternions, hence Haar-uniform
     rotations.  Not canonicalised (both signs are equally likely).  With the same generator
-    state and dtype, ``to_matrix(random(...))`` equals ``torchlie.so3.random(...)``.
+    state and dtype, ``to_matrix(random(...))`` is the rotation ``torchlie.so3.random(...)``
+    returns, up to rounding (the two round in another order).
     float16/bfloat16 are drawn and normalised in float32, then cast.
 
     Example:
