@@ -674,7 +674,8 @@ def so3_interpolate_keyframes(
     / last segment's geodesic.  ``keyframes`` may carry extra batch dimensions ``(K, *b, 3, 3)``
     (several trajectories sharing the times); the result has shape ``(*q, *b, 3, 3)``.
     Differentiable in the keyframes and in the query times; at a keyframe time (where the
-    velocity may jump) the derivative in the query time is that of the segment starting there.
+    velocity may jump) the derivative in the query time is that of the segment starting there
+    (at the last keyframe, clamped, that of the segment ending there).
 
     Example:
         >>> times = torch.tensor([0.0, 1.0, 3.0])
