@@ -886,7 +886,9 @@ class Sim3Parametrization(nn.Module):
     * ``"pos_quat_sigma"`` (default): ``(..., 8)`` ``(t, q, sigma)``, read as
       :func:`torchlie.sim3.from_srt` of ``exp(sigma)``, the rotation of ``q / |q|`` (``q = 0``
       reads as the identity rotation) and ``t``: translation, rotation and log scale
-      decoupled, and the scale positive whatever the optimiser does.
+      decoupled, and the scale positive whatever the optimiser does (while ``exp(sigma)`` is
+      representable: an optimisation that diverges to ``sigma`` below about -104 in float32
+      or -745 in float64 reads a scale of 0).
     * ``"matrix"``: an unconstrained ``(..., 4, 4)`` matrix; its top-left 3x3 block ``A`` is
       read as the nearest similarity ``s R`` in the Frobenius norm: ``R`` its nearest rotation
       (:func:`torchlie.so3.project`) and ``s = tr(R^T A) / 3``, which is at least a third of
