@@ -344,7 +344,7 @@ def test_residual_jacobian_is_the_exact_derivative(robot, links):
         for name in links
     ]  # fmt: skip
     w = torch.tensor([1.0, 1.0, 1.0, 0.5, 0.5, 0.5] * len(links), dtype=F64)
-    b, A, _, _ = ik_module._residuals(chain, q.mT.contiguous(), tasks, w, None)
+    b, A = ik_module._residuals(chain, q.mT.contiguous(), tasks, w, None)
 
     def residual(x: torch.Tensor) -> torch.Tensor:
         T = chain.forward_kinematics(x, links)
@@ -377,15 +377,19 @@ def test_solver_residual_is_the_world_frame_residual(robot, links):
         T_star = chain.forward_kinematics(qs, links)
         tasks = [
             ik_module._Task(name, True,
-                            se3.inverse(T_star[name]).reshape(N, 16).mT.reshape(4, 4, N))
+                            se3.inverse(T_star[name]).reshape(N, 16).mT.reshape(4, 4, N),
+                            T_star[name][:, :3, 3].mT.contiguous())
             for name in links
         ]  # fmt: skip
-        b, A, perr, rerr = ik_module._residuals(chain, q.mT.contiguous(), tasks, w, None)
+        b, A = ik_module._residuals(chain, q.mT.contiguous(), tasks, w, None)
         bw, Aw, perr_w, rerr_w = ik_module._linearise(chain, q.mT.contiguous(), tasks, w, None)
         torch.testing.assert_close(bw.mT, (Rot @ b.mT.unsqueeze(-1)).squeeze(-1), atol=1e-12,
                                    rtol=0)  # fmt: skip
-        torch.testing.assert_close(perr_w, perr, atol=1e-12, rtol=0)
-        torch.testing.assert_close(rerr_w, rerr, atol=1e-12, rtol=0)
+        # the errors: the largest distance and the largest angle over the links
+        dist = torch.stack([(T[n][:, :3, 3] - T_star[n][:, :3, 3]).norm(dim=-1) for n in links])
+        angle = (b / w.unsqueeze(-1)).view(len(links), 2, 3, N)[:, 1].norm(dim=1)
+        torch.testing.assert_close(perr_w, dist.amax(0), atol=1e-12, rtol=0)
+        torch.testing.assert_close(rerr_w, angle.amax(0), atol=1e-12, rtol=0)
         if at_solution:  # A (m, n, N); Aw (n, m, N)
             torch.testing.assert_close(Aw.permute(2, 1, 0), Rot @ A.permute(2, 0, 1), atol=1e-12,
                                        rtol=0)  # fmt: skip
@@ -537,6 +541,23 @@ def test_targets_that_require_grad_leave_the_solution_as_it_is():
     (g,) = torch.autograd.grad(res.q[0].sum(), Tg)
     assert bool(g[0].isfinite().all()) and float(g[0].abs().max()) > 0
     assert torch.equal(g[1:], torch.zeros_like(g[1:]))
+
+
+def test_position_error_is_the_distance_for_any_rotation_block():
+    """The reported position error is the distance ``|p - p*|`` to the target's translation
+    even where the target's rotation block is not a rotation (values are not checked): a zero
+    block (a pose built from ``torch.zeros``), whose log residual is 0 at every ``q``, is not
+    reported converged, and a scaled one does not scale the error."""
+    arm = ARM
+    T = torch.zeros(2, 4, 4, dtype=F64)
+    T[:, 3, 3] = 1.0
+    T[:, :3, 3] = torch.tensor([0.3, 0.2, 0.8], dtype=F64)
+    T[1, :3, :3] = 2.0 * so3.exp(torch.tensor([0.3, -0.5, 0.2], dtype=F64))
+    res = arm.inverse_kinematics(T, "tool_tcp", generator=torch.Generator().manual_seed(0))
+    p = arm.forward_kinematics(res.q, "tool_tcp")["tool_tcp"][:, :3, 3]
+    torch.testing.assert_close(res.position_error, (p - T[:, :3, 3]).norm(dim=-1))
+    assert not bool(res.converged[0])
+    assert float(res.position_error[0]) > 0.1
 
 
 def test_far_targets_report_their_distance_and_are_stepped():

@@ -219,6 +219,9 @@ class _Task(NamedTuple):
     link: str
     pose: bool  # pose target (else a position)
     target: Tensor  # batch innermost: (4, 4, N) T*^-1, or (3, N) p*
+    # a pose target's own translation p* (3, N), for the position error |p - p*| (the
+    # translation of T*^-1 T has that norm only where T*'s rotation block is a rotation)
+    position: Tensor | None = None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -353,9 +356,17 @@ def _errors(perr: list[Tensor], rerr: list[Tensor]) -> tuple[Tensor, Tensor]:
     return p, torch.stack(rerr).amax(0) if len(rerr) > 1 else rerr[0]
 
 
-def _log_error(P: Tensor, Ti: Tensor) -> tuple[Tensor, Tensor]:
-    """``r = Log(T*^-1 T)`` ``(6, N)`` (:func:`torchlie.se3.log`) and the norm of the
-    translation of ``T*^-1 T`` ``(N,)`` (the position error), from the transposed pose
+def _columns(task: _Task, cols: Tensor) -> _Task:
+    """``task`` at the columns ``cols`` of its targets (batch innermost)."""
+    p = task.position
+    return task._replace(
+        target=task.target.index_select(-1, cols),
+        position=None if p is None else p.index_select(-1, cols),
+    )
+
+
+def _log_error(P: Tensor, Ti: Tensor) -> Tensor:
+    """``r = Log(T*^-1 T)`` ``(6, N)`` (:func:`torchlie.se3.log`) from the transposed pose
     ``P (4, 4, N)`` of ``T`` and ``Ti (4, 4, N)`` = ``T*^-1``.
 
     ``T*^-1 T`` is formed batch last, four fused multiply-adds over the batch (faster than a
@@ -364,39 +375,34 @@ def _log_error(P: Tensor, Ti: Tensor) -> tuple[Tensor, Tensor]:
     E = Ti[:, None, 0] * P[None, :, 0]  # [r, c, N]
     for k in (1, 2, 3):
         E = torch.addcmul(E, Ti[:, None, k], P[None, :, k])
-    return _se3.log(E.permute(2, 0, 1)).mT, _norm3(E[:3, 3])
+    return _se3.log(E.permute(2, 0, 1)).mT
 
 
 def _residuals(
     chain: SolverChain, q: Tensor, tasks: list[_Task], weights: Tensor, dofs: _Dofs | None
-) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Weighted residuals ``b (m, N)``, their exact Jacobian ``A (m, k, N)`` with respect to the
-    DoFs ``dofs`` (``k`` of them; all if None) and the position and rotation errors ``(N,)``
-    (worst over the tasks) at ``q (n_dof, N)``: the link-frame residuals of the module
-    docstring (used for the implicit gradients)."""
+) -> tuple[Tensor, Tensor]:
+    """Weighted residuals ``b (m, N)`` and their exact Jacobian ``A (m, k, N)`` with respect to
+    the DoFs ``dofs`` (``k`` of them; all if None) at ``q (n_dof, N)``: the link-frame
+    residuals of the module docstring (used for the implicit gradients)."""
     links = tuple(t.link for t in tasks)
     poses, jacs = chain.poses_and_jacobians(q, links, None if dofs is None else dofs.ids)
-    rs, As, perr, rerr = [], [], [], []
+    rs, As = [], []
     for task, P, J in zip(tasks, poses, jacs, strict=True):
         # P (4, 4, N) with P[c, r] = T[r, c]; J (k, 6, N) in world coordinates.
         if task.pose:
-            r, err = _log_error(P, task.target)
+            r = _log_error(P, task.target)
             # The derivative of the log: Jr(r)^-1 times the link-frame Jacobian diag(R, R)^T J.
             Rt = P[:3, :3].permute(2, 0, 1)  # R^T
             Jw = J.permute(2, 1, 0)  # (N, 6, k)
             J_link = torch.cat((Rt @ Jw[:, :3], Rt @ Jw[:, 3:]), 1)
             As.append((_se3.jac_right_inv(r.mT) @ J_link).permute(1, 2, 0))
             rs.append(r)
-            perr.append(err)
-            rerr.append(_norm3(r[3:]))
         else:
-            r = P[3, :3] - task.target
-            rs.append(r)
+            rs.append(P[3, :3] - task.target)
             As.append(J[:, :3].transpose(0, 1))
-            perr.append(_norm3(r))
     b = (torch.cat(rs) if len(rs) > 1 else rs[0]) * weights.unsqueeze(-1)
     A = (torch.cat(As) if len(As) > 1 else As[0]) * weights.view(-1, 1, 1)
-    return b, A, *_errors(perr, rerr)
+    return b, A
 
 
 def _linearise(
@@ -421,8 +427,8 @@ def _linearise(
     rs, As, perr, rerr = [], [], [], []
     for task, P, J in zip(tasks, poses, jacs, strict=True):
         if task.pose:
-            r, err = _log_error(P, task.target)  # (rho, phi) in the link frame
-            perr.append(err)
+            r = _log_error(P, task.target)  # (rho, phi) in the link frame
+            perr.append(_norm3(P[3, :3] - task.position))
             rerr.append(_norm3(r[3:]))
             r = (P[:3, :3] * r.view(2, 3, 1, -1)).sum(1).view(6, -1)  # R rho, R phi
         else:
@@ -639,7 +645,8 @@ def inverse_kinematics(
         tail = (4, 4) if pose else (3,)
         tb = t.expand(*batch, *tail).reshape(P, *tail)
         raw.append(_Task(name, pose, tb))
-        tasks.append(_Task(name, pose, _batch_last(tb.detach(), pose).contiguous()))
+        p = tb.detach()[:, :3, 3].mT.contiguous() if pose else None
+        tasks.append(_Task(name, pose, _batch_last(tb.detach(), pose).contiguous(), p))
         weights += [wp] * 3 + ([wr] * 3 if pose else [])
     w_sqrt = torch.tensor(weights, dtype=dtype, device=device).sqrt()
     w_loop = None if all(w == 1.0 for w in weights) else w_sqrt
@@ -724,11 +731,9 @@ def _solve(
     ]
     sel = None if dofs is None else dofs.index
     lo_a, hi_a = (lo, hi) if sel is None else (lo.index_select(0, sel), hi.index_select(0, sel))
-    targets = [t.target for t in tasks]  # per target (..., P)
+    per_target = tasks  # targets (..., P)
     tgt = torch.arange(N, device=device) // K  # the target of every column
-    tasks = [
-        t._replace(target=x.index_select(-1, tgt)) for t, x in zip(tasks, targets, strict=True)
-    ]
+    tasks = [_columns(t, tgt) for t in per_target]
     q = seeds[0]
     b, A, perr, rerr = _linearise(chain, q, tasks, weights, dofs)
     conv = (perr <= tol_p) & (rerr <= tol_r)
@@ -796,7 +801,7 @@ def _solve(
                 keep = ~done | (torch.cumsum(done.to(torch.int64), 0) <= extra)
                 cols = keep.nonzero().squeeze(1)
                 st = {k: v.index_select(-1, cols) for k, v in st.items()}
-                tasks = [t._replace(target=t.target.index_select(-1, cols)) for t in tasks]
+                tasks = [_columns(t, cols) for t in tasks]
         q, A, b, lam, conv = st["q"], st["A"], st["b"], st["lam"], st["conv"]
         # Projection with an active set: a joint on a limit that the gradient, or the last
         # step, pushes outwards is left out of the step; the trial point is clamped into the
@@ -836,8 +841,7 @@ def _solve(
             rank = torch.cumsum(fresh.to(torch.int64), 0) - 1
             new_tgt = order.index_select(0, rank % unsolved.sum().clamp(min=1))
             st["tgt"] = torch.where(fresh, new_tgt, st["tgt"])
-            tasks = [t._replace(target=x.index_select(-1, st["tgt"]))
-                     for t, x in zip(tasks, targets, strict=True)]  # fmt: skip
+            tasks = [_columns(t, st["tgt"]) for t in per_target]
             q_new = torch.where(fresh, st["seeds"][seed], q_new)
             st["pushed"] = st["pushed"] & ~fresh
         b_new, A_new, perr_new, rerr_new = _linearise(chain, q_new, tasks, weights, dofs)
@@ -891,7 +895,7 @@ def _implicit_steps(
     zero = q.new_zeros(q.shape[1])
     with torch.no_grad():  # both steps' values (q1 = q): finite, or the column is left out
         fixed = [t._replace(target=_batch_last(t.target, t.pose)) for t in targets]
-        b, A, _, _ = _residuals(chain, q, fixed, w_sqrt, dofs)
+        b, A = _residuals(chain, q, fixed, w_sqrt, dofs)
         ok = _step((A * free).transpose(0, 1), b, zero).isfinite().all(0)
     # A column left out takes its target without a graph (where's derivative is a selection:
     # neither q nor the targets' derivatives see its non-finite values).
@@ -900,9 +904,9 @@ def _implicit_steps(
         sel = ok.view(-1, *(1,) * (t.target.dim() - 1))
         tasks.append(t._replace(target=_batch_last(torch.where(sel, t.target, t.target.detach()),
                                                    t.pose)))  # fmt: skip
-    b, A, _, _ = _residuals(chain, q, tasks, w_sqrt, dofs)
+    b, A = _residuals(chain, q, tasks, w_sqrt, dofs)
     q1 = q + _attached(q, -_step((A.detach() * free).transpose(0, 1), b, zero), ok, dofs)
-    b, A, _, _ = _residuals(chain, q1, tasks, w_sqrt, dofs)
+    b, A = _residuals(chain, q1, tasks, w_sqrt, dofs)
     return q1 + _attached(q, -_step((A * free).transpose(0, 1), b, zero), ok, dofs)
 
 
