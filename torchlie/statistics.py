@@ -28,8 +28,8 @@ perturbations ``X Exp(eps)``.
 Nothing here branches in Python on tensor values, so every function works under
 ``torch.compile(fullgraph=True)`` and ``torch.func.vmap`` (except that the ``*_randn`` functions
 draw random numbers, which ``vmap`` supports only with ``randomness="different"`` or
-``"same"``, and ``torch.compile`` only without a ``generator=``).  float16/bfloat16 inputs are computed in float32
-and returned in the input dtype.
+``"same"``, and ``torch.compile`` only without a ``generator=``).  float16/bfloat16 inputs
+are computed in float32 and returned in the input dtype.
 """
 
 from __future__ import annotations
