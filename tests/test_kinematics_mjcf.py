@@ -409,6 +409,11 @@ def test_validate_command_takes_mjcf(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "MuJoCo" in text and "PASS" in text and "leg" in text
     assert main([str(path), "--samples", "5", "--dtype", "float32"]) == 0
+    # the format is the root element's, whatever comes before it
+    noted = tmp_path / "noted.xml"
+    noted.write_text('<!-- converted from <robot name="arm"> -->\n' + FREE)
+    assert main([str(noted), "--samples", "5"]) == 0
+    assert "MuJoCo" in capsys.readouterr().out
     bad = tmp_path / "bad.xml"
     bad.write_text('<mujoco><worldbody><body><joint axis="0 0 0"/><geom size="1"/></body>'
                    "</worldbody></mujoco>")  # fmt: skip

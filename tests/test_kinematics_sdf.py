@@ -459,6 +459,11 @@ def test_validate_command_takes_sdf(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "PASS" in text and "tool" in text
     assert main([str(path), "--samples", "4", "--dtype", "float32"]) == 0
+    # the format is the root element's, after a header of any length
+    headed = tmp_path / "headed.sdf"
+    headed.write_text('<?xml version="1.0"?>\n<!-- ' + "licence " * 1000 + "-->\n" + FRAMES)
+    assert main([str(headed), "--samples", "4"]) == 0
+    assert "PASS" in capsys.readouterr().out
     # The validation's reference agrees with this file's (scipy) one.
     chain = Chain.from_sdf(FRAMES, dtype=torch.float64)
     q = chain.random_configuration(generator=torch.Generator().manual_seed(6)).numpy()

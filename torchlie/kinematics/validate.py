@@ -94,14 +94,15 @@ unusable URDF (malformed, or missing).
 from __future__ import annotations
 
 import argparse
+import io
 import math
 import os
-import re
 import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
+from xml.etree import ElementTree
 
 import torch
 from torch import Tensor
@@ -722,19 +723,16 @@ def _print_report(
 
 def _root_tag(robot: str) -> str | None:
     """The root element of ``robot`` (a path or XML text) when it is ``mujoco`` (MJCF) or
-    ``sdf``, else None (URDF, a bundled name, or not readable: the URDF path reports it)."""
-    if robot.lstrip().startswith("<"):
-        head = robot[:4096]
-    else:
-        try:
-            with open(robot, "rb") as f:
-                head = f.read(4096).decode("utf-8", "replace")
-        except OSError:
-            return False
-    if "<robot" in head:
-        return None
-    m = re.search(r"<(mujoco|sdf)[\s>/]", head)
-    return m.group(1) if m else None
+    ``sdf``, else None (URDF, a bundled name, or not readable: the URDF path reports it).  Read
+    as XML up to the root's start tag, so that comments and headers of any length before it,
+    and names in them, do not count."""
+    source = io.BytesIO(robot.encode()) if robot.lstrip().startswith("<") else robot
+    try:
+        for _, element in ElementTree.iterparse(source, events=("start",)):
+            return element.tag if element.tag in ("mujoco", "sdf") else None
+    except (ElementTree.ParseError, OSError, UnicodeDecodeError):
+        pass
+    return None
 
 
 def main(argv: list[str] | None = None) -> int:
