@@ -312,6 +312,9 @@ def test_random_configuration_rejects_negative_or_non_integer_sizes(tree):
         with pytest.raises(TypeError, match=f"{fn}: expected batch sizes to be integers"):
             tree.random_configuration(size)
     assert tree.random_configuration(torch.tensor(2)).shape == (2, tree.n_dof)
+    for gen in (0, "seed", torch.tensor(3)):
+        with pytest.raises(TypeError, match=f"{fn}: expected generator to be a torch.Generator"):
+            tree.random_configuration(2, generator=gen)
 
 
 @pytest.mark.parametrize("arg", ["samples", "batch"])

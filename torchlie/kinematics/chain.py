@@ -426,7 +426,8 @@ class Chain:
         Drawn on the CPU in float64 (with ``generator`` if given), then converted; the values are
         finite for every pair of limits, those near the float64 range included.  Each batch
         size is a non-negative integer (0 gives an empty batch), at most 60 of them (the batch
-        limit of every torchlie op); anything else raises ``TypeError``/``ValueError``.
+        limit of every torchlie op), ``generator`` a ``torch.Generator`` or None; anything else
+        raises ``TypeError``/``ValueError``.
 
         Example:
             >>> from torchlie.kinematics import sample_robot
@@ -451,6 +452,7 @@ class Chain:
                 raise ValueError(f"{fn}: expected batch sizes >= 0, got batch={batch!r}")
             sizes.append(size)
         _checks.batch_dims(fn, len(sizes), "(one per batch size)")
+        _checks.generator(generator, fn)
         lo, hi = self.sampling_bounds()
         u = torch.rand(*sizes, self.n_dof, generator=generator, dtype=torch.float64)
         return _uniform_within(lo, hi, u).to(dtype=self.dtype, device=self.device)
