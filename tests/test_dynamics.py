@@ -804,6 +804,12 @@ def test_singular_mass_matrix():
         ):
             acc = Chain.from_urdf(off, dtype=F64).forward_dynamics(q, one, one)
             assert bool(torch.isfinite(acc).all()) and float(acc.abs().max()) < 1e3
+    # A negative moment about the axis (a file's non-physical <inertia>): named as such too.
+    bad = 'ixx="-0.1" ixy="0" ixz="0" iyy="0.2" iyz="0" izz="0.2"'
+    point = f'<inertial><origin xyz="0.3 0 0"/><mass value="1"/><inertia {bad}/></inertial>'
+    chain = Chain.from_urdf(_two_joints(point, "revolute"), dtype=F64)
+    with pytest.raises(ValueError, match=r"singular.*'j2'.*or a negative one.*non-physical"):
+        chain.forward_dynamics(q, one, one)
     # Inertials given per state: only the singular state is NaN.
     full = Chain.from_urdf(_two_joints(no_mass + 'izz="0.1"/></inertial>', "revolute"), dtype=F64)
     ins = full.inertials

@@ -252,7 +252,8 @@ def _build(spec: RobotSpec, links: list[_Link], joint_names: tuple[str, ...]) ->
     n_turn = len(rot) + 3 * len(floats_raw)  # the columns after these translate
     # A body at the end of the tree turned about an axis through its anchor that holds all its
     # mass, with no inertia about it (a point mass on a hinge's axis): its diagonal entry of M,
-    # v.I v + m |v x r|^2, is 0 in every state (up to the rounding of a rotated inertia).
+    # v.I v + m |v x r|^2, is 0 in every state (up to the rounding of a rotated inertia), or
+    # negative where the file's inertia is not physical.
     flat = [False] * K
     for k, (_, v, b, _, _) in enumerate(rot):
         if len(subtrees[b]) == 1:

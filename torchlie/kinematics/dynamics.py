@@ -737,9 +737,10 @@ def _forward_dynamics(
         raise ValueError(
             f"{_NAME}{fn}: the mass matrix is singular: nothing resisting their motion moves "
             f"with {_some(plan.massless)} (neither mass nor inertia nor armature; no mass for a "
-            "translation; an end link's mass on its joint's axis, with no inertia about it: "
-            "links without <inertial>, or a chain from SDF, whose inertials are not read?); "
-            "give those links inertials or pass inertials="
+            "translation; an end link's mass on its joint's axis, with no inertia about it, "
+            "or a negative one: links without <inertial>, a chain from SDF, whose inertials "
+            "are not read, or a non-physical <inertia>?); give those links inertials or pass "
+            "inertials="
         )
     qd2 = _check_vec(chain, qd, fn, "qd", batch)
     tau2 = _check_vec(chain, tau, fn, "tau", batch)
