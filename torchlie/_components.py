@@ -109,6 +109,14 @@ def half_difference(a: Tensor, b: Tensor) -> Tensor:
     return torch.sub(a * 0.5, b, alpha=0.5)
 
 
+def symmetric_part(M: Tensor) -> Tensor:
+    """``(M + M^T) / 2`` as ``M / 2 + M^T / 2``: exactly symmetric, a symmetric ``M`` unchanged,
+    no overflow.  For matrices read by a factorization that reads one triangle (Cholesky) while
+    other code reads both: with it every reader sees one matrix, and forward and reverse mode
+    agree (torch's backward of the factorization returns the symmetric gradient)."""
+    return 0.5 * M + 0.5 * M.mT
+
+
 def vee(M: Tensor) -> Tensor:
     """vee of the skew-symmetric part, ``((M - M^T)/2)^v``, at every finite magnitude."""
     d = half_difference

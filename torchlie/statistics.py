@@ -43,7 +43,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, se2, se3, sim3, so2, so3
+from . import _checks, _coeffs, _components, se2, se3, sim3, so2, so3
 from ._typing import Float
 
 __all__ = [
@@ -140,9 +140,7 @@ def _randn(
         L, _ = _checks.tensor(cov if cov is not None else scale_tril, fn, name, (g.dof, g.dof))
         _checks.same_dtype(fn, mean=mean, **{name: cov if cov is not None else scale_tril})
         if cov is not None:
-            # Its symmetric part, so that forward and reverse mode agree: the factorization
-            # reads one triangle, and torch's backward of it returns the symmetric gradient.
-            L, info = torch.linalg.cholesky_ex(0.5 * L + 0.5 * L.mT)
+            L, info = torch.linalg.cholesky_ex(_components.symmetric_part(L))
             # A covariance that is not positive definite gives NaN for its element only.
             L = torch.where((info == 0)[..., None, None], L, torch.full_like(L, float("nan")))
         else:

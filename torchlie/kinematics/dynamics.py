@@ -540,7 +540,7 @@ def _check_inertials(
         t, _ = _checks.tensor(x, _NAME + fn, f"inertials.{name}", trailing)
         chain._check_like(t, _NAME + fn, f"inertials.{name}", x.dtype)
         if name == "inertia":  # the recursions read both triangles, the factorization one
-            t = 0.5 * t + 0.5 * t.mT  # exactly symmetric; a symmetric t unchanged, no overflow
+            t = _components.symmetric_part(t)
         lead = tuple(t.shape[: t.dim() - len(trailing)])
         try:
             ok = torch.broadcast_shapes(lead, batch) == batch
