@@ -334,7 +334,7 @@ def test_jacobian_kind_errors(tree):
         tree.jacobian(q, "left_tcp", point=torch.zeros(4, dtype=F64))
     with pytest.raises(ValueError, match=rf"{jac}: point has an entry for 'drone'"):
         tree.jacobian(q, ["left_tcp"], point={"drone": torch.zeros(3, dtype=F64)})
-    with pytest.raises(TypeError, match=rf"{jac}: point has dtype torch.float32"):
+    with pytest.raises(TypeError, match=rf"{jac}: point has dtype torch.float32 but the chain's"):
         tree.jacobian(q, "left_tcp", point=torch.zeros(3))
 
 
@@ -498,6 +498,12 @@ def test_half_precision_is_computed_in_float32():
     expected = chain.forward_kinematics(q.float(), stacked=True).half()
     assert torch.equal(T, expected)
     assert chain.jacobian(q.bfloat16(), "tool_tcp").dtype == torch.bfloat16
+    # the other arguments follow the same rule: the chain's dtype, or half on a float32 chain
+    p = torch.tensor([0.1, -0.2, 0.3])
+    J = chain.jacobian(q.float(), "tool_tcp", point=p.half())
+    assert torch.equal(J, chain.jacobian(q.float(), "tool_tcp", point=p.half().float()))
+    with pytest.raises(TypeError, match=r"point has dtype torch.float64 but the chain's"):
+        chain.jacobian(q.float(), "tool_tcp", point=p.double())
 
 
 def test_bad_input(arm):

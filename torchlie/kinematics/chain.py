@@ -130,7 +130,9 @@ class Chain:
     Build it with :meth:`from_urdf`; see the module docstring for every convention (joint
     coordinates, ``q`` layout, Jacobian meaning).  A chain holds constants in one dtype and on
     one device (float32 on the CPU by default); :meth:`to` returns a converted copy, rebuilt
-    from the float64 values parsed from the file.
+    from the float64 values parsed from the file.  Every tensor argument of its methods (``q``,
+    velocities, torques, points, gravity, wrenches, inertials) has the chain's dtype, or, on a
+    float32 chain, float16/bfloat16 (computed in float32); results have ``q``'s dtype.
 
     Solvers use a chain through its attributes and three methods, the interface
     :class:`~torchlie.kinematics.ik.SolverChain` states: :meth:`poses_and_jacobians` (poses
@@ -835,7 +837,7 @@ class Chain:
                 f"{_NAME}{fn}: expected frame to be 'world', 'link' or 'spatial', got "
                 f"{reprlib.repr(frame)}"
             )
-        points = self._jacobian_points(point, names, frame, q2.dtype, batch)
+        points = self._jacobian_points(point, names, frame, batch)
         poses, jacs = self._poses_and_jacobians(q2, targets) if targets else ([], [])
         out: dict[str, Tensor] = {}
         for name, P, Jd in zip(names, poses, jacs, strict=True):
@@ -854,7 +856,6 @@ class Chain:
         point: Tensor | Mapping[str, Tensor] | None,
         names: tuple[str, ...],
         frame: str,
-        dtype: torch.dtype,
         batch: tuple[int, ...],
     ) -> dict[str, Tensor]:
         """``point`` of :meth:`jacobian` checked (its batch shape broadcasts with ``q``'s,
@@ -880,11 +881,7 @@ class Chain:
         out = {}
         for k, (v, what) in items.items():
             x, _ = _checks.tensor(v, fn, what, (3,))
-            if x.dtype != dtype or x.device != self.device:
-                raise TypeError(
-                    f"{fn}: {what} has dtype {x.dtype} on {x.device}, expected {dtype} on "
-                    f"{self.device} (like q)"
-                )
+            self._check_like(x, fn, what, v.dtype)
             _checks.batch_broadcast(fn, (torch.Size(batch), "q"), (x.shape[:-1], what))
             out[k] = x
         return out
