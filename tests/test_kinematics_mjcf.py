@@ -508,3 +508,13 @@ def test_site_joint_names_are_unique():
     )
     names = [j.name for j in spec.joints]
     assert len(names) == len(set(names)) and "s:fixed_" in names
+
+
+def test_zero_quaternion_spoils_only_its_state():
+    # torchlie's rule for a zero quaternion (NaN for that element; MuJoCo reads the identity)
+    chain = Chain.from_mjcf(FREE, dtype=torch.float64)
+    q = chain.random_configuration(3, generator=torch.Generator().manual_seed(0))
+    q[1, 3:7] = 0.0  # the free joint's quaternion
+    T = chain.forward_kinematics(q, ["torso", "leg", "box"], stacked=True)
+    assert bool(T[1, :2].isnan().all())  # the joint's body and its child
+    assert bool(T[1, 2].isfinite().all() and T[[0, 2]].isfinite().all())
