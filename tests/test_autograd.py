@@ -21,8 +21,10 @@ from torchlie import (
     _hamilton,
     _rotation_matrix,
     _se3_kernels,
+    conversions,
     quaternion,
     se3,
+    sim3,
     so3,
 )
 
@@ -185,6 +187,34 @@ def test_torch_func_jvp_jacfwd_jacrev(case, gen):
     y, dy = torch.func.jvp(fn, (x,), (t,))
     torch.testing.assert_close(y, fn(x), rtol=0, atol=0)
     torch.testing.assert_close(dy, _jvp_from_jacobian(J, t), rtol=1e-10, atol=1e-12)
+    torch.testing.assert_close(torch.func.jacfwd(fn)(x), J, rtol=1e-10, atol=1e-12)
+    torch.testing.assert_close(torch.func.jacrev(fn)(x), J, rtol=1e-10, atol=1e-12)
+
+
+def test_second_derivatives_in_every_mode(case, gen):
+    # jacfwd of jacfwd included, where torch differentiates a custom jvp as a constant
+    fn, x = case
+    x = x[:2]
+    c = torch.randn(fn(x).shape, generator=gen, dtype=F64)
+
+    def loss(z):
+        return (fn(z) * c).sum()
+
+    H = torch.func.jacrev(torch.func.jacrev(loss))(x)
+    for outer, inner in ((torch.func.jacfwd, torch.func.jacfwd), (torch.func.jacfwd,
+                         torch.func.jacrev), (torch.func.jacrev, torch.func.jacfwd)):  # fmt: skip
+        torch.testing.assert_close(outer(inner(loss))(x), H, rtol=1e-9, atol=1e-10)
+    with pytest.raises(NotImplementedError, match=r"order three or more .*\(jacfwd of jacfwd\)"):
+        torch.func.jacrev(torch.func.jacfwd(torch.func.jacfwd(loss)))(x)
+
+
+def test_without_the_private_query_of_transforms_first_derivatives_hold(case, monkeypatch):
+    # where torch lacks its list of transforms, nested forward mode takes the Function as
+    # elsewhere: first derivatives as always
+    fn, x = case
+    J = _jacobian(fn, x)
+    monkeypatch.setattr(_autograd, "_INTERPRETERS_QUERY", None)
+    assert _autograd._derivative_levels() == (0, 0)
     torch.testing.assert_close(torch.func.jacfwd(fn)(x), J, rtol=1e-10, atol=1e-12)
     torch.testing.assert_close(torch.func.jacrev(fn)(x), J, rtol=1e-10, atol=1e-12)
 
@@ -482,3 +512,65 @@ def test_first_call_under_a_transform_or_inference_mode_leaves_the_ops_usable():
             [sys.executable, "-c", script, first], capture_output=True, text=True, timeout=300
         )
         assert run.returncode == 0, (first, run.stderr[-2000:])
+
+
+# ----------------------------------------------------------------------------------------------
+# Second derivatives in the raw matrix entries
+# ----------------------------------------------------------------------------------------------
+
+
+def _polar(M: torch.Tensor) -> torch.Tensor:
+    """The nearest rotation, differentiably (Newton's iteration ``X <- (X + X^-T) / 2``)."""
+    X = M
+    for _ in range(8):
+        X = 0.5 * (X + torch.linalg.inv(X).mT)
+    return X
+
+
+def _project_pose(T: torch.Tensor, scaled: bool) -> torch.Tensor:
+    """``[[s polar(M), t], [0, 1]]`` of a pose's top block, ``s = |M|_F / sqrt(3)`` (Sim(3)) or
+    1: the element whose log the backward of ``se3.log`` / ``sim3.log`` differentiates."""
+    M = T[:3, :3]
+    s = M.square().sum().div(3.0).sqrt() if scaled else 1.0
+    top = torch.cat((s * _polar(M), T[:3, 3:]), dim=-1)
+    return torch.cat((top, T[3:]), dim=-2)
+
+
+_RAW_MATRIX_CASES = {
+    "so3.log": (so3.log, _polar, 3),
+    "quaternion.from_matrix": (quaternion.from_matrix, _polar, 3),
+    "matrix_to_euler": (lambda R: conversions.matrix_to_euler(R, "zyx"), _polar, 3),
+    "se3.log": (se3.log, lambda T: _project_pose(T, False), 4),
+    "sim3.log": (sim3.log, lambda T: _project_pose(T, True), 4),
+}
+
+
+@pytest.mark.parametrize("name", list(_RAW_MATRIX_CASES))
+def test_second_derivatives_in_raw_matrix_entries(name):
+    # The backward is the gradient of f o polar near SO(3) (docs/gradients.md), so its
+    # derivative in all 9 (or 12) entries, normal directions R S included, is the Hessian of
+    # f o polar: symmetric, whichever mode takes it, at exact rotations too.
+    fn, project, n = _RAW_MATRIX_CASES[name]
+    rotations = [
+        torch.eye(3, dtype=F64),
+        torch.tensor([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]], dtype=F64),  # 90 degrees about x
+        so3.exp(torch.tensor([0.3, -1.2, 2.0], dtype=F64)),
+    ]
+    gen = torch.Generator().manual_seed(3)
+    for R in rotations:
+        X = R
+        if n == 4:
+            scale = 2.0 if name == "sim3.log" else 1.0
+            t = torch.tensor([[0.0], [-2.0], [1.0]], dtype=F64)
+            X = torch.cat((torch.cat((scale * R, t), -1), torch.eye(4, dtype=F64)[3:]), -2)
+        v = torch.randn(fn(X).shape, dtype=F64, generator=gen)
+
+        def loss(M, f=fn, v=v):
+            return (f(M) * v).sum()
+
+        ref = torch.func.hessian(lambda M, f=loss, p=project: f(p(M)))(X)
+        for mode in (torch.func.jacrev, torch.func.jacfwd):
+            H = mode(torch.func.jacrev(loss))(X)
+            torch.testing.assert_close(H, ref, rtol=1e-9, atol=1e-9, msg=f"{name} {mode}")
+        H = torch.func.jacfwd(torch.func.jacfwd(loss))(X)
+        torch.testing.assert_close(H, ref, rtol=1e-9, atol=1e-9, msg=f"{name} jacfwd twice")

@@ -33,6 +33,14 @@ input detached: the value of ``f``, and as first derivatives, in forward and rev
 op's own ``jvp`` formula (which is the transpose of its backward).  Second derivatives of these
 ops through ``torch.func`` under ``torch.compile`` are not those of the op (the coefficients
 are constants there); eager ``torch.func`` and eager double backward give them.
+
+Forward mode nested in forward mode (``jacfwd(jacfwd(f))``): torch differentiates an
+``autograd.Function``'s ``jvp`` there as if its saved tensors were constants, so the second
+derivative would miss every term of the op.  There an op is traced instead as
+``f(x0) + jvp(m; x - x0)`` at the midpoint ``m = (x0 + x) / 2``, whose saved output is
+``f(x0) + jvp(x0; m - x0)``: the value of ``f``, its first derivatives, and as second
+derivatives those of the ``jvp`` formula.  Third and higher derivatives taken with two forward
+levels among them would not be the op's: they raise.
 """
 
 from __future__ import annotations
@@ -59,6 +67,19 @@ BLOCK = 32768
 #: torch's query of active ``torch.func`` transforms: private, and read only here (None where
 #: torch has none).
 _TRANSFORMS_QUERY = getattr(torch._C, "_are_functorch_transforms_active", None)
+
+
+def _interpreters_query() -> Callable[[], Sequence[object]] | None:
+    """torch's private list of the active ``torch.func`` transforms (see
+    :func:`_derivative_levels`), or None where torch has none."""
+    try:
+        from torch._functorch import pyfunctorch
+    except ImportError:
+        return None
+    return getattr(pyfunctorch, "retrieve_all_functorch_interpreters", None)
+
+
+_INTERPRETERS_QUERY = _interpreters_query()
 
 
 def transforms_active() -> bool:
@@ -235,6 +256,20 @@ def _guarded(
     return guarded_backward, guarded_jvp
 
 
+def _derivative_levels() -> tuple[int, int]:
+    """``(forward, all)``: how many of the active ``torch.func`` transforms differentiate in
+    forward mode, and how many differentiate at all (forward or reverse).
+
+    torch has no public query; its private list of transforms is read here only.  Where it is
+    missing the answer is ``(0, 0)``: calls then take the Function as outside nested forward
+    mode (whose second derivatives torch computes wrong, see the module docstring)."""
+    if _INTERPRETERS_QUERY is None:
+        return 0, 0
+    keys = [str(i.key()) for i in _INTERPRETERS_QUERY()]
+    forward = sum(k.endswith("Jvp") for k in keys)
+    return forward, forward + sum(k.endswith("Grad") for k in keys)
+
+
 def _positional(forward: Callable[..., Tensor], n: int) -> Callable[..., Tensor]:
     """``forward`` as a function of exactly ``n`` positional tensors (Dynamo tells a
     ``setup_context``-style forward from one taking ``ctx`` by its signature)."""
@@ -330,6 +365,19 @@ class CustomFunction:
 
         self.linearized = linearized
 
+        def second_order(*inputs: Tensor) -> Tensor:
+            # f(x0) + jvp(m; x - x0) at m = (x0 + x) / 2, saving f(x0) + jvp(x0; m - x0) as
+            # the output at m (module docstring): along h = x - x0 this is
+            # f(x0) + J h + (dJ[h] h) / 2 + O(h^3), the op's Taylor polynomial of order two.
+            bare = tuple(x.detach() for x in inputs)
+            y = forward(*bare)
+            steps = tuple(x - b for x, b in zip(inputs, bare, strict=True))
+            mids = tuple(b + 0.5 * h for b, h in zip(bare, steps, strict=True))
+            y_mid = y + jvp(save(bare, y), *(0.5 * h for h in steps))
+            return y + jvp(save(mids, y_mid), *steps)
+
+        self.second_order = second_order
+
     def __call__(self, *inputs: Tensor) -> Tensor:
         if torch.compiler.is_compiling():
             # Dynamo inlines a Function's forward under torch.func transforms (dropping its
@@ -339,6 +387,16 @@ class CustomFunction:
                 return self.linearized(*inputs)
             return self.compiled.apply(*_distinct(inputs))
         if transforms_active():
+            forward_levels, levels = _derivative_levels()
+            if forward_levels > 1:
+                if levels > 2:
+                    raise NotImplementedError(
+                        f"torchlie ({self.name}): derivatives of order three or more taken "
+                        "with forward mode nested in forward mode (jacfwd of jacfwd) are not "
+                        "supported (torch differentiates a custom jvp as a constant there); "
+                        "take the outer derivatives in reverse mode (jacrev)"
+                    )
+                return self.second_order(*inputs)
             return self.transform.apply(*inputs)
         if needs_graph(inputs):
             return self.eager.apply(*inputs)

@@ -157,6 +157,32 @@ def rt_g_vee(
     return out[0], out[1], out[2]
 
 
+def gram_defect(N: Tensor) -> Tensor:
+    """``E = N^T N - I`` of a ``3x3`` block ``N``: ``N = R (I + E / 2)`` to first order, with
+    ``R`` the nearest rotation (zero on SO(3) up to rounding)."""
+    return N.mT @ N - torch.eye(3, dtype=N.dtype, device=N.device)
+
+
+def polar_backward_terms(N: Tensor, H: Tensor, E: Tensor) -> Tensor:
+    """``N (3/4 E H + 1/4 H E)``: subtracted from a backward ``N H`` (``H`` skew, ``E`` from
+    :func:`gram_defect`), it makes ``N H`` the gradient of ``f o polar`` to first order off
+    SO(3) too, not only on it.  From ``d polar(R P) = R W`` with ``W P + P W`` the skew part of
+    ``2 R^T dM``: ``W = skew(A) - (skew(A) S + S skew(A)) / 2`` to first order in
+    ``P = I + S``.  Zero on SO(3) up to rounding: only the derivative of a backward (second
+    derivatives in the normal directions ``R S``) needs it."""
+    return N @ (0.75 * (E @ H) + 0.25 * (H @ E))
+
+
+def polar_tangent(A: Tensor, E: Tensor) -> Tensor:
+    """``vee(W)`` of ``d polar(N) = polar(N) W``, from ``A = N^T dN`` and ``E`` of
+    :func:`gram_defect`, to first order in ``E`` (:func:`polar_backward_terms`): the forward-mode
+    twin, ``vee`` of ``skew(A) - skew(E A) / 2 - (skew(A) E + E skew(A)) / 4``."""
+    K = 0.5 * (A - A.mT)
+    EA = E @ A
+    W = K - 0.25 * (EA - EA.mT) - 0.25 * (K @ E + E @ K)
+    return torch.stack((W[..., 2, 1], W[..., 0, 2], W[..., 1, 0]), dim=-1)
+
+
 def r_hat(R: Tensor, u: Sequence[Tensor]) -> Tensor:
     """``R hat(u)`` from components: row ``i`` is ``cross(R_i, u)``, for all rows at once (the
     columns of ``R`` entries first, ``(3, *batch)``, each term a column against an entry of

@@ -18,7 +18,18 @@ from torch import Tensor
 
 from . import _coeffs, _layout
 from ._autograd import CustomFunction, blocked, fma
-from ._components import cross_planes, norm2, planes, r_hat, rt_g_vee, skew_vee, vee
+from ._components import (
+    cross_planes,
+    gram_defect,
+    hat,
+    norm2,
+    planes,
+    polar_backward_terms,
+    polar_tangent,
+    r_hat,
+    rt_g_vee,
+    vee,
+)
 from ._hamilton import conj_product_vec, multiply
 
 # ----------------------------------------------------------------------------------------------
@@ -163,14 +174,17 @@ def _from_matrix_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]
         fma(w * gi, gw, vi, value=-1.0).sub_(ci).mul_(0.25)
         for gi, vi, ci in zip((gx, gy, gz), (x, y, z), c, strict=True)
     ]
-    return (r_hat(R, u),)
+    G = r_hat(R, u)
+    if torch.is_grad_enabled():  # differentiated: the gradient off SO(3) too (so3._log_grad)
+        G = G - polar_backward_terms(R, hat(torch.stack(u, dim=-1)), gram_defect(R))
+    return (G,)
 
 
 def _from_matrix_jvp(saved: tuple[Tensor, ...], dR: Tensor) -> Tensor:
     # dq = q (0, d) / 2 with d = vee of the skew part of R^T dR (its symmetric part: no effect).
     R, q = saved
-    d = skew_vee(R.transpose(-1, -2) @ dR)
-    return multiply(q, torch.nn.functional.pad(0.25 * d, (1, 0)))
+    d = polar_tangent(R.transpose(-1, -2) @ dR, gram_defect(R))
+    return multiply(q, torch.nn.functional.pad(0.5 * d, (1, 0)))
 
 
 _FromMatrixFn = CustomFunction(

@@ -21,7 +21,17 @@ from torch import Tensor
 
 from . import _coeffs, _layout, _rodrigues, _rotation_matrix, _se3_jacobian
 from ._autograd import CustomFunction, blocked, fma
-from ._components import cross_planes, hat, mtv, mv, planes, rt_g_vee, vee
+from ._components import (
+    cross_planes,
+    gram_defect,
+    hat,
+    mtv,
+    mv,
+    planes,
+    polar_backward_terms,
+    polar_tangent,
+    rt_g_vee,
+)
 
 # ----------------------------------------------------------------------------------------------
 # The top block, entry by entry
@@ -436,7 +446,8 @@ def _log_grad(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
     x = planes(xi, 6)
     gs = planes(g, 6)
     # coefficients that differentiate under create_graph
-    (e, f), qc = _se3_jacobian.jl_and_q_coefficients(x[3:], "ef", torch.is_grad_enabled())
+    graph = torch.is_grad_enabled()
+    (e, f), qc = _se3_jacobian.jl_and_q_coefficients(x[3:], "ef", graph)
     minus_half = e.new_full((), -0.5)
     h_rho = _rodrigues.jl_components(x[3:], gs[:3], e, minus_half, f)
     q = _se3_jacobian.q_components(x[:3], x[3:], h_rho, *qc)
@@ -452,16 +463,28 @@ def _log_grad(T: Tensor, xi: Tensor, g: Tensor) -> Tensor:
         fma(r0 * u1, r1, u0, value=-1.0),
     )
     G_t = fma(fma(r0 * h_rho[0], r1, h_rho[1]), r2, h_rho[2])
-    return _stack_rows([c.unsqueeze(1) for c in (*G_R, G_t)])
+    G = _stack_rows([c.unsqueeze(1) for c in (*G_R, G_t)])
+    if graph:  # differentiated: the gradient off SO(3) too (so3._log_grad), R -> R (I - E / 2)
+        R = T[..., :3, :3]
+        E = gram_defect(R)
+        terms = polar_backward_terms(R, hat(torch.stack(u, dim=-1)), E)
+        t = 0.5 * (R @ (E @ torch.stack(h_rho, dim=-1).unsqueeze(-1)))
+        G = G - torch.nn.functional.pad(torch.cat((terms, t), dim=-1), (0, 0, 0, 1))
+    return G
 
 
 _log_grad_blocked = blocked(_log_grad, (2, 1, 1))
 
 
 def _log_jvp(saved, dT: Tensor) -> Tensor:
+    # with R^T read as polar(R)^T = (I - E / 2) R^T and the rotation's tangent as that of the
+    # polar factor (so3._log_jvp), to first order off SO(3)
     T, xi = saved
     R = T[..., :3, :3]
-    v = torch.cat((mtv(R, dT[..., :3, 3]), vee(R.transpose(-1, -2) @ dT[..., :3, :3])), dim=-1)
+    E = gram_defect(R)
+    t = mtv(R, dT[..., :3, 3])
+    t = t - 0.5 * (E @ t.unsqueeze(-1)).squeeze(-1)
+    v = torch.cat((t, polar_tangent(R.transpose(-1, -2) @ dT[..., :3, :3], E)), dim=-1)
     return _se3_jacobian.jl_inv_apply(-xi, v)  # Jr(xi)^-1 v
 
 

@@ -2,7 +2,10 @@
 
 Eager PyTorch makes one pass over memory per elementwise operation; compiling fuses a whole op
 (Rodrigues' formula, Shepperd's method, the series branches) into one kernel.  The compiled
-functions mirror the eager ones name for name, with the same conventions, errors and gradients::
+functions mirror the eager ones name for name, with the same conventions, errors and gradients
+(reverse mode; forward mode and double backward are torch.compile's: ``torch.func.jvp`` and
+``jacfwd`` raise, and a dual tensor of ``torch.autograd.forward_ad`` comes back without a
+tangent, so take those derivatives with the eager functions)::
 
     from torchlie.compiled import so3
     R = so3.exp(omega)      # first call compiles (seconds); later calls run the fused kernel

@@ -403,8 +403,12 @@ def _log_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:
     r = torch.exp(-sigma)[..., None, None]
     Mt = _lin(T) * r * r
     eye = torch.eye(3, dtype=T.dtype, device=T.device)
-    inner = 0.5 * _components.hat(h_phi) + (h_sigma / 3.0)[..., None, None] * eye
-    top = torch.cat((Mt @ inner, u.unsqueeze(-1)), dim=-1)
+    H = 0.5 * _components.hat(h_phi)
+    G_M = Mt @ (H + (h_sigma / 3.0)[..., None, None] * eye)
+    if diff:  # differentiated: the gradient off the group too (so3._log_grad), N = M / s
+        N = _lin(T) * r
+        G_M = G_M - _components.polar_backward_terms(N, H, _components.gram_defect(N)) * r
+    top = torch.cat((G_M, u.unsqueeze(-1)), dim=-1)
     return (torch.nn.functional.pad(top, (0, 0, 0, 1)),)
 
 
@@ -417,7 +421,9 @@ def _log_jvp(saved: tuple[Tensor, ...], dT: Tensor) -> Tensor:
     Mi = _lin(T).transpose(-1, -2) * r * r
     X = Mi @ _lin(dT)
     d_sigma = X.diagonal(dim1=-2, dim2=-1).sum(-1) / 3.0
-    d_phi = _rodrigues.jl_apply(phi, _components.vee(X), sign=-1.0, inverse=True)
+    # the rotation's tangent as that of the polar factor of M / s (so3._log_jvp)
+    E = _components.gram_defect(_lin(T) * r)
+    d_phi = _rodrigues.jl_apply(phi, _components.polar_tangent(X, E), sign=-1.0, inverse=True)
     # J (dphi, dsigma) row by row from reverse mode (forward mode does not nest in the
     # forward-mode level this runs under), at _SHRINK rho as in _log_backward
     _, vjp = torch.func.vjp(_vrho(rho * _SHRINK), sigma, phi)

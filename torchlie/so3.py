@@ -114,11 +114,15 @@ def _log(R: Tensor) -> Tensor:
 
 
 def _log_grad(R: Tensor, w: Tensor, g: Tensor) -> Tensor:
-    # Gradient of log o polar: G = R hat(Jl^-1(w) g) / 2 (tangent part only).
-    u = _rodrigues.jl_apply(
-        w, 0.5 * g, inverse=True, stacked=False, differentiable=torch.is_grad_enabled()
-    )
-    return _components.r_hat(R, u)
+    # Gradient of log o polar: G = R hat(Jl^-1(w) g) / 2 (tangent part only); where the
+    # backward is differentiated, with the terms that make it that gradient off SO(3) as well.
+    graph = torch.is_grad_enabled()
+    u = _rodrigues.jl_apply(w, 0.5 * g, inverse=True, stacked=False, differentiable=graph)
+    G = _components.r_hat(R, u)
+    if graph:
+        H = _components.hat(torch.stack(tuple(u), dim=-1))
+        G = G - _components.polar_backward_terms(R, H, _components.gram_defect(R))
+    return G
 
 
 _log_grad_blocked = blocked(_log_grad, (2, 1, 1))
@@ -126,7 +130,7 @@ _log_grad_blocked = blocked(_log_grad, (2, 1, 1))
 
 def _log_jvp(saved, dR: Tensor) -> Tensor:
     R, w = saved
-    d = _components.vee(R.transpose(-1, -2) @ dR)
+    d = _components.polar_tangent(R.transpose(-1, -2) @ dR, _components.gram_defect(R))
     return _rodrigues.jl_apply(w, d, sign=-1.0, inverse=True)
 
 
@@ -445,9 +449,10 @@ def _polar_system(M: Tensor, R: Tensor):
 
 
 def _solve3(B: Tensor, w: Tensor) -> Tensor:
-    """``B^-1 w`` (``solve_ex`` without its check: a singular ``B`` gives Inf/NaN for that
-    element, never an error or a device sync)."""
-    return torch.linalg.solve_ex(B, w, check_errors=False)[0]
+    """``B^-1 w`` (``inv_ex`` without its check: a singular ``B`` gives Inf/NaN for that
+    element, never an error or a device sync).  The inverse, not ``solve_ex``: torch's
+    forward-over-forward derivative of ``solve`` is wrong, that of ``inv`` right."""
+    return (torch.linalg.inv_ex(B, check_errors=False)[0] @ w.unsqueeze(-1)).squeeze(-1)
 
 
 def _r_hat(R: Tensor, z: Tensor) -> Tensor:
