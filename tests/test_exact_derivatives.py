@@ -45,7 +45,21 @@ import torch.autograd.forward_ad as fwAD
 from torch import Tensor
 
 import torchlie
-from torchlie import SE3, SO3, conversions, quaternion, se2, se3, sim3, so2, so3, statistics
+from torchlie import (
+    SE2,
+    SE3,
+    SO2,
+    SO3,
+    Sim3,
+    conversions,
+    quaternion,
+    se2,
+    se3,
+    sim3,
+    so2,
+    so3,
+    statistics,
+)
 from torchlie import nn as tnn
 
 DT = torch.float64
@@ -699,11 +713,19 @@ def _call(attr: Any) -> Any:
     return attr() if callable(attr) else attr
 
 
-for _G, _A, _tan in ((SO3, R_, O_), (SE3, P_, T_)):
+_CLASSES = (
+    (SO3, R_, O_, PT_),
+    (SE3, P_, T_, PT_),
+    (SO2, (ROT2, ROTS2), (ambient(1), ANGLES2), PT2_),
+    (SE2, (POSE2, POSES2), (ambient(3), TWISTS2), PT2_),
+    (Sim3, SIM_, (ambient(7), SIM_TANGENTS), PT_),
+)
+for _G, _A, _tan, _pt in _CLASSES:
     _n = _G.__name__
     case(f"{_n}.exp", lambda w, G=_G: G.exp(w), _tan)
     case(f"{_n}.compose", lambda a, b, G=_G: G(a).compose(G(b)), _A, _A)
-    case(f"{_n}.apply", lambda a, p, G=_G: G(a).apply(p), _A, PT_)
+    case(f"{_n}.matmul", lambda a, b, G=_G: G(a) @ G(b), _A, _A)
+    case(f"{_n}.apply", lambda a, p, G=_G: G(a).apply(p), _A, _pt)
     for _m in ("inverse", "log", "adjoint", "matrix", "rotation"):
         case(f"{_n}.{_m}", lambda a, G=_G, m=_m: _call(getattr(G(a), m)), _A)
     for _m in ("rplus", "lplus"):
@@ -711,8 +733,25 @@ for _G, _A, _tan in ((SO3, R_, O_), (SE3, P_, T_)):
     for _m in ("rminus", "lminus", "between", "distance"):
         case(f"{_n}.{_m}", lambda a, b, G=_G, m=_m: getattr(G(a), m)(G(b)), _A, _A)
     case(f"{_n}.interpolate", lambda a, b, t, G=_G: G(a).interpolate(G(b), t), _A, _A, S_)
-    case(f"{_n}.quaternion", lambda a, G=_G: G(a).quaternion(), _A)
+    if hasattr(_G, "quaternion"):
+        case(f"{_n}.quaternion", lambda a, G=_G: G(a).quaternion(), _A)
 case("SO3.from_quaternion", SO3.from_quaternion, Q_)
+case("SO2.complex", lambda R: SO2(R).complex(), (ROT2, ROTS2))
+case("SO2.from_complex", SO2.from_complex, (ambient(2), _t([[1.0, 0.0], [0.0, 2.0], [1.0, 1.0]])))
+case("SE2.from_rt", SE2.from_rt, (ROT2, ROTS2), (ambient(2), POINTS2))
+case("SE2.from_xytheta", SE2.from_xytheta, (ambient(3), TWISTS2))
+case("SE2.to_rt", lambda T: SE2(T).to_rt(), (POSE2, POSES2))
+case("SE2.translation", lambda T: SE2(T).translation, (POSE2, POSES2))
+case("SE2.xytheta", lambda T: SE2(T).xytheta(), (POSE2, POSES2))
+case("Sim3.from_srt", Sim3.from_srt, (ambient(), SCALES), R_, (ambient(3), TRANSLATIONS))
+case("Sim3.from_se3", Sim3.from_se3, P_, (ambient(), SCALES))
+case("Sim3.to_srt", lambda T: Sim3(T).to_srt(), SIM_)
+case("Sim3.pose", lambda T: Sim3(T).pose(), SIM_)
+case("Sim3.scale", lambda T: Sim3(T).scale, SIM_)
+case("Sim3.translation", lambda T: Sim3(T).translation, SIM_)
+# as sim3.distance: a second argument whose three parts all differ from the first's
+CASES[:] = [c for c in CASES if c.name != "Sim3.distance"]
+case("Sim3.distance", lambda a, b: Sim3(a).distance(Sim3(b)), SIM_, (SIM, SIMS[::2] @ _SHIFT))
 case("SE3.from_rt", SE3.from_rt, R_, (ambient(3), TRANSLATIONS))
 case("SE3.from_pos_quat", SE3.from_pos_quat, (ambient(7), POS_QUATS))
 case("SE3.to_rt", lambda T: SE3(T).to_rt(), P_)
@@ -758,7 +797,7 @@ EXCLUDED = {
     # class plumbing: factories, predicates, metadata, copies
     **{
         f"{g}.{m}": "class plumbing"
-        for g in ("SO3", "SE3")
+        for g in ("SO3", "SE3", "SO2", "SE2", "Sim3")
         for m in (
             "identity",
             "random",
@@ -785,7 +824,7 @@ EXCLUDED = {
 def _leaves(out: Any) -> list[Tensor]:
     if isinstance(out, Tensor):
         return [out]
-    if isinstance(out, SO3 | SE3):
+    if isinstance(out, SO3 | SE3 | SO2 | SE2 | Sim3):
         return [out.tensor]
     if isinstance(out, tuple | list):
         return [t for o in out for t in _leaves(o)]
@@ -928,7 +967,7 @@ def _public_names() -> set[str]:
     names = set()
     for mod in (so3, se3, so2, se2, sim3, quaternion, conversions, statistics, tnn):
         names |= {f"{mod.__name__.split('.')[-1]}.{n}" for n in mod.__all__}
-    for G in (SO3, SE3):
+    for G in (SO3, SE3, SO2, SE2, Sim3):
         names |= {f"{G.__name__}.{n}" for n in dir(G) if not n.startswith("_")}
     return names
 
