@@ -6,6 +6,7 @@ import math
 
 import pytest
 import torch
+from agreement import assert_agree
 from samplers import eps
 from scipy.spatial.transform import Rotation
 
@@ -416,16 +417,17 @@ def test_small_and_large_batches_agree(arm):
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_large_batches_equal_small_ones_and_are_contiguous(dtype):
-    """Above 2048 configurations the poses go back to (..., 4, 4) by per-link copies: the same
-    bits as the small-batch path, every output contiguous."""
+    """Above 2048 configurations the poses go back to (..., 4, 4) by per-link copies: the
+    small-batch path's poses (to the rounding that the matrix products' kernels decide by batch
+    size), every output contiguous."""
     arm = Chain.from_urdf(sample_robot("arm7"), dtype=dtype)
     q = arm.random_configuration(3000, generator=torch.Generator().manual_seed(3))
     S, d = arm.forward_kinematics(q, stacked=True), arm.forward_kinematics(q)
     assert S.is_contiguous()
     for i, link in enumerate(arm.link_names):
         assert torch.equal(S[:, i], d[link]) and d[link].is_contiguous()
-        small = torch.cat([arm.forward_kinematics(part)[link] for part in q.split(1000)])
-        assert torch.equal(d[link], small)
+        small = torch.cat([arm.forward_kinematics(part)[link] for part in q.split(999)])
+        assert_agree(d[link], small, f"{link}: 3000 poses and the same in parts of 999")
 
 
 def test_link_subsets(tree):
