@@ -176,11 +176,10 @@ def polar_backward_terms(N: Tensor, H: Tensor, E: Tensor) -> Tensor:
 def polar_tangent(A: Tensor, E: Tensor) -> Tensor:
     """``vee(W)`` of ``d polar(N) = polar(N) W``, from ``A = N^T dN`` and ``E`` of
     :func:`gram_defect`, to first order in ``E`` (:func:`polar_backward_terms`): the forward-mode
-    twin, ``vee`` of ``skew(A) - skew(E A) / 2 - (skew(A) E + E skew(A)) / 4``."""
+    twin, ``vee`` of ``skew(A) - skew(E A) / 2 - (skew(A) E + E skew(A)) / 4`` (:func:`vee`
+    takes the skew parts)."""
     K = 0.5 * (A - A.mT)
-    EA = E @ A
-    W = K - 0.25 * (EA - EA.mT) - 0.25 * (K @ E + E @ K)
-    return torch.stack((W[..., 2, 1], W[..., 0, 2], W[..., 1, 0]), dim=-1)
+    return vee(A - 0.5 * (E @ A) - 0.25 * (K @ E + E @ K))
 
 
 def r_hat(R: Tensor, u: Sequence[Tensor]) -> Tensor:
