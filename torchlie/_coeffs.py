@@ -1106,3 +1106,38 @@ def sim3_w(sigma: Tensor, t2: Tensor, parts: tuple[Tensor, ...]) -> tuple[Tensor
     C2 = (A2 + sb * C - B) * inv
     w = torch.where
     return w(big, -A2, As - A), w(big, -B2, Bs - B), w(big, -C2, Cs - C)
+
+
+#: ``sigma`` from which :func:`sim3_coupling` solves for the rotation coupling of the Sim(3)
+#: Jacobian: below it the difference form ``d(V rho)/dphi + hat(V rho) Jl`` loses at most a
+#: few bits (its two terms, of order ``A |rho|``, cancel to ``Q``, of order ``A |rho| / sigma``
+#: for large ``sigma``), above it the solve is the more accurate one.
+SIM3_Q_SIGMA = 1.0
+
+
+def sim3_coupling(sigma: Tensor, t2: Tensor) -> tuple[tuple[Tensor, ...], Tensor, Tensor]:
+    """``(p, k, use)``: the rotation coupling ``Q`` of the Sim(3) left Jacobian (rows ``rho``,
+    columns ``phi``) as ``Q = sum_j p_j (k ad)^j (Y)`` with ``Y = V hat(rho) - hat(rho) Jl(phi)``
+    and ``ad(X) = P X - X P``, ``P = hat(phi)``, taken where ``use`` (``sigma >=``
+    :data:`SIM3_Q_SIGMA`).
+
+    ``Q = int_0^1 int_0^t e^(u (sigma + P)) hat(rho) e^((t - u) P) du dt`` solves
+    ``sigma Q + ad(Q) = Y``; ``ad`` has eigenvalues ``0, +-i theta, +-2 i theta``, so
+    ``(sigma + ad)^-1`` is the polynomial ``p(ad)`` that inverts ``sigma + x`` modulo ``x (x^2 +
+    t2) (x^2 + 4 t2)``::
+
+        p_0 = 1/sigma,  p_1 = -(sigma^2 + 5 t2)/(a b),  p_2 = -p_1/sigma,
+        p_3 = -1/(a b),  p_4 = 1/(sigma a b),  a = sigma^2 + t2,  b = sigma^2 + 4 t2
+
+    given as ``p_j m^j`` with ``k = 1/m``, ``m = sqrt(b)``: each ``(k ad)^j (Y)`` is at most
+    ``|Y|`` and each ``p_j m^j`` at most ``5/sigma``, so no term cancels more than a few bits
+    (``sigma + ad`` has condition ``sqrt(b) / sigma``) and none overflows where ``Q`` does not.
+    ``sigma = SIM3_Q_SIGMA`` where not ``use`` (finite, not taken)."""
+    use = sigma >= SIM3_Q_SIGMA
+    s = torch.where(use, sigma, SIM3_Q_SIGMA)
+    s2 = s * s
+    a, b = s2 + t2, s2 + 4.0 * t2
+    m = b.sqrt()
+    f = 1.0 + t2 / b  # (sigma^2 + 5 t2)/b
+    ba = b / a
+    return (1.0 / s, -f * m / a, f * ba / s, -m / a, ba / s), 1.0 / m, use

@@ -292,6 +292,22 @@ def _mat(a: Tensor, b: Tensor, c: Tensor, P: Tensor) -> Tensor:
     return a[..., None, None] * eye + b[..., None, None] * P + c[..., None, None] * P2
 
 
+def _coupling(
+    sigma: Tensor, t2: Tensor, P: Tensor, R: Tensor, V: Tensor, Jp: Tensor, Q: Tensor
+) -> Tensor:
+    """The rotation coupling ``Q`` of :func:`_jl`: its difference form ``Q`` as given, and
+    from ``sigma >= SIM3_Q_SIGMA`` the solve of :func:`torchlie._coeffs.sim3_coupling` (the
+    difference cancels by about ``sigma`` there)."""
+    p, k, use = _coeffs.sim3_coupling(sigma, t2)
+    k = k[..., None, None]
+    Z = _components.mm(V, R) - _components.mm(R, Jp)
+    S = p[0][..., None, None] * Z
+    for c in p[1:]:
+        Z = (_components.mm(P, Z) - _components.mm(Z, P)) * k
+        S = S + c[..., None, None] * Z
+    return torch.where(use[..., None, None], S, Q)
+
+
 def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
     """``Jl(xi) = int_0^1 exp(s ad(xi)) ds`` (or its inverse) in closed form, by blocks::
 
@@ -303,7 +319,9 @@ def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
     P hat(rho)) + 2 (B_t (phi x rho) + C_t (phi x (phi x rho))) phi^T`` and ``d(V rho)/dsigma -
     t = (A_s - A) rho + (B_s - B) (phi x rho) + (C_s - C) (phi x (phi x rho))``: coefficients
     of :func:`torchlie._coeffs.sim3_v_partials` and :func:`torchlie._coeffs.sim3_w` (all in
-    float64 for float32 input).  The inverse is
+    float64 for float32 input).  From ``sigma = 1`` on, where the two terms of ``Q`` cancel by
+    about ``sigma``, ``Q`` solves ``sigma Q + P Q - Q P = V hat(rho) - hat(rho) so3 Jl(phi)``
+    instead (:func:`_coupling`).  The inverse is
     block triangular: ``[[V^-1, -V^-1 Q Jl(phi)^-1, -V^-1 W], [0, Jl(phi)^-1, 0], [0, 0, 1]]``.
     """
     dtype = xi.dtype  # evaluated in float64 for float32: the products of up to three
@@ -325,11 +343,12 @@ def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
     W = Aw[..., None] * rho + Bw[..., None] * pr + Cw[..., None] * ppr
     z31, z13 = torch.zeros_like(rho).unsqueeze(-1), torch.zeros_like(rho).unsqueeze(-2)
     one = torch.ones_like(sigma)[..., None, None]
+    V = _mat(A, B, C, P)
+    Jp = _rodrigues.jac_matrix(phi, "left")
+    Q = _coupling(sigma, t2, P, R, V, Jp, dphi + _components.mm(_components.hat(t), Jp))
     if not inverse:
-        Jp = _rodrigues.jac_matrix(phi, "left")
-        Q = dphi + _components.mm(_components.hat(t), Jp)
         J = _rows(
-            (_mat(A, B, C, P), Q, W.unsqueeze(-1)),
+            (V, Q, W.unsqueeze(-1)),
             (torch.zeros_like(P), Jp, z31),
             (z13, z13, one),
         )
@@ -347,7 +366,7 @@ def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
     Jpi = _rodrigues.jac_matrix(phi, "left_inv")
     a, b, c = _coefficients(_coeffs.sim3_v_inv, sigma, phi)
     Vi = _mat(a, b, c, P)
-    Qi = -_components.mm(Vi, _components.mm(dphi, Jpi) + _components.hat(t))
+    Qi = -_components.mm(Vi, _components.mm(Q, Jpi))
     return _rows(
         (Vi, Qi, -_components.mv(Vi, W).unsqueeze(-1)),
         (torch.zeros_like(P), Jpi, z31),
