@@ -1080,59 +1080,36 @@ def sim3_v_partials(
     )
 
 
-#: ``sigma`` above which :func:`sim3_w` takes the closed forms of ``E2``: the differences
-#: ``A_s - A`` ... cancel there (``log2(sigma)`` bits), the closed forms do not.
-SIM3_W_SIGMA = 4.0
-
-
-def sim3_w(sigma: Tensor, t2: Tensor, parts: tuple[Tensor, ...]) -> tuple[Tensor, Tensor, Tensor]:
-    """``(A_s - A, B_s - B, C_s - C)`` from the output ``parts`` of :func:`sim3_v_partials`:
-    the coefficients of ``d(V rho)/dsigma - V rho`` in the Sim(3) Jacobian.
-
-    They are ``-(A2, B2, C2)`` of ``E2(z) = (E1(z) - 1)/z`` (``E1' - E1 = -E2``)::
-
-        A2 = (A - 1)/sigma,  B2 = (sigma B - (D - 1))/(sigma^2 + t2),
-        C2 = (A2 + sigma C - B)/(sigma^2 + t2),  D = A - t2 C
-
-    taken above :data:`SIM3_W_SIGMA`, where the plain differences lose ``log2(sigma)`` bits
-    (``A_s`` and ``A`` agree to ``1/sigma``); below it the differences, which do not cancel
-    there (double where)."""
-    A, B, C, As, Bs, Cs = parts[:6]
-    big = sigma > SIM3_W_SIGMA
-    sb = torch.where(big, sigma, SIM3_W_SIGMA + 1.0)
-    inv = 1.0 / (sb * sb + t2)
-    A2 = (A - 1.0) / sb
-    B2 = (sb * B - (A - t2 * C - 1.0)) * inv
-    C2 = (A2 + sb * C - B) * inv
-    w = torch.where
-    return w(big, -A2, As - A), w(big, -B2, Bs - B), w(big, -C2, Cs - C)
-
-
-#: ``sigma`` from which :func:`sim3_coupling` solves for the rotation coupling of the Sim(3)
-#: Jacobian: below it the difference form ``d(V rho)/dphi + hat(V rho) Jl`` loses at most a
-#: few bits (its two terms, of order ``A |rho|``, cancel to ``Q``, of order ``A |rho| / sigma``
-#: for large ``sigma``), above it the solve is the more accurate one.
+#: ``sigma`` from which :func:`sim3_coupling` solves for the couplings of the Sim(3) Jacobian:
+#: below it their difference forms lose at most a few bits, above it they cancel by about
+#: ``sigma`` (their terms are of order ``A |rho|``, the couplings of order ``A |rho| / sigma``).
 SIM3_Q_SIGMA = 1.0
 
 
-def sim3_coupling(sigma: Tensor, t2: Tensor) -> tuple[tuple[Tensor, ...], Tensor, Tensor]:
-    """``(p, k, use)``: the rotation coupling ``Q`` of the Sim(3) left Jacobian (rows ``rho``,
-    columns ``phi``) as ``Q = sum_j p_j (k ad)^j (Y)`` with ``Y = V hat(rho) - hat(rho) Jl(phi)``
-    and ``ad(X) = P X - X P``, ``P = hat(phi)``, taken where ``use`` (``sigma >=``
-    :data:`SIM3_Q_SIGMA`).
+def sim3_coupling(sigma: Tensor, t2: Tensor) -> tuple[tuple[Tensor, ...], Tensor, Tensor, Tensor]:
+    """``(p, k, r, use)``: the couplings of the translation to ``phi`` (``Q``) and to
+    ``sigma`` (``w``) in the Sim(3) left Jacobian as solutions of linear equations in
+    ``sigma + P`` (``P = hat(phi)``), taken where ``use`` (``sigma >=`` :data:`SIM3_Q_SIGMA`).
+
+    ``w = -E2(sigma + P) rho = -(sigma + P)^-1 y`` with ``y = V rho - rho``, and ``(sigma +
+    P)^-1 = ((sigma^2 + t2) I - sigma P + P^2) / (sigma a)``, ``a = sigma^2 + t2``, so ``w =
+    -r (y - phi x y / sigma + phi (phi . y) / sigma^2)`` with ``r = sigma / a`` (each term at
+    most ``|y|``: ``sigma y`` overflows near the top of the range of ``e^sigma``).
 
     ``Q = int_0^1 int_0^t e^(u (sigma + P)) hat(rho) e^((t - u) P) du dt`` solves
-    ``sigma Q + ad(Q) = Y``; ``ad`` has eigenvalues ``0, +-i theta, +-2 i theta``, so
+    ``sigma Q + ad(Q) = Y``, ``Y = V hat(rho) - hat(rho) Jl(phi)``, ``ad(X) = P X - X P``, so
+    ``Q = sum_j p_j (k ad)^j (Y)``: ``ad`` has eigenvalues ``0, +-i theta, +-2 i theta``, so
     ``(sigma + ad)^-1`` is the polynomial ``p(ad)`` that inverts ``sigma + x`` modulo ``x (x^2 +
     t2) (x^2 + 4 t2)``::
 
         p_0 = 1/sigma,  p_1 = -(sigma^2 + 5 t2)/(a b),  p_2 = -p_1/sigma,
-        p_3 = -1/(a b),  p_4 = 1/(sigma a b),  a = sigma^2 + t2,  b = sigma^2 + 4 t2
+        p_3 = -1/(a b),  p_4 = 1/(sigma a b),  b = sigma^2 + 4 t2
 
     given as ``p_j m^j`` with ``k = 1/m``, ``m = sqrt(b)``: each ``(k ad)^j (Y)`` is at most
     ``|Y|`` and each ``p_j m^j`` at most ``5/sigma``, so no term cancels more than a few bits
-    (``sigma + ad`` has condition ``sqrt(b) / sigma``) and none overflows where ``Q`` does not.
-    ``sigma = SIM3_Q_SIGMA`` where not ``use`` (finite, not taken)."""
+    (``sigma + P`` and ``sigma + ad`` have condition ``sqrt(a) / sigma`` and ``sqrt(b) /
+    sigma``) and none overflows where the couplings do not.  ``sigma = SIM3_Q_SIGMA`` where
+    not ``use`` (finite, not taken)."""
     use = sigma >= SIM3_Q_SIGMA
     s = torch.where(use, sigma, SIM3_Q_SIGMA)
     s2 = s * s
@@ -1140,4 +1117,4 @@ def sim3_coupling(sigma: Tensor, t2: Tensor) -> tuple[tuple[Tensor, ...], Tensor
     m = b.sqrt()
     f = 1.0 + t2 / b  # (sigma^2 + 5 t2)/b
     ba = b / a
-    return (1.0 / s, -f * m / a, f * ba / s, -m / a, ba / s), 1.0 / m, use
+    return (1.0 / s, -f * m / a, f * ba / s, -m / a, ba / s), 1.0 / m, s / a, use

@@ -292,20 +292,27 @@ def _mat(a: Tensor, b: Tensor, c: Tensor, P: Tensor) -> Tensor:
     return a[..., None, None] * eye + b[..., None, None] * P + c[..., None, None] * P2
 
 
-def _coupling(
-    sigma: Tensor, t2: Tensor, P: Tensor, R: Tensor, V: Tensor, Jp: Tensor, Q: Tensor
-) -> Tensor:
-    """The rotation coupling ``Q`` of :func:`_jl`: its difference form ``Q`` as given, and
-    from ``sigma >= SIM3_Q_SIGMA`` the solve of :func:`torchlie._coeffs.sim3_coupling` (the
-    difference cancels by about ``sigma`` there)."""
-    p, k, use = _coeffs.sim3_coupling(sigma, t2)
+def _couplings(
+    rho: Tensor, phi: Tensor, sigma: Tensor, t2: Tensor, blocks: tuple[Tensor, ...]
+) -> tuple[Tensor, Tensor]:
+    """The couplings ``Q`` and ``w`` of :func:`_jl` from ``blocks = (P, R, V, Jp, t, Q, w)``
+    (``hat(phi)``, ``hat(rho)``, ``V``, so3's ``Jl``, the translation ``V rho``, and the
+    couplings' difference forms): those where ``sigma < SIM3_Q_SIGMA``, the solves of
+    :func:`torchlie._coeffs.sim3_coupling` from there on (the differences cancel by about
+    ``sigma``)."""
+    P, R, V, Jp, t, Q, w = blocks
+    p, k, r, use = _coeffs.sim3_coupling(sigma, t2)
     k = k[..., None, None]
     Z = _components.mm(V, R) - _components.mm(R, Jp)
     S = p[0][..., None, None] * Z
     for c in p[1:]:
         Z = (_components.mm(P, Z) - _components.mm(Z, P)) * k
         S = S + c[..., None, None] * Z
-    return torch.where(use[..., None, None], S, Q)
+    y = t - rho
+    inv_s = p[0][..., None]
+    along = _coeffs.dot(phi.unbind(-1), y.unbind(-1))[..., None] * inv_s
+    ws = (inv_s * torch.linalg.cross(phi, y) - y - inv_s * along * phi) * r[..., None]
+    return torch.where(use[..., None, None], S, Q), torch.where(use[..., None], ws, w)
 
 
 def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
@@ -318,11 +325,11 @@ def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
     C P^2``, ``P = hat(phi)``, so ``d(V rho)/dphi = -B hat(rho) - C (hat(phi x rho) +
     P hat(rho)) + 2 (B_t (phi x rho) + C_t (phi x (phi x rho))) phi^T`` and ``d(V rho)/dsigma -
     t = (A_s - A) rho + (B_s - B) (phi x rho) + (C_s - C) (phi x (phi x rho))``: coefficients
-    of :func:`torchlie._coeffs.sim3_v_partials` and :func:`torchlie._coeffs.sim3_w` (all in
-    float64 for float32 input).  From ``sigma = 1`` on, where the two terms of ``Q`` cancel by
-    about ``sigma``, ``Q`` solves ``sigma Q + P Q - Q P = V hat(rho) - hat(rho) so3 Jl(phi)``
-    instead (:func:`_coupling`).  The inverse is
-    block triangular: ``[[V^-1, -V^-1 Q Jl(phi)^-1, -V^-1 W], [0, Jl(phi)^-1, 0], [0, 0, 1]]``.
+    of :func:`torchlie._coeffs.sim3_v_partials` (all in float64 for float32 input).  From
+    ``sigma = 1`` on, where these differences cancel by about ``sigma``, ``Q`` and ``W`` are
+    the solutions of ``sigma Q + P Q - Q P = V hat(rho) - hat(rho) so3 Jl(phi)`` and ``(sigma
+    I + P) W = rho - V rho`` instead (:func:`_couplings`).  The inverse is block triangular:
+    ``[[V^-1, -V^-1 Q Jl(phi)^-1, -V^-1 W], [0, Jl(phi)^-1, 0], [0, 0, 1]]``.
     """
     dtype = xi.dtype  # evaluated in float64 for float32: the products of up to three
     xi = _coeffs.wide(xi)  # components of phi overflow float32 below the angle reduction's range
@@ -331,8 +338,8 @@ def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
         phi, lam, big, u = _huge(phi)
     t2 = _coeffs.theta2(phi)
     parts = _coeffs.sim3_v_partials(sigma, t2, xi.dtype)
-    A, B, C, _, _, _, Bt, Ct = parts
-    Aw, Bw, Cw = _coeffs.sim3_w(sigma, t2, parts)
+    A, B, C, As, Bs, Cs, Bt, Ct = parts
+    Aw, Bw, Cw = As - A, Bs - B, Cs - C  # -E2(z)'s: they cancel by about sigma, see below
     P, R = _components.hat(phi), _components.hat(rho)
     pr = torch.linalg.cross(phi, rho)
     ppr = torch.linalg.cross(phi, pr)
@@ -345,7 +352,8 @@ def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
     one = torch.ones_like(sigma)[..., None, None]
     V = _mat(A, B, C, P)
     Jp = _rodrigues.jac_matrix(phi, "left")
-    Q = _coupling(sigma, t2, P, R, V, Jp, dphi + _components.mm(_components.hat(t), Jp))
+    Q = dphi + _components.mm(_components.hat(t), Jp)
+    Q, W = _couplings(rho, phi, sigma, t2, (P, R, V, Jp, t, Q, W))
     if not inverse:
         J = _rows(
             (V, Q, W.unsqueeze(-1)),
