@@ -27,7 +27,16 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from . import _checks, _coeffs, _components, _layout, _rodrigues, _rotation_matrix, so3
+from . import (
+    _checks,
+    _coeffs,
+    _components,
+    _layout,
+    _rodrigues,
+    _rotation_matrix,
+    _se3_kernels,
+    so3,
+)
 from ._autograd import CustomFunction, blocked, fma, needs_graph, transforms_active
 from ._typing import Bool, Float
 
@@ -83,20 +92,27 @@ def _trans(T: Tensor) -> Tensor:
     return T[..., :3, 3]
 
 
-def _scaled_entries(M: Tensor) -> tuple[list[Tensor], Tensor, Tensor]:
+def _entries(M: Tensor) -> tuple[Tensor, ...]:
+    """The nine entries of the linear block ``M``, row by row, as planes (one transposing copy
+    of the strided block; element-wise operations on the block itself are several times
+    slower)."""
+    return _components.planes(M, 9)
+
+
+def _scaled_entries(M: Tensor | Sequence[Tensor]) -> tuple[list[Tensor], Tensor, Tensor]:
     """``(entries of M / k, k, out)``: ``k`` a power of two near the largest ``|M_ij|`` (an
     exact division; detached) where that lies outside the range whose squares are normal and
-    finite (``out``; that of :func:`torchlie._coeffs.rescaled`), 1 elsewhere."""
-    e = M.flatten(-2).unbind(-1)
-    # the largest |M_ij| (a max is exact: the same in any order); planes while compiling
-    m = _coeffs.largest(e) if torch.compiler.is_compiling() else M.detach().abs().amax((-2, -1))
+    finite (``out``; that of :func:`torchlie._coeffs.rescaled`), 1 elsewhere.  ``M`` as a
+    tensor or its :func:`_entries`."""
+    e = _entries(M) if isinstance(M, Tensor) else tuple(M)
+    m = _coeffs.largest(e)  # a max is exact: the same in any order
     lo, hi = _coeffs._PLAIN[m.dtype]
     out = ((m < lo) & (m > 0.0)) | ((m > hi) & (m < float("inf")))
     k = torch.where(out, _coeffs.power_of_two(m), 1.0)
     return [x / k for x in e], k, out
 
 
-def _scale(M: Tensor) -> tuple[Tensor, Tensor]:
+def _scale(M: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor]:
     """``(s, 1/s)`` of the linear block ``M = s R``, ``s = |M|_F / sqrt(3)``, from the squares of
     ``M / k`` (:func:`_scaled_entries`): every finite scale, without the round trip through
     :func:`_log_scale2` (``exp`` of a rounded log costs ``log2 |log s|`` bits)."""
@@ -105,7 +121,7 @@ def _scale(M: Tensor) -> tuple[Tensor, Tensor]:
     return r * k, 1.0 / r / k
 
 
-def _log_scale2(M: Tensor) -> Tensor:
+def _log_scale2(M: Tensor | Sequence[Tensor]) -> Tensor:
     """``2 sigma = log(|M|_F^2 / 3)`` of the linear block ``M = s R``: near ``s = 1`` as
     ``log1p`` of ``(sum (M_ii - 1)(M_ii + 1) + sum_(i != j) M_ij^2) / 3`` (exact at the
     identity, where ``|M|^2 - 3`` cancels), elsewhere as ``log`` of the sum of squares (double
@@ -135,10 +151,13 @@ def _log_scale2(M: Tensor) -> Tensor:
 _SHRINK = 2.0**-6
 
 
-def _poly_planes(a: Tensor, b: Tensor, c: Tensor, phi: Tensor, v: Tensor) -> list[Tensor]:
+def _poly_planes(
+    a: Tensor, b: Tensor, c: Tensor, phi: Tensor | Sequence[Tensor], v: Tensor
+) -> list[Tensor]:
     """The planes of ``(a I + b hat(phi) + c hat(phi)^2) v``, as
-    ``(a - c t2) v + b (phi x v) + c (phi . v) phi`` (coefficients of shape ``(...)``)."""
-    x = phi.unbind(-1)
+    ``(a - c t2) v + b (phi x v) + c (phi . v) phi`` (coefficients of shape ``(...)``;
+    ``phi`` as a tensor or its planes)."""
+    x = phi.unbind(-1) if isinstance(phi, Tensor) else phi
     t2 = _coeffs.dot(x, x)
     return _rodrigues.jl_components(x, v.unbind(-1), a - c * t2, b, c, shrink=_SHRINK)
 
@@ -187,13 +206,22 @@ def _exp(xi: Tensor) -> Tensor:
     k = (1.0 - lam) * A * _coeffs.dot(red, v, _SHRINK) / torch.where(big, t2, 1.0)
     k = torch.where(big, k, 0.0)
     up = 1.0 / _SHRINK
-    t = [torch.where(big, fma(c * lam, k, r, value=up), c) for c, r in zip(t, red, strict=True)]
     s = torch.exp(sigma)
-    R = so3._ExpMapFn(phi).flatten(-2).unbind(-1)
-    zero, one = torch.zeros_like(s), torch.ones_like(s)
-    rows = [[s * R[3 * i + j] for j in range(3)] + [t[i]] for i in range(3)]
-    top = [e for row in rows for e in row]
-    return _layout.interleave((*top, zero, zero, zero, one)).unflatten(-1, (4, 4))
+    o, top = _se3_kernels._top_outputs(s)  # the columns of the result, where they are written
+    t = [
+        torch.where(big, fma(c * lam, k, r, value=up), c, out=top[i][3])
+        for i, (c, r) in enumerate(zip(t, red, strict=True))
+    ]
+    # so3.exp's entries: through its Function where they are differentiated, as planes elsewhere
+    R = (
+        so3._ExpMapFn(phi).flatten(-2).unbind(-1)
+        if diff
+        else so3._exp_entries(_coeffs.reduced_planes_of(phi))
+    )
+    rows = [
+        [torch.mul(s, R[3 * i + j], out=top[i][j]) for j in range(3)] + [t[i]] for i in range(3)
+    ]
+    return _se3_kernels._stack_top([e for row in rows for e in row], out=o)
 
 
 _exp_blocked = blocked(_exp, (1,))
@@ -388,11 +416,12 @@ def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
 
 
 def _log_forward(T: Tensor) -> Tensor:
-    M, t = _lin(T), _trans(T)
-    sigma = 0.5 * _log_scale2(M)
-    phi = _rotation_matrix.log(M * torch.exp(-sigma)[..., None, None])
+    e, t = _entries(_lin(T)), _trans(T)
+    sigma = 0.5 * _log_scale2(e)
+    r = torch.exp(-sigma)
+    phi = _rotation_matrix.log_and_cot([x * r for x in e])[0]
     a, b, c = _coefficients(_coeffs.sim3_v_inv, sigma, phi, False)
-    return _layout.interleave((*_poly_planes(a, b, c, phi, t), *phi.unbind(-1), sigma))
+    return _layout.interleave((*_poly_planes(a, b, c, phi, t), *phi, sigma))
 
 
 def _vrho(rho: Tensor):
