@@ -92,19 +92,13 @@ def _trans(T: Tensor) -> Tensor:
     return T[..., :3, 3]
 
 
-def _entries(M: Tensor) -> tuple[Tensor, ...]:
-    """The nine entries of the linear block ``M``, row by row, as planes (one transposing copy
-    of the strided block; element-wise operations on the block itself are several times
-    slower)."""
-    return _components.planes(M, 9)
-
-
 def _scaled_entries(M: Tensor | Sequence[Tensor]) -> tuple[list[Tensor], Tensor, Tensor]:
     """``(entries of M / k, k, out)``: ``k`` a power of two near the largest ``|M_ij|`` (an
     exact division; detached) where that lies outside the range whose squares are normal and
     finite (``out``; that of :func:`torchlie._coeffs.rescaled`), 1 elsewhere.  ``M`` as a
-    tensor or its :func:`_entries`."""
-    e = _entries(M) if isinstance(M, Tensor) else tuple(M)
+    tensor or its nine planes, row by row (taken by one transposing copy of the strided block:
+    element-wise operations on the block itself are several times slower)."""
+    e = _components.planes(M, 9)
     m = _coeffs.largest(e)  # a max is exact: the same in any order
     lo, hi = _coeffs._PLAIN[m.dtype]
     out = ((m < lo) & (m > 0.0)) | ((m > hi) & (m < float("inf")))
@@ -213,11 +207,8 @@ def _exp(xi: Tensor) -> Tensor:
         for i, (c, r) in enumerate(zip(t, red, strict=True))
     ]
     # so3.exp's entries: through its Function where they are differentiated, as planes elsewhere
-    R = (
-        so3._ExpMapFn(phi).flatten(-2).unbind(-1)
-        if diff
-        else so3._exp_entries(_coeffs.reduced_planes_of(phi))
-    )
+    # (from red, which is its forward's reduced_planes_of(phi) where nothing is differentiated)
+    R = so3._ExpMapFn(phi).flatten(-2).unbind(-1) if diff else so3._exp_entries(red)
     rows = [
         [torch.mul(s, R[3 * i + j], out=top[i][j]) for j in range(3)] + [t[i]] for i in range(3)
     ]
@@ -416,7 +407,7 @@ def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
 
 
 def _log_forward(T: Tensor) -> Tensor:
-    e, t = _entries(_lin(T)), _trans(T)
+    e, t = _components.planes(_lin(T), 9), _trans(T)
     sigma = 0.5 * _log_scale2(e)
     r = torch.exp(-sigma)
     phi = _rotation_matrix.log_and_cot([x * r for x in e])[0]

@@ -77,15 +77,14 @@ _NAME = "torchlie.so3."
 # ----------------------------------------------------------------------------------------------
 
 
-def _exp(w: Tensor | Sequence[Tensor]) -> Tensor:
-    """Forward of :func:`exp` (runs without autograd: forward-only coefficients)."""
-    o = _layout.outputs(w[..., 0] if isinstance(w, Tensor) else w[0], 9)
+def _exp(w: Sequence[Tensor]) -> Tensor:
+    """Forward of :func:`exp` from the planes of the (reduced) rotation vectors (runs without
+    autograd: forward-only coefficients)."""
+    o = _layout.outputs(w[0], 9)
     return _layout.interleave(_exp_entries(w, o), o).unflatten(-1, (3, 3))
 
 
-def _exp_entries(
-    w: Tensor | Sequence[Tensor], out: Sequence[Tensor | None] = (None,) * 9
-) -> list[Tensor]:
+def _exp_entries(w: Sequence[Tensor], out: Sequence[Tensor | None] = (None,) * 9) -> list[Tensor]:
     """The entries of :func:`_exp` (row by row, written to ``out``): for callers that build
     a larger matrix from them where nothing is differentiated."""
     xyz, (a, b, d) = _rodrigues.coefficients(w, "abd")
