@@ -437,6 +437,36 @@ def test_blocked_equals_the_whole_batch(threads):
         torch.set_num_threads(before)
 
 
+@pytest.mark.parametrize("swap", ["last", "all but the first"])
+def test_blocked_results_in_buffers_of_the_driver(small_blocks, swap):
+    """Results allocated by ``result_buffer`` land in their rows even where a block allocates
+    them in another order than the first block (another path of the kernel), and a temporary
+    allocated there does not spoil them."""
+
+    sizes = []
+
+    def fwd(a):
+        rows = a.shape[0]
+        sizes.append(rows)
+        x = _autograd.result_buffer((rows, 3), a)
+        y = _autograd.result_buffer((rows, 3), a)
+        t = _autograd.result_buffer((rows, 3), a)  # a temporary
+        other = rows != sizes[0] if swap == "last" else bool(a[0, 0] != first[0, 0])
+        if other:
+            x, y = y, x
+        torch.mul(a, 2.0, out=t)
+        torch.add(t, 1.0, out=x)
+        torch.sub(a, t, out=y)
+        return x, y, t.sum(-1)
+
+    a = torch.randn(16 * 5 + 7, 3, dtype=torch.float64)
+    first = a[:1]
+    got = _autograd.blocked(fwd, (1,))(a)
+    want = (2.0 * a + 1.0, a - 2.0 * a, (2.0 * a).sum(-1))
+    for x, y in zip(got, want, strict=True):
+        assert torch.equal(x, y)
+
+
 def test_blocked_plain_backward_equals_unblocked(monkeypatch):
     g = torch.Generator().manual_seed(41)
     q = (1.3 * torch.randn(5, 23, 4, generator=g, dtype=F64)).requires_grad_()

@@ -45,6 +45,8 @@ levels among them would not be the op's: they raise.
 
 from __future__ import annotations
 
+import math
+import threading
 from collections.abc import Callable, MutableMapping, Sequence
 from typing import TypeVar
 
@@ -195,16 +197,96 @@ def evaluate(
         x.reshape((n,) + x.shape[x.dim() - k :]) for x, k in zip(inputs, event_dims, strict=True)
     ]
     results: tuple[Tensor | None, ...] = ()
-    for start in range(0, n, rows):
-        out = fn(*(x[start : start + rows] for x in flat))
-        outs = out if isinstance(out, tuple) else (out,)
-        if not results:
-            results = tuple(None if o is None else o.new_empty((n,) + o.shape[1:]) for o in outs)
-        for r, o in zip(results, outs, strict=True):
-            if r is not None:
-                r[start : start + rows].copy_(o)
+    plan = _Plan()
+    outer, _PLANS.current = getattr(_PLANS, "current", None), plan
+    try:
+        for start in range(0, n, rows):
+            out = fn(*(x[start : start + rows] for x in flat))
+            outs = out if isinstance(out, tuple) else (out,)
+            if not results:
+                results = tuple(
+                    None if o is None else o.new_empty((n,) + o.shape[1:]) for o in outs
+                )
+            plan.next_block(outs, results, start, start + rows)
+    finally:
+        _PLANS.current = outer
     joined = tuple(None if r is None else r.reshape(batch + r.shape[1:]) for r in results)
     return joined if isinstance(out, tuple) else joined[0]  # type: ignore[return-value]
+
+
+class _Plan:
+    """Where the kernels of one :func:`evaluate` allocate their results (:func:`result_buffer`):
+    from the second block on, a request that made a result in the first block (the block's
+    ``i``-th request) gets the block's rows of that whole result, so the kernel's last
+    operations store there and no copy follows; any other request takes a new tensor, and a
+    result that is not where its rows are is copied there."""
+
+    def __init__(self) -> None:
+        self.requests: list[Tensor] = []  # this block's, in order
+        self.targets: dict[int, Tensor] = {}  # request index: the rows of its whole result
+        self.owners: dict[int, int] | None = None  # request index: result index
+
+    def take(self, shape: tuple[int, ...], like: Tensor) -> Tensor:
+        rows = self.targets.get(len(self.requests))
+        if rows is not None and shape and rows.dtype == like.dtype and rows.device == like.device:
+            rows = rows[: shape[0]]
+            out = rows.view(shape) if rows.numel() == math.prod(shape) else None
+        else:
+            out = None
+        if out is None:
+            out = torch.empty(shape, dtype=like.dtype, device=like.device)
+        self.requests.append(out)
+        return out
+
+    def next_block(
+        self, outs: Sequence[Tensor | None], results: Sequence[Tensor | None], start: int, stop: int
+    ) -> None:
+        """Copy the block's results ``outs`` to rows ``start:stop`` of ``results`` where they
+        are not there already, and aim the next block's requests at the rows after them."""
+        if self.owners is None:  # the first block: which request made which result
+            self.owners = {
+                i: j
+                for j, o in enumerate(outs)
+                for i, b in enumerate(self.requests)
+                if o is not None and _same_memory(o, b)
+            }
+        stores = {r.untyped_storage().data_ptr() for r in results if r is not None}
+        moves = [
+            # a result made in another result's rows (the block took another path than the
+            # first) is taken out of them before any rows are written
+            (r[start:stop], o.clone() if o.untyped_storage().data_ptr() in stores else o)
+            for r, o in zip(results, outs, strict=True)
+            if r is not None and not _same_memory(o, r[start:stop])
+        ]
+        for rows, o in moves:
+            rows.copy_(o)
+        self.requests = []
+        self.targets = {i: results[j][stop:] for i, j in self.owners.items()}  # type: ignore[index]
+
+
+def _same_memory(a: Tensor | None, b: Tensor) -> bool:
+    """Whether ``a`` is ``b``'s memory, element for element (contiguous both, same start and
+    size)."""
+    return (
+        a is not None
+        and a.data_ptr() == b.data_ptr()
+        and a.numel() == b.numel()
+        and a.is_contiguous()
+        and b.is_contiguous()
+    )
+
+
+_PLANS = threading.local()
+
+
+def result_buffer(shape: tuple[int, ...], like: Tensor) -> Tensor:
+    """``torch.empty(shape)`` of ``like``'s dtype and device, for a kernel's result: where
+    :func:`evaluate` runs the kernel block by block, the block's rows of the whole result
+    (:class:`_Plan`)."""
+    plan = getattr(_PLANS, "current", None)
+    if plan is None:
+        return torch.empty(shape, dtype=like.dtype, device=like.device)
+    return plan.take(shape, like)
 
 
 #: A map of an op's first input into its formula's range that leaves the op unchanged:

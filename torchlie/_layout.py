@@ -13,7 +13,9 @@ exactly, so a non-finite component stays in its element.
 
 Rows from planes (:func:`outputs`, :func:`interleave`): on large eager CPU batches a kernel's
 last operations write their values straight into the columns of its result (``out=`` a strided
-view), so no pass over the result interleaves them afterwards.
+view), so no pass over the result interleaves them afterwards; inside the evaluation driver's
+blocks that result is the block's rows of the whole result
+(:func:`torchlie._autograd.result_buffer`).
 
 Results.  The same numbers give the same results whatever their layout, batch size or
 broadcast, within the rounding that torch's kernels do differently in their vectorised and
@@ -147,7 +149,7 @@ def outputs(like: Tensor | Sequence[Tensor], n: int) -> tuple[Tensor | None, ...
     batch = broadcast(*(x.shape for x in likes))
     if batch.numel() < MIN_ROWS or _autograd.needs_graph(likes):
         return (None,) * n
-    whole = torch.empty(batch + (n,), dtype=first.dtype, device=first.device)
+    whole = _autograd.result_buffer(batch + (n,), first)
     columns = Columns(whole.unbind(-1))
     columns.result = whole
     return columns
@@ -168,7 +170,7 @@ def interleave(parts: Sequence[Tensor], out: Sequence[Tensor | None] | None = No
         return out.result
     if not large(first, first.numel()) or _autograd.needs_graph(parts):
         return torch.stack(tuple(parts), dim=-1)
-    target = torch.empty(first.shape + (len(parts),), dtype=first.dtype, device=first.device)
+    target = _autograd.result_buffer(first.shape + (len(parts),), first)
     for part, column in zip(parts, target.unbind(-1), strict=True):
         column.copy_(part)
     return target
