@@ -23,6 +23,7 @@ Jacobians of operations follow Sola et al. (as :mod:`torchlie.se3`):
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
@@ -334,6 +335,75 @@ def _couplings(
     return torch.where(use[..., None, None], S, Q), torch.where(use[..., None], ws, w)
 
 
+class _VRho(NamedTuple):
+    """What the derivatives of ``V rho = A rho + B phi x rho + C phi x (phi x rho)`` in
+    ``(phi, sigma)`` are made of (planes): ``rho``, ``phi``, ``phi x rho``, ``phi x (phi x
+    rho)`` and the coefficients and partials of :func:`torchlie._coeffs.sim3_v_partials`
+    (``(A, B, C, A_s, B_s, C_s, B_t, C_t)``)."""
+
+    rho: Sequence[Tensor]
+    phi: Sequence[Tensor]
+    pr: Sequence[Tensor]
+    ppr: Sequence[Tensor]
+    parts: Sequence[Tensor]
+
+
+def _vrho(rho: Sequence[Tensor], phi: Sequence[Tensor], parts: Sequence[Tensor]) -> _VRho:
+    pr = _components.cross_planes(phi, rho)
+    return _VRho(rho, phi, pr, _components.cross_planes(phi, pr), parts)
+
+
+def _vrho_jvp(d: _VRho, v: Sequence[Tensor], s: Tensor | None) -> list[Tensor]:
+    """``d(V rho)/dphi v + d(V rho)/dsigma s`` (planes; ``s`` None: the first term)::
+
+    d/dphi v = B (v x rho) - C ((phi x rho) x v + phi x (rho x v))
+               + 2 (phi . v) (B_t (phi x rho) + C_t (phi x (phi x rho)))
+    d/dsigma = A_s rho + B_s (phi x rho) + C_s (phi x (phi x rho))"""
+    _, B, C, As, Bs, Cs, Bt, Ct = d.parts
+    vr = _components.cross_planes(v, d.rho)
+    prv = _components.cross_planes(d.pr, v)
+    pvr = _components.cross_planes(d.phi, vr)  # phi x (v x rho) = -phi x (rho x v)
+    k = 2.0 * _coeffs.dot(d.phi, v)
+    out = [
+        fma(fma(B * a, C, pvr_i, value=1.0), C, prv_i, value=-1.0) + k * (Bt * pr_i + Ct * ppr_i)
+        for a, prv_i, pvr_i, pr_i, ppr_i in zip(vr, prv, pvr, d.pr, d.ppr, strict=True)
+    ]
+    if s is None:
+        return out
+    return [
+        o + s * fma(fma(As * r, Bs, pr_i), Cs, ppr_i)
+        for o, r, pr_i, ppr_i in zip(out, d.rho, d.pr, d.ppr, strict=True)
+    ]
+
+
+def _vrho_vjp(d: _VRho, u: Sequence[Tensor]) -> tuple[Tensor, list[Tensor]]:
+    """The transpose of :func:`_vrho_jvp`: ``(d(V rho)/dsigma . u, d(V rho)/dphi^T u)``::
+
+    d/dphi^T u = B (rho x u) - C (u x (phi x rho) + (u x phi) x rho)
+                 + 2 (B_t u . (phi x rho) + C_t u . (phi x (phi x rho))) phi"""
+    _, B, C, As, Bs, Cs, Bt, Ct = d.parts
+    upr, uppr = _coeffs.dot(u, d.pr), _coeffs.dot(u, d.ppr)
+    ru = _components.cross_planes(d.rho, u)
+    upr_x = _components.cross_planes(u, d.pr)
+    upr_r = _components.cross_planes(_components.cross_planes(u, d.phi), d.rho)
+    k = 2.0 * fma(Bt * upr, Ct, uppr)
+    j_phi = [
+        fma(B * a, C, b + c, value=-1.0) + k * p
+        for a, b, c, p in zip(ru, upr_x, upr_r, d.phi, strict=True)
+    ]
+    j_sigma = fma(fma(As * _coeffs.dot(u, d.rho), Bs, upr), Cs, uppr)
+    return j_sigma, j_phi
+
+
+def _vrho_at(rho: Tensor, phi: Tensor, sigma: Tensor) -> _VRho:
+    """:class:`_VRho` at ``_SHRINK rho`` (the derivatives are linear in ``rho``: the caller
+    gives the factor back; their factors such as ``u . (phi x rho)`` may exceed the largest
+    float where the derivative does not), in float64 for float32 input."""
+    phi, sigma = _coeffs.wide(phi), _coeffs.wide(sigma)
+    parts = _coeffs.sim3_v_partials(sigma, _coeffs.theta2(phi), rho.dtype)
+    return _vrho((_coeffs.wide(rho) * _SHRINK).unbind(-1), phi.unbind(-1), parts)
+
+
 def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
     """``Jl(xi) = int_0^1 exp(s ad(xi)) ds`` (or its inverse) in closed form, by blocks::
 
@@ -359,13 +429,14 @@ def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
     parts = _coeffs.sim3_v_partials(sigma, t2, xi.dtype)
     A, B, C, As, Bs, Cs, Bt, Ct = parts
     Aw, Bw, Cw = As - A, Bs - B, Cs - C  # -E2(z)'s: they cancel by about sigma, see below
+    d = _vrho(rho.unbind(-1), phi.unbind(-1), parts)
+    e = torch.eye(3, dtype=xi.dtype, device=xi.device).unbind(-1)  # d(V rho)/dphi by columns
+    dphi = torch.stack(
+        [torch.stack(_vrho_jvp(d, [x.expand_as(sigma) for x in c], None), -1) for c in e], -1
+    )
     P, R = _components.hat(phi), _components.hat(rho)
-    pr = torch.linalg.cross(phi, rho)
-    ppr = torch.linalg.cross(phi, pr)
+    pr, ppr = torch.stack(d.pr, -1), torch.stack(d.ppr, -1)
     t = _poly(A, B, C, phi, rho)
-    outer = (2.0 * (Bt[..., None] * pr + Ct[..., None] * ppr)).unsqueeze(-1) * phi.unsqueeze(-2)
-    PR = _components.hat(pr) + _components.mm(P, R)
-    dphi = -B[..., None, None] * R - C[..., None, None] * PR + outer
     W = Aw[..., None] * rho + Bw[..., None] * pr + Cw[..., None] * ppr
     z31, z13 = torch.zeros_like(rho).unsqueeze(-1), torch.zeros_like(rho).unsqueeze(-2)
     one = torch.ones_like(sigma)[..., None, None]
@@ -415,18 +486,13 @@ def _log_forward(T: Tensor) -> Tensor:
     return _layout.interleave((*_poly_planes(a, b, c, phi, t), *phi, sigma))
 
 
-def _vrho(rho: Tensor):
-    """``(sigma, phi) -> V(sigma, phi) rho``: the translation of ``Exp(rho, phi, sigma)``."""
-    return lambda sigma, phi: _poly(*_coefficients(_coeffs.sim3_v, sigma, phi), phi, rho)
-
-
 # The right Jacobian, by block rows: Exp(xi) Exp(eps) with eps = Jr(xi) dxi moves t by
 # M eps_rho and M by M (hat(eps_phi) + eps_sigma I), while Exp(xi + dxi) moves t by
 # V drho + d(V rho)/d(phi, sigma) (dphi, dsigma), so
 #     Jr(xi) = [[M^-1 V, M^-1 d(V rho)/dphi, M^-1 d(V rho)/dsigma], [0, so3 Jr(phi), 0], [0, 0, 1]]
 # and Jr^-1 and Jr^-T need V^-1 (closed form), so3's Jl^-1 and one product with the derivative
-# of V rho, taken by autograd of the differentiable coefficients (torch.func: the same in every
-# mode, vmap and double backward included).
+# of V rho (_vrho_partials, as in the Jacobians; differentiable, so double backward
+# differentiates the same formula).
 
 
 def _log_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:
@@ -439,8 +505,8 @@ def _log_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:
     u = _poly(a, -b, c, phi, g[..., :3])
     # J (linear in rho) at _SHRINK rho, given back in the differences: J^T u is finite wherever
     # the gradient is, though its factors (u . (phi x rho), ...) may exceed the largest float
-    _, vjp = torch.func.vjp(_vrho(rho * _SHRINK), sigma, phi)
-    j_sigma, j_phi = vjp(u)
+    j_sigma, j_phi = _vrho_vjp(_vrho_at(rho, phi, sigma), _coeffs.wide(u).unbind(-1))
+    j_sigma, j_phi = j_sigma.to(u.dtype), torch.stack(j_phi, -1).to(u.dtype)
     diff = torch.is_grad_enabled()
     up = 1.0 / _SHRINK
     h_phi = _rodrigues.jl_apply(
@@ -471,26 +537,22 @@ def _log_jvp(saved: tuple[Tensor, ...], dT: Tensor) -> Tensor:
     # the rotation's tangent as that of the polar factor of M / s (so3._log_jvp)
     E = _components.gram_defect(_lin(T) * r)
     d_phi = _rodrigues.jl_apply(phi, _components.polar_tangent(X, E), sign=-1.0, inverse=True)
-    # J (dphi, dsigma) row by row from reverse mode (forward mode does not nest in the
-    # forward-mode level this runs under), at _SHRINK rho as in _log_backward
-    _, vjp = torch.func.vjp(_vrho(rho * _SHRINK), sigma, phi)
-    rows = []
-    for k in range(3):
-        e = torch.zeros_like(rho)
-        e[..., k] = 1.0
-        j_sigma, j_phi = vjp(e)
-        rows.append(j_sigma * d_sigma + (j_phi * d_phi).sum(-1))
-    jv = torch.stack(rows, dim=-1)
+    # J (dphi, dsigma) at _SHRINK rho as in _log_backward
+    v, s = _coeffs.wide(d_phi).unbind(-1), _coeffs.wide(d_sigma)
+    jv = torch.stack(_vrho_jvp(_vrho_at(rho, phi, sigma), v, s), -1).to(rho.dtype)
     a, b, c = _coefficients(_coeffs.sim3_v_inv, sigma, phi)
     d_rho = _poly(a, b, c, phi, torch.sub(_trans(dT), jv, alpha=1.0 / _SHRINK))
     return torch.cat((d_rho, d_phi, d_sigma.unsqueeze(-1)), dim=-1)
 
 
+# one pass over blocks of the batch (the one driver), the backward's planes kept in cache
+_log_backward_blocked = blocked(lambda *t: _log_backward(t[:-1], t[-1]), (2, 1, 1))
+
 _LogFn = CustomFunction(
     "Sim3Log",
     forward=_log_forward,
     save=lambda inputs, out: (inputs[0], out),
-    backward=_log_backward,
+    backward=lambda saved, g: _log_backward_blocked(*saved, g),
     jvp=_log_jvp,
     event_dims=(2,),
 )
