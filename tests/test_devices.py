@@ -28,7 +28,7 @@ F64 = torch.float64
 # validity check) and the keyframe times' order; on meta there are none to read.  The heads
 # build their layer on the CPU (a head on meta is tested below); the factories take device=
 # (below).
-_CHECKED = ("torchlie.SO3", "torchlie.SE3")
+_CHECKED = ("torchlie.SO3", "torchlie.SE3", "torchlie.Sim3")
 
 
 def _kept(name: str, call) -> bool:
@@ -79,7 +79,7 @@ def test_the_sweep_leaves_out_only_value_checks_heads_and_factories():
         n.endswith((".identity", ".random"))
         or "keyframes" in n
         or n in ("torchlie.nn.RotationHead", "torchlie.nn.PoseHead", "torchlie.SO3", "torchlie.SE3")
-        or n.startswith(("torchlie.SO3.from_", "torchlie.SE3.from_"))
+        or n.startswith(("torchlie.SO3.from_", "torchlie.SE3.from_", "torchlie.Sim3.from_"))
         for n in left
     ), sorted(left)
 

@@ -442,6 +442,9 @@ case("sim3.from_srt", sim3.from_srt, (ambient(), SCALES), R_, (ambient(3), TRANS
 case("sim3.to_srt", sim3.to_srt, SIM_)
 case("sim3.from_se3", sim3.from_se3, P_, (ambient(), SCALES))
 case("sim3.scale", sim3.scale, SIM_)
+_PQS = torch.cat((POS_QUATS, SCALES.repeat(len(POS_QUATS) // 3 + 1)[: len(POS_QUATS), None]), -1)
+case("sim3.from_pos_quat_scale", sim3.from_pos_quat_scale, (ambient(8), _PQS))
+case("sim3.to_pos_quat_scale", sim3.to_pos_quat_scale, SIM_)
 for _kind in ("angle", "chordal"):
     case(
         f"nn.sim3_geodesic_loss[{_kind}]",
@@ -746,6 +749,8 @@ case("SE2.xytheta", lambda T: SE2(T).xytheta(), (POSE2, POSES2))
 case("Sim3.from_srt", Sim3.from_srt, (ambient(), SCALES), R_, (ambient(3), TRANSLATIONS))
 case("Sim3.from_se3", Sim3.from_se3, P_, (ambient(), SCALES))
 case("Sim3.to_srt", lambda T: Sim3(T).to_srt(), SIM_)
+case("Sim3.from_pos_quat_scale", Sim3.from_pos_quat_scale, (ambient(8), _PQS))
+case("Sim3.pos_quat_scale", lambda T: Sim3(T).pos_quat_scale(), SIM_)
 case("Sim3.pose", lambda T: Sim3(T).pose(), SIM_)
 case("Sim3.scale", lambda T: Sim3(T).scale, SIM_)
 case("Sim3.translation", lambda T: Sim3(T).translation, SIM_)

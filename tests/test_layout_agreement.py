@@ -69,6 +69,13 @@ KINDS: dict[str, Callable[[int, torch.Generator], torch.Tensor]] = {
     "r6": lambda n, g: torch.randn(n, 6, generator=g, dtype=torch.float64),
     "r9": lambda n, g: torch.randn(n, 9, generator=g, dtype=torch.float64),
     "pos_quat": lambda n, g: torch.randn(n, 7, generator=g, dtype=torch.float64),
+    "pos_quat_scale": lambda n, g: torch.cat(
+        (
+            torch.randn(n, 7, generator=g, dtype=torch.float64),
+            torch.rand(n, 1, generator=g, dtype=torch.float64) * 3.0 + 0.1,
+        ),
+        -1,
+    ),
     "su2": lambda n, g: quaternion.to_su2(torch.randn(n, 4, generator=g, dtype=torch.float64)),
     "Rset": lambda n, g: so3.exp(0.5 * torch.randn(n, 3, 3, generator=g, dtype=torch.float64)),
     "Tset": lambda n, g: se3.exp(0.5 * torch.randn(n, 3, 6, generator=g, dtype=torch.float64)),
@@ -347,6 +354,8 @@ OPS += [
     ("sim3.to_srt", sim3.to_srt, ("S",)),
     ("sim3.from_se3", sim3.from_se3, ("T", "positive")),
     ("sim3.scale", sim3.scale, ("S",)),
+    ("sim3.from_pos_quat_scale", sim3.from_pos_quat_scale, ("pos_quat_scale",)),
+    ("sim3.to_pos_quat_scale", sim3.to_pos_quat_scale, ("S",)),
     ("statistics.so2_mean.chordal", lambda R: statistics.so2_mean(R, method="chordal"),
      ("R2set",)),
     ("statistics.so2_mean.geodesic", lambda R, w: statistics.so2_mean(R, w, iterations=3),

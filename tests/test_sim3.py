@@ -17,7 +17,7 @@ import torch
 from agreement import assert_agree
 from torch.autograd import gradcheck, gradgradcheck
 
-from torchlie import _coeffs, se3, sim3, so3
+from torchlie import Sim3, _coeffs, quaternion, se3, sim3, so3
 
 F64 = torch.float64
 PI = math.pi
@@ -534,6 +534,35 @@ def test_converters(dtype):
     assert sim3.from_srt(s[0], R, t).shape == (6, 4, 4)
 
 
+def test_pos_quat_scale(dtype):
+    """``(t, q, s)`` 8-vectors: the similarity of ``from_srt(s, to_matrix(q), t)`` for any
+    nonzero ``q``; back to the canonical unit quaternion (``w >= 0``); a zero quaternion spoils
+    only its element's linear block."""
+    g = torch.Generator().manual_seed(5)
+    t = torch.randn(7, 3, generator=g, dtype=dtype)
+    q = torch.randn(7, 4, generator=g, dtype=dtype) * 3.0
+    s = torch.rand(7, generator=g, dtype=dtype) * 4.0 + 0.1
+    x = torch.cat((t, q, s[:, None]), -1)
+    T = sim3.from_pos_quat_scale(x)
+    eps = torch.finfo(dtype).eps
+    tol = {"rtol": 8 * eps, "atol": 8 * eps}
+    torch.testing.assert_close(T, sim3.from_srt(s, quaternion.to_matrix(q), t), **tol)
+    y = sim3.to_pos_quat_scale(T)
+    unit = quaternion.canonicalize(q / q.norm(dim=-1, keepdim=True))
+    torch.testing.assert_close(y, torch.cat((t, unit, s[:, None]), -1), **tol)
+    X = Sim3.from_pos_quat_scale(torch.cat((t, unit, s[:, None]), -1), check=True)
+    assert torch.equal(X.pos_quat_scale(), sim3.to_pos_quat_scale(X.tensor))
+    x[2, 3:7] = 0.0
+    T0 = sim3.from_pos_quat_scale(x)
+    assert T0[2, :3, :3].isnan().all() and torch.equal(T0[2, :3, 3], t[2])
+    assert torch.equal(T0[[0, 1, 3, 4, 5, 6]], T[[0, 1, 3, 4, 5, 6]])
+    with pytest.raises(ValueError, match=r"torchlie\.Sim3\.from_pos_quat_scale: .* unit quat"):
+        Sim3.from_pos_quat_scale(x, check=True)
+    one = torch.tensor([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0], dtype=dtype)
+    with pytest.raises(ValueError, match=r"torchlie\.Sim3\.from_pos_quat_scale: .* positive"):
+        Sim3.from_pos_quat_scale(one, check=True)
+
+
 def test_is_valid_per_element():
     T = sim3.identity(5, dtype=F64)
     T[1, 3, 0] = 1.0  # bottom row
@@ -755,10 +784,10 @@ def test_against_pypose_sim3():
     T = sim3.exp(xi)
     ours = pp.sim3(xi).Exp()
     s, R, t = sim3.to_srt(T)
-    from torchlie import quaternion
-
     q = quaternion.to_xyzw(quaternion.from_matrix(R))
     theirs = ours.tensor()
+    x = torch.cat((theirs[:, :3], quaternion.from_xyzw(theirs[:, 3:7]), theirs[:, 7:]), -1)
+    torch.testing.assert_close(sim3.from_pos_quat_scale(x), T, rtol=1e-10, atol=1e-10)
     torch.testing.assert_close(theirs[:, :3], t, rtol=1e-10, atol=1e-10)
     # quaternions up to sign
     sign = torch.sign((theirs[:, 3:7] * q).sum(-1, keepdim=True))
@@ -776,7 +805,7 @@ def test_against_pypose_sim3():
 
 
 def test_sim3_class_accessors_and_converters(batch):
-    from torchlie import SE3, SO3, Sim3, quaternion
+    from torchlie import SE3, SO3
 
     g = torch.Generator().manual_seed(8)
     s = torch.rand(tuple(batch), generator=g, dtype=F64) + 0.5
@@ -810,7 +839,7 @@ def test_sim3_class_accessors_and_converters(batch):
 
 
 def test_align_with_scale_gives_the_similarity():
-    from torchlie import Sim3, statistics
+    from torchlie import statistics
 
     g = torch.Generator().manual_seed(12)
     T = sim3.random(3, generator=g, dtype=F64)

@@ -922,6 +922,41 @@ class Sim3(_Group):
             _check_valid("torchlie.Sim3.from_se3", s > 0, "positive scales")
         return S
 
+    @classmethod
+    @_as_method("from_pos_quat_scale")
+    def from_pos_quat_scale(
+        cls, x: Float[Tensor, "*b 8"], *, check: bool = False, atol: float | None = None
+    ) -> Sim3:
+        """From 8-vectors ``(tx, ty, tz, qw, qx, qy, qz, s)``
+        (:func:`torchlie.sim3.from_pos_quat_scale`).
+
+        With ``check=True``, raises ``ValueError`` unless every quaternion has unit norm
+        within ``atol`` (:func:`torchlie.quaternion.is_unit`) and every ``s`` is positive.
+
+        Example:
+            >>> x = torch.tensor([1.0, 2.0, 3.0, 1.0, 0.0, 0.0, 0.0, 2.0])
+            >>> Sim3.from_pos_quat_scale(x).scale
+            tensor(2.)
+        """
+        _check_atol("torchlie.Sim3.from_pos_quat_scale", atol)
+        S = cls._wrap(_sim3.from_pos_quat_scale(x))
+        if check:
+            name = "torchlie.Sim3.from_pos_quat_scale"
+            _check_valid(name, _quat.is_unit(x[..., 3:7], atol=atol), "unit quaternions")
+            _check_valid(name, x[..., 7] > 0, "positive scales")
+        return S
+
+    @_as_method("pos_quat_scale")
+    def pos_quat_scale(self) -> Float[Tensor, "*b 8"]:
+        """8-vectors ``(t, q, s)``: translation, the canonical wxyz quaternion, the scale
+        (:func:`torchlie.sim3.to_pos_quat_scale`).
+
+        Example:
+            >>> Sim3.identity().pos_quat_scale()
+            tensor([0., 0., 0., 1., 0., 0., 0., 1.])
+        """
+        return _sim3.to_pos_quat_scale(self.tensor)
+
     @_as_method("to_srt")
     def to_srt(
         self,

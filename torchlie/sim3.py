@@ -61,6 +61,8 @@ __all__ = [
     "from_srt",
     "to_srt",
     "from_se3",
+    "from_pos_quat_scale",
+    "to_pos_quat_scale",
     "scale",
     "interpolate",
     "distance",
@@ -884,6 +886,45 @@ def from_se3(T: Float[Tensor, "*b1 4 4"], s: Float[Tensor, "*b2"]) -> Float[Tens
     batch = _checks.batch_broadcast(fn, (x.shape[:-2], "T"), (k.shape, "s"))
     M = (k[..., None, None] * _lin(x)).expand(*batch, 3, 3)
     return _checks.out(_components.homogeneous(M, _trans(x).expand(*batch, 3)), dtype)
+
+
+@_checks.float32_exact
+def from_pos_quat_scale(x: Float[Tensor, "*b 8"]) -> Float[Tensor, "*b 4 4"]:
+    """Similarity from an 8-vector ``(tx, ty, tz, qw, qx, qy, qz, s)``: translation, a wxyz
+    quaternion and the scale (:func:`torchlie.se3.from_pos_quat` with the scale appended;
+    PyPose's ``Sim3`` holds the same numbers with the quaternion in xyzw order).
+
+    ``[[s R, t], [0, 1]]`` with ``R`` the rotation of ``q / |q|`` (as
+    :func:`torchlie.quaternion.to_matrix`; a zero quaternion gives a NaN linear block for that
+    element, its translation as given).  The scale is taken as it is (see
+    :meth:`torchlie.Sim3.from_pos_quat_scale` for a check that it is positive).
+
+    Example:
+        >>> from_pos_quat_scale(torch.tensor([1.0, 2.0, 3.0, 1.0, 0.0, 0.0, 0.0, 2.0]))[:3]
+        tensor([[2., 0., 0., 1.],
+                [0., 2., 0., 2.],
+                [0., 0., 2., 3.]])
+    """
+    v, dtype = _checks.tensor(x, _NAME + "from_pos_quat_scale", "x", (8,))
+    M = v[..., 7, None, None] * _rotation_matrix.from_quaternion(v[..., 3:7])
+    return _checks.out(_components.homogeneous(M, v[..., :3]), dtype)
+
+
+@_checks.float32_exact
+def to_pos_quat_scale(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 8"]:
+    """8-vector ``(t, q, s)`` of a similarity: translation, the canonical wxyz unit quaternion
+    of its rotation (:func:`torchlie.quaternion.from_matrix`, ``w >= 0``) and its scale
+    (:func:`scale`).
+
+    Example:
+        >>> x = torch.tensor([1.0, 2.0, 3.0, 0.0, 1.0, 0.0, 0.0, 0.5])
+        >>> to_pos_quat_scale(from_pos_quat_scale(x))
+        tensor([1.0000, 2.0000, 3.0000, 0.0000, 1.0000, 0.0000, 0.0000, 0.5000])
+    """
+    x, dtype = _checks.tensor(T, _NAME + "to_pos_quat_scale", "T", (4, 4))
+    s = _scale(_lin(x))[0]
+    q = _rotation_matrix.to_quaternion(_lin(x) / s[..., None, None])
+    return _checks.out(torch.cat((_trans(x), q, s[..., None]), dim=-1), dtype)
 
 
 @_checks.float32_exact
