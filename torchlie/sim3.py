@@ -493,8 +493,8 @@ def _log_forward(T: Tensor) -> Tensor:
 # V drho + d(V rho)/d(phi, sigma) (dphi, dsigma), so
 #     Jr(xi) = [[M^-1 V, M^-1 d(V rho)/dphi, M^-1 d(V rho)/dsigma], [0, so3 Jr(phi), 0], [0, 0, 1]]
 # and Jr^-1 and Jr^-T need V^-1 (closed form), so3's Jl^-1 and one product with the derivative
-# of V rho (_vrho_partials, as in the Jacobians; differentiable, so double backward
-# differentiates the same formula).
+# of V rho (_vrho_vjp and _vrho_jvp, from the coefficients' partials the Jacobians use;
+# differentiable, so double backward differentiates the same formula).
 
 
 def _log_backward(saved: tuple[Tensor, ...], g: Tensor) -> tuple[Tensor]:
