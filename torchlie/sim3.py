@@ -429,7 +429,7 @@ def _jl(xi: Tensor, inverse: bool = False) -> Tensor:
         phi, lam, big, u = _huge(phi)
     t2 = _coeffs.theta2(phi)
     parts = _coeffs.sim3_v_partials(sigma, t2, xi.dtype)
-    A, B, C, As, Bs, Cs, Bt, Ct = parts
+    A, B, C, As, Bs, Cs = parts[:6]  # B_t, C_t enter through _vrho_jvp
     Aw, Bw, Cw = As - A, Bs - B, Cs - C  # -E2(z)'s: they cancel by about sigma, see below
     d = _vrho(rho.unbind(-1), phi.unbind(-1), parts)
     e = torch.eye(3, dtype=xi.dtype, device=xi.device).unbind(-1)  # d(V rho)/dphi by columns
@@ -866,9 +866,14 @@ def to_srt(
         tensor(2.)
     """
     x, dtype = _checks.tensor(T, _NAME + "to_srt", "T", (4, 4))
-    s = _scale(_lin(x))[0]
-    R = _lin(x) / s[..., None, None]
+    s, R = _scale_rotation(x)
     return _checks.out(s, dtype), _checks.out(R, dtype), _checks.out(_trans(x).clone(), dtype)
+
+
+def _scale_rotation(T: Tensor) -> tuple[Tensor, Tensor]:
+    """``(s, R)`` of ``T = [[s R, t], [0, 1]]`` (:func:`to_srt`)."""
+    s = _scale(_lin(T))[0]
+    return s, _lin(T) / s[..., None, None]
 
 
 @_checks.float32_exact
@@ -922,8 +927,8 @@ def to_pos_quat_scale(T: Float[Tensor, "*b 4 4"]) -> Float[Tensor, "*b 8"]:
         tensor([1.0000, 2.0000, 3.0000, 0.0000, 1.0000, 0.0000, 0.0000, 0.5000])
     """
     x, dtype = _checks.tensor(T, _NAME + "to_pos_quat_scale", "T", (4, 4))
-    s = _scale(_lin(x))[0]
-    q = _rotation_matrix.to_quaternion(_lin(x) / s[..., None, None])
+    s, R = _scale_rotation(x)
+    q = _rotation_matrix.to_quaternion(R)
     return _checks.out(torch.cat((_trans(x), q, s[..., None]), dim=-1), dtype)
 
 
